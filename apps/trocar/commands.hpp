@@ -1,0 +1,12 @@
+#pragma once
+/// @file
+/// Subcommands of the `trocar` executable; each registers itself on the top-level app.
+
+#include <CLI/CLI.hpp>
+
+namespace trocar::apps {
+
+/// `trocar robot info FILE`, `trocar robot fk FILE q1 … qn`.
+void AddRobotCommand(CLI::App* app);
+
+}  // namespace trocar::apps

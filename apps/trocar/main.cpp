@@ -1,0 +1,25 @@
+// trocar: port placement and surgeon verification for robot-assisted minimally invasive surgery.
+#include <iostream>
+
+#include <CLI/CLI.hpp>
+
+#include "apps/trocar/commands.hpp"
+#include "common/error.hpp"
+
+int main(int argc, char** argv) {
+  CLI::App app{"trocar: plans ports and robot placement for robotic minimally invasive surgery"};
+  app.require_subcommand(1);
+  trocar::apps::AddRobotCommand(&app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const trocar::Error& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return 1;
+  } catch (const std::exception& e) {
+    std::cerr << "internal error: " << e.what() << "\n";
+    return 2;
+  }
+  return 0;
+}

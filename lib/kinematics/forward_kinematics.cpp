@@ -1,0 +1,177 @@
+#include "kinematics/forward_kinematics.hpp"
+
+#include <cmath>
+#include <optional>
+#include <sstream>
+
+#include "common/error.hpp"
+#include "kinematics/four_bar.hpp"
+
+namespace trocar::kinematics {
+
+using robot::Joint;
+using robot::JointDrive;
+using robot::JointType;
+using robot::RobotModel;
+using robot::RobotState;
+
+namespace {
+
+// Resolves mimic and closure joints from the active/held values already in `state`.
+ConfigurationResult ResolvePassive(const RobotModel& model, RobotState* state) {
+  Eigen::VectorXd& values = state->joint_values;
+  Eigen::MatrixXd& grad = state->dvalues_dq;
+  for (int step : model.resolve_order()) {
+    if (step >= 0) {
+      const Joint& joint = model.joint(step);
+      const Joint& master = model.joint(joint.mimic.master);
+      values[joint.dof_index] = joint.mimic.multiplier * values[master.dof_index] +
+                                joint.mimic.offset;
+      grad.row(joint.dof_index) = joint.mimic.multiplier * grad.row(master.dof_index);
+      continue;
+    }
+    const int ci = -1 - step;
+    const robot::FourBarClosure& c = model.closures()[ci];
+    const int d = model.joint(c.driver).dof_index;
+    const int cp = model.joint(c.coupler).dof_index;
+    const int rk = model.joint(c.rocker).dof_index;
+    // Continue from where this loop was last closed, so no change point is jumped over.
+    const double previous_driver = state->closure_drivers[ci];
+    const FourBarSolution s =
+        SolveFourBar(model, c, values[d], previous_driver, values[cp], values[rk]);
+    if (!s.ok) return ConfigurationResult{false, s.message, ci};
+    values[cp] = s.coupler;
+    values[rk] = s.rocker;
+    grad.row(cp) = s.dcoupler_ddriver * grad.row(d);
+    grad.row(rk) = s.drocker_ddriver * grad.row(d);
+    state->closure_drivers[ci] = values[d];
+  }
+  return {};
+}
+
+// Runs ResolvePassive, restoring the state when a closure refuses.
+ConfigurationResult ResolveOrRestore(const RobotModel& model, RobotState* state,
+                                     const RobotState* backup) {
+  ConfigurationResult result = ResolvePassive(model, state);
+  if (!result.ok && backup != nullptr) *state = *backup;
+  return result;
+}
+
+}  // namespace
+
+ConfigurationResult SetConfiguration(const RobotModel& model, const Eigen::VectorXd& q,
+                                     RobotState* state) {
+  TROCAR_THROW_UNLESS(q.size() == model.num_positions(),
+                      "robot '" << model.name() << "': configuration has " << q.size()
+                                << " values, expected " << model.num_positions());
+  for (int i = 0; i < q.size(); ++i) {
+    TROCAR_THROW_UNLESS(std::isfinite(q[i]),
+                        "robot '" << model.name() << "': configuration value " << i
+                                  << " (joint '" << model.joint(model.active_joints()[i]).name
+                                  << "') is " << q[i] << ", expected a finite number");
+  }
+  // Only closures can refuse; keep a copy to undo the step only when there are some.
+  std::optional<RobotState> backup;
+  if (!model.closures().empty()) backup = *state;
+  state->q = q;
+  for (int i = 0; i < q.size(); ++i) {
+    const Joint& joint = model.joint(model.active_joints()[i]);
+    state->joint_values[joint.dof_index] = q[i];
+  }
+  return ResolveOrRestore(model, state, backup ? &*backup : nullptr);
+}
+
+ConfigurationResult SetHeldJoint(const RobotModel& model, const std::string& name, double value,
+                                 RobotState* state) {
+  const Joint& joint = model.joint(model.GetJoint(name));
+  TROCAR_THROW_UNLESS(joint.drive == JointDrive::kHeld,
+                      "robot '" << model.name() << "': joint '" << name << "' is "
+                                << robot::ToString(joint.drive) << ", not held");
+  TROCAR_THROW_UNLESS(std::isfinite(value), "robot '" << model.name() << "': joint '" << name
+                                                      << "' value " << value
+                                                      << " is not finite");
+  TROCAR_THROW_UNLESS(value >= joint.limits.lower && value <= joint.limits.upper,
+                      "robot '" << model.name() << "': joint '" << name << "' value " << value
+                                << " is outside its limits [" << joint.limits.lower << ", "
+                                << joint.limits.upper << "]");
+  RobotState backup = *state;
+  state->joint_values[joint.dof_index] = value;
+  return ResolveOrRestore(model, state, &backup);
+}
+
+void ForwardKinematics(const RobotModel& model, RobotState* state) {
+  std::vector<Eigen::Isometry3d>& X_WL = state->X_WL;
+  X_WL[0] = state->X_WB;
+  for (const Joint& joint : model.joints()) {
+    const Eigen::Isometry3d& X_WP = X_WL[joint.parent_link];
+    Eigen::Isometry3d& X_WC = X_WL[joint.child_link];
+    switch (joint.type) {
+      case JointType::kFixed:
+        X_WC = X_WP * joint.X_PJ;
+        break;
+      case JointType::kRevolute: {
+        const double value = state->joint_values[joint.dof_index];
+        const double c = std::cos(value), s = std::sin(value);
+        const Eigen::Matrix3d& R_PJ = joint.X_PJ.linear();
+        Eigen::Matrix3d R_PC;
+        if (joint.axis_J.z() == 1.0) {  // the common case (DH, most URDFs): no Rodrigues
+          R_PC.col(0) = c * R_PJ.col(0) + s * R_PJ.col(1);
+          R_PC.col(1) = c * R_PJ.col(1) - s * R_PJ.col(0);
+          R_PC.col(2) = R_PJ.col(2);
+        } else {
+          const Eigen::Vector3d& a = joint.axis_J;
+          Eigen::Matrix3d K;
+          K << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
+          R_PC = R_PJ * (Eigen::Matrix3d::Identity() + s * K + (1.0 - c) * (K * K));
+        }
+        X_WC.linear().noalias() = X_WP.linear() * R_PC;
+        X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
+        X_WC.translation() += X_WP.translation();
+        break;
+      }
+      case JointType::kPrismatic: {
+        const double value = state->joint_values[joint.dof_index];
+        X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
+        X_WC.translation().noalias() = X_WC.linear() * (value * joint.axis_J);
+        X_WC.translation() += X_WP * joint.X_PJ.translation();
+        break;
+      }
+    }
+  }
+}
+
+ConfigurationResult ForwardKinematics(const RobotModel& model, const Eigen::VectorXd& q,
+                                      RobotState* state) {
+  ConfigurationResult result = SetConfiguration(model, q, state);
+  if (result.ok) ForwardKinematics(model, state);
+  return result;
+}
+
+Eigen::Isometry3d FramePose(const RobotState& state, const robot::Frame& frame) {
+  return state.X_WL[frame.link] * frame.X_LF;
+}
+
+Eigen::Isometry3d KinematicFramePose(const RobotModel& model, const RobotState& state,
+                                     int link) {
+  return state.X_WL.at(link) * model.link(link).X_LK;
+}
+
+Eigen::Isometry3d ToolPoseInBase(const RobotModel& model, const RobotState& state) {
+  return state.X_WL[model.base_link()].inverse() * FramePose(state, model.tool_frame());
+}
+
+std::vector<std::string> LimitViolations(const RobotModel& model, const Eigen::VectorXd& q) {
+  std::vector<std::string> out;
+  for (int i = 0; i < model.num_positions() && i < q.size(); ++i) {
+    const Joint& joint = model.joint(model.active_joints()[i]);
+    if (q[i] < joint.limits.lower || q[i] > joint.limits.upper) {
+      std::ostringstream msg;
+      msg << "joint '" << joint.name << "' = " << q[i] << " outside [" << joint.limits.lower
+          << ", " << joint.limits.upper << "]";
+      out.push_back(msg.str());
+    }
+  }
+  return out;
+}
+
+}  // namespace trocar::kinematics

@@ -1,0 +1,57 @@
+#pragma once
+/// @file
+/// Configuration and forward kinematics: `(model, q) → state` (Pinocchio style). Every function
+/// reads the immutable model and writes only the caller's RobotState, so one state per thread
+/// makes them thread safe.
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "robot/robot_model.hpp"
+#include "robot/robot_state.hpp"
+
+namespace trocar::kinematics {
+
+/// Outcome of setting a configuration. A closure that cannot follow is an expected failure (a
+/// result, not an exception): the state is then left exactly as it was.
+struct ConfigurationResult {
+  bool ok = true;
+  std::string message;     ///< why, when !ok
+  int failed_closure = -1; ///< closure index, when !ok
+};
+
+/// Sets the active joints to `q`, then resolves mimic joints and closures (in the model's
+/// resolve order), also updating d joint_values / d q. Does not compute poses.
+/// @throws trocar::Error when q has the wrong size or a non-finite entry (naming the joint).
+ConfigurationResult SetConfiguration(const robot::RobotModel& model, const Eigen::VectorXd& q,
+                                     robot::RobotState* state);
+
+/// Sets a held (passive, set-before-use) joint and re-resolves the joints that depend on it.
+/// @throws trocar::Error when the joint is unknown, not held, the value is not finite or is
+///         outside the joint's limits.
+ConfigurationResult SetHeldJoint(const robot::RobotModel& model, const std::string& joint,
+                                 double value, robot::RobotState* state);
+
+/// Link poses X_WL from state->joint_values and state->X_WB.
+void ForwardKinematics(const robot::RobotModel& model, robot::RobotState* state);
+
+/// SetConfiguration followed, when it succeeds, by ForwardKinematics.
+ConfigurationResult ForwardKinematics(const robot::RobotModel& model, const Eigen::VectorXd& q,
+                                      robot::RobotState* state);
+
+/// Pose of a named frame (after ForwardKinematics).
+Eigen::Isometry3d FramePose(const robot::RobotState& state, const robot::Frame& frame);
+/// Pose of a link's kinematic frame K (thesis §2.4.2) in the world.
+Eigen::Isometry3d KinematicFramePose(const robot::RobotModel& model,
+                                     const robot::RobotState& state, int link);
+/// Tool pose relative to the robot's base link: X_BT.
+Eigen::Isometry3d ToolPoseInBase(const robot::RobotModel& model, const robot::RobotState& state);
+
+/// One entry per active joint whose value in q is outside its position limits, e.g.
+/// "joint 'S2' = 2.1 outside [-1.59, 1.59]". Empty when q is within limits.
+std::vector<std::string> LimitViolations(const robot::RobotModel& model,
+                                         const Eigen::VectorXd& q);
+
+}  // namespace trocar::kinematics

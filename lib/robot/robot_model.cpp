@@ -1,0 +1,647 @@
+#include "robot/robot_model.hpp"
+
+#include <cmath>
+#include <functional>
+#include <map>
+#include <set>
+
+#include "common/error.hpp"
+#include "common/geometry.hpp"
+#include "robot/robot_state.hpp"
+
+namespace trocar::robot {
+
+const char* ToString(JointType type) {
+  switch (type) {
+    case JointType::kFixed: return "fixed";
+    case JointType::kRevolute: return "revolute";
+    case JointType::kPrismatic: return "prismatic";
+  }
+  return "?";
+}
+
+const char* ToString(JointDrive drive) {
+  switch (drive) {
+    case JointDrive::kActive: return "active";
+    case JointDrive::kHeld: return "held";
+    case JointDrive::kMimic: return "mimic";
+    case JointDrive::kClosure: return "closure";
+  }
+  return "?";
+}
+
+const char* ToString(Geometry::Shape shape) {
+  switch (shape) {
+    case Geometry::Shape::kMesh: return "mesh";
+    case Geometry::Shape::kBox: return "box";
+    case Geometry::Shape::kCylinder: return "cylinder";
+    case Geometry::Shape::kSphere: return "sphere";
+    case Geometry::Shape::kCapsule: return "capsule";
+  }
+  return "?";
+}
+
+// ---------------------------------------------------------------------------------------------
+// RobotModel
+
+namespace {
+
+template <typename T>
+int FindByName(const std::vector<T>& items, const std::string& name) {
+  for (std::size_t i = 0; i < items.size(); ++i) {
+    if (items[i].name == name) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+template <typename T>
+std::string NameList(const std::vector<T>& items) {
+  std::string out;
+  for (const auto& item : items) out += (out.empty() ? "" : ", ") + item.name;
+  return out;
+}
+
+}  // namespace
+
+int RobotModel::FindLink(const std::string& name) const { return FindByName(links_, name); }
+int RobotModel::FindJoint(const std::string& name) const { return FindByName(joints_, name); }
+
+int RobotModel::GetLink(const std::string& name) const {
+  const int index = FindLink(name);
+  TROCAR_THROW_UNLESS(index >= 0, source_ << ": robot '" << name_ << "' has no link '" << name
+                                          << "' (links: " << NameList(links_) << ")");
+  return index;
+}
+
+int RobotModel::GetJoint(const std::string& name) const {
+  const int index = FindJoint(name);
+  TROCAR_THROW_UNLESS(index >= 0, source_ << ": robot '" << name_ << "' has no joint '" << name
+                                          << "' (joints: " << NameList(joints_) << ")");
+  return index;
+}
+
+const Frame& RobotModel::GetFrame(const std::string& name) const {
+  const int index = FindByName(frames_, name);
+  TROCAR_THROW_UNLESS(index >= 0, source_ << ": robot '" << name_ << "' has no frame '" << name
+                                          << "' (frames: " << NameList(frames_) << ")");
+  return frames_[index];
+}
+
+Eigen::VectorXd RobotModel::lower_limits() const {
+  Eigen::VectorXd v(num_positions());
+  for (int i = 0; i < num_positions(); ++i) v[i] = joints_[active_joints_[i]].limits.lower;
+  return v;
+}
+
+Eigen::VectorXd RobotModel::upper_limits() const {
+  Eigen::VectorXd v(num_positions());
+  for (int i = 0; i < num_positions(); ++i) v[i] = joints_[active_joints_[i]].limits.upper;
+  return v;
+}
+
+Eigen::VectorXd RobotModel::velocity_limits() const {
+  Eigen::VectorXd v(num_positions());
+  for (int i = 0; i < num_positions(); ++i) v[i] = joints_[active_joints_[i]].limits.velocity;
+  return v;
+}
+
+Eigen::VectorXd RobotModel::acceleration_limits() const {
+  Eigen::VectorXd v(num_positions());
+  for (int i = 0; i < num_positions(); ++i) {
+    v[i] = joints_[active_joints_[i]].limits.acceleration;
+  }
+  return v;
+}
+
+namespace {
+double NeutralValue(const JointLimits& limits) {
+  if (limits.lower <= 0.0 && 0.0 <= limits.upper) return 0.0;
+  return 0.5 * (limits.lower + limits.upper);
+}
+}  // namespace
+
+Eigen::VectorXd RobotModel::neutral_configuration() const {
+  Eigen::VectorXd q(num_positions());
+  for (int i = 0; i < num_positions(); ++i) q[i] = NeutralValue(joints_[active_joints_[i]].limits);
+  return q;
+}
+
+RobotState::RobotState(const RobotModel& model)
+    : q(model.neutral_configuration()),
+      joint_values(Eigen::VectorXd::Zero(model.num_dofs())),
+      dvalues_dq(Eigen::MatrixXd::Zero(model.num_dofs(), model.num_positions())),
+      X_WL(model.num_links(), Eigen::Isometry3d::Identity()),
+      closure_drivers(Eigen::VectorXd::Zero(static_cast<int>(model.closures().size()))) {
+  for (const Joint& joint : model.joints()) {
+    if (!joint.movable()) continue;
+    if (joint.drive == JointDrive::kActive) {
+      joint_values[joint.dof_index] = q[joint.q_index];
+      dvalues_dq(joint.dof_index, joint.q_index) = 1.0;
+    } else if (joint.drive == JointDrive::kHeld) {
+      joint_values[joint.dof_index] = NeutralValue(joint.limits);
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// RobotModelBuilder
+
+RobotModelBuilder::RobotModelBuilder(std::string name, std::string source)
+    : name_(std::move(name)), source_(std::move(source)) {}
+
+RobotModelBuilder::LinkSpec& RobotModelBuilder::AddLink(const std::string& name) {
+  TROCAR_THROW_UNLESS(!name.empty(), source_ << ": a link has an empty name");
+  TROCAR_THROW_UNLESS(FindLink(name) == nullptr,
+                      source_ << ": link '" << name << "' is defined twice");
+  links_.push_back(LinkSpec{name, {}, {}});
+  return links_.back();
+}
+
+RobotModelBuilder::JointSpec& RobotModelBuilder::AddJoint(const std::string& name) {
+  TROCAR_THROW_UNLESS(!name.empty(), source_ << ": a joint has an empty name");
+  TROCAR_THROW_UNLESS(FindJoint(name) == nullptr,
+                      source_ << ": joint '" << name << "' is defined twice");
+  joints_.emplace_back();
+  joints_.back().name = name;
+  return joints_.back();
+}
+
+RobotModelBuilder::LinkSpec* RobotModelBuilder::FindLink(const std::string& name) {
+  for (auto& link : links_) {
+    if (link.name == name) return &link;
+  }
+  return nullptr;
+}
+
+RobotModelBuilder::JointSpec* RobotModelBuilder::FindJoint(const std::string& name) {
+  for (auto& joint : joints_) {
+    if (joint.name == name) return &joint;
+  }
+  return nullptr;
+}
+
+RobotModelBuilder::LinkSpec& RobotModelBuilder::GetLink(const std::string& name) {
+  LinkSpec* link = FindLink(name);
+  TROCAR_THROW_UNLESS(link != nullptr, source_ << ": no link named '" << name << "' (links: "
+                                               << NameList(links_) << ")");
+  return *link;
+}
+
+RobotModelBuilder::JointSpec& RobotModelBuilder::GetJoint(const std::string& name) {
+  JointSpec* joint = FindJoint(name);
+  TROCAR_THROW_UNLESS(joint != nullptr, source_ << ": no joint named '" << name << "' (joints: "
+                                                << NameList(joints_) << ")");
+  return *joint;
+}
+
+namespace {
+
+constexpr double kParallelTolerance = 1e-6;  // sine of the largest accepted angle between axes
+constexpr double kAssemblyTolerance = 1e-6;  // metres
+
+void ValidateGeometry(const std::string& where, const Geometry& g) {
+  TROCAR_THROW_UNLESS(g.X_LG.matrix().allFinite(), where << ": pose is not finite");
+  TROCAR_THROW_UNLESS(g.rgba.allFinite(), where << ": colour is not finite");
+  switch (g.shape) {
+    case Geometry::Shape::kMesh:
+      TROCAR_THROW_UNLESS(!g.mesh_file.empty() || g.mesh != nullptr, where << ": mesh has no file");
+      return;
+    case Geometry::Shape::kBox:
+      TROCAR_THROW_UNLESS(g.size.allFinite() && (g.size.array() > 0).all(),
+                          where << ": box size " << FormatVector(g.size)
+                                << " must be three positive lengths");
+      return;
+    case Geometry::Shape::kSphere:
+      TROCAR_THROW_UNLESS(std::isfinite(g.size[0]) && g.size[0] > 0,
+                          where << ": sphere radius " << g.size[0] << " must be positive");
+      return;
+    case Geometry::Shape::kCylinder:
+    case Geometry::Shape::kCapsule:
+      TROCAR_THROW_UNLESS(std::isfinite(g.size[0]) && g.size[0] > 0 && std::isfinite(g.size[1]) &&
+                              g.size[1] >= 0,
+                          where << ": " << ToString(g.shape) << " radius " << g.size[0]
+                                << " and length " << g.size[1]
+                                << " must be positive (length may be 0 for a capsule)");
+      return;
+  }
+}
+
+void ValidateLimits(const std::string& where, const JointLimits& l) {
+  TROCAR_THROW_UNLESS(!std::isnan(l.lower) && !std::isnan(l.upper),
+                      where << ": position limit is NaN");
+  TROCAR_THROW_UNLESS(l.lower <= l.upper,
+                      where << ": lower limit " << l.lower << " > upper limit " << l.upper);
+  TROCAR_THROW_UNLESS(!std::isnan(l.velocity) && l.velocity > 0,
+                      where << ": velocity limit " << l.velocity << " must be positive");
+  TROCAR_THROW_UNLESS(!std::isnan(l.acceleration) && l.acceleration > 0,
+                      where << ": acceleration limit " << l.acceleration << " must be positive");
+  TROCAR_THROW_UNLESS(!std::isnan(l.effort) && l.effort >= 0,
+                      where << ": effort limit " << l.effort << " must not be negative");
+}
+
+// In-plane basis for unit normal n.
+void PlaneBasis(const Eigen::Vector3d& n, Eigen::Vector3d* u, Eigen::Vector3d* v) {
+  const Eigen::Vector3d helper =
+      std::abs(n.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  *u = (helper - helper.dot(n) * n).normalized();
+  *v = n.cross(*u);
+}
+
+double Cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+  return a.x() * b.y() - a.y() * b.x();
+}
+
+double Angle2(const Eigen::Vector2d& a) { return std::atan2(a.y(), a.x()); }
+
+// Kinematic frame from a point and axis pair (thesis §2.4.2), both in the link frame.
+Eigen::Isometry3d FrameFromAxis(const Eigen::Vector3d& origin, const Eigen::Vector3d& z_axis,
+                                const Eigen::Vector3d& x_hint) {
+  const Eigen::Vector3d z = z_axis.normalized();
+  Eigen::Vector3d x = x_hint - x_hint.dot(z) * z;
+  if (x.norm() < 1e-9) {
+    const Eigen::Vector3d fallback =
+        std::abs(z.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+    x = fallback - fallback.dot(z) * z;
+  }
+  x.normalize();
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear().col(0) = x;
+  X.linear().col(1) = z.cross(x);
+  X.linear().col(2) = z;
+  X.translation() = origin;
+  return X;
+}
+
+}  // namespace
+
+RobotModel RobotModelBuilder::Build() const {
+  RobotModel model;
+  model.name_ = name_;
+  model.source_ = source_;
+  const std::string& src = source_;
+  TROCAR_THROW_UNLESS(!links_.empty(), src << ": robot '" << name_ << "' has no links");
+
+  // --- Tree structure: each link has at most one parent joint; exactly one root.
+  std::map<std::string, int> link_spec_index;
+  for (std::size_t i = 0; i < links_.size(); ++i) link_spec_index[links_[i].name] = int(i);
+  std::map<std::string, int> parent_joint_of;  // child link name → joint spec index
+  std::vector<std::vector<int>> child_specs(links_.size());
+  for (std::size_t j = 0; j < joints_.size(); ++j) {
+    const JointSpec& js = joints_[j];
+    const std::string where = src + ": joint '" + js.name + "'";
+    TROCAR_THROW_UNLESS(link_spec_index.count(js.parent),
+                        where << ": parent link '" << js.parent << "' does not exist");
+    TROCAR_THROW_UNLESS(link_spec_index.count(js.child),
+                        where << ": child link '" << js.child << "' does not exist");
+    TROCAR_THROW_UNLESS(js.parent != js.child, where << ": connects link '" << js.parent
+                                                     << "' to itself");
+    TROCAR_THROW_UNLESS(!parent_joint_of.count(js.child),
+                        where << ": link '" << js.child << "' already has parent joint '"
+                              << joints_[parent_joint_of[js.child]].name
+                              << "' (a kinematic tree; close loops with a four-bar closure)");
+    parent_joint_of[js.child] = int(j);
+    child_specs[link_spec_index[js.parent]].push_back(int(j));
+    TROCAR_THROW_UNLESS(js.X_PJ.matrix().allFinite(), where << ": origin is not finite");
+    if (js.type != JointType::kFixed) {
+      TROCAR_THROW_UNLESS(js.axis.allFinite() && js.axis.norm() > 1e-12,
+                          where << ": axis " << FormatVector(js.axis)
+                                << " must be a finite non-zero vector");
+      ValidateLimits(where, js.limits);
+    }
+  }
+  std::vector<int> roots;
+  for (std::size_t i = 0; i < links_.size(); ++i) {
+    if (!parent_joint_of.count(links_[i].name)) roots.push_back(int(i));
+  }
+  if (roots.size() != 1) {
+    std::string names;
+    for (int r : roots) names += (names.empty() ? "" : ", ") + links_[r].name;
+    TROCAR_THROW(src << ": robot '" << name_ << "' must have exactly one root link, found "
+                     << roots.size() << (roots.empty() ? " (the joints form a loop)" : ": ")
+                     << names);
+  }
+
+  // --- Depth-first order of links and joints.
+  std::vector<int> link_order;        // spec indices
+  std::vector<int> joint_order;       // spec indices
+  std::function<void(int)> visit = [&](int link_spec) {
+    link_order.push_back(link_spec);
+    for (int j : child_specs[link_spec]) {
+      joint_order.push_back(j);
+      visit(link_spec_index[joints_[j].child]);
+    }
+  };
+  visit(roots[0]);
+  TROCAR_THROW_UNLESS(link_order.size() == links_.size(),
+                      src << ": some links are not connected to the root link '"
+                          << links_[roots[0]].name << "'");
+
+  std::map<std::string, int> link_index, joint_index;
+  for (int spec : link_order) {
+    Link link;
+    link.name = links_[spec].name;
+    link.visuals = links_[spec].visuals;
+    link.collisions = links_[spec].collisions;
+    for (std::size_t g = 0; g < link.visuals.size(); ++g) {
+      ValidateGeometry(src + ": link '" + link.name + "': visual " + std::to_string(g),
+                       link.visuals[g]);
+    }
+    for (std::size_t g = 0; g < link.collisions.size(); ++g) {
+      ValidateGeometry(src + ": link '" + link.name + "': collision " + std::to_string(g),
+                       link.collisions[g]);
+    }
+    link_index[link.name] = model.num_links();
+    model.links_.push_back(std::move(link));
+  }
+  for (int spec : joint_order) {
+    const JointSpec& js = joints_[spec];
+    Joint joint;
+    joint.name = js.name;
+    joint.type = js.type;
+    joint.parent_link = link_index[js.parent];
+    joint.child_link = link_index[js.child];
+    joint.X_PJ = js.X_PJ;
+    joint.X_PJ.linear() = Eigen::Quaterniond(js.X_PJ.linear()).normalized().toRotationMatrix();
+    joint.axis_J = js.type == JointType::kFixed ? Eigen::Vector3d::UnitZ() : js.axis.normalized();
+    joint.limits = js.limits;
+    const int index = model.num_joints();
+    joint_index[joint.name] = index;
+    model.links_[joint.parent_link].child_joints.push_back(index);
+    model.links_[joint.child_link].parent_joint = index;
+    if (joint.movable()) {
+      joint.dof_index = int(model.dof_joints_.size());
+      model.dof_joints_.push_back(index);
+    }
+    model.joints_.push_back(std::move(joint));
+  }
+
+  auto movable_joint = [&](const std::string& name, const std::string& role) -> int {
+    TROCAR_THROW_UNLESS(joint_index.count(name),
+                        src << ": " << role << ": no joint named '" << name << "'");
+    const int j = joint_index[name];
+    TROCAR_THROW_UNLESS(model.joints_[j].movable(),
+                        src << ": " << role << ": joint '" << name << "' is fixed");
+    return j;
+  };
+
+  // --- Drives: mimic, closure, held, active.
+  for (int spec : joint_order) {
+    const JointSpec& js = joints_[spec];
+    Joint& joint = model.joints_[joint_index[js.name]];
+    if (!joint.movable()) continue;
+    if (js.mimic_master) {
+      const std::string role = "joint '" + js.name + "' mimic";
+      joint.drive = JointDrive::kMimic;
+      joint.mimic.master = movable_joint(*js.mimic_master, role);
+      TROCAR_THROW_UNLESS(joint.mimic.master != joint_index[js.name],
+                          src << ": " << role << ": a joint cannot mimic itself");
+      TROCAR_THROW_UNLESS(std::isfinite(js.mimic_multiplier) && std::isfinite(js.mimic_offset),
+                          src << ": " << role << ": multiplier " << js.mimic_multiplier
+                              << " and offset " << js.mimic_offset << " must be finite");
+      joint.mimic.multiplier = js.mimic_multiplier;
+      joint.mimic.offset = js.mimic_offset;
+    } else if (js.held) {
+      joint.drive = JointDrive::kHeld;
+    }
+  }
+
+  const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+  for (const FourBarSpec& spec : four_bars_) {
+    const std::string where = src + ": closure '" + spec.name + "'";
+    FourBarClosure c;
+    c.name = spec.name;
+    c.driver = movable_joint(spec.driver, "closure '" + spec.name + "' driver");
+    c.coupler = movable_joint(spec.coupler, "closure '" + spec.name + "' coupler");
+    c.rocker = movable_joint(spec.rocker, "closure '" + spec.name + "' rocker");
+    const Joint& jd = model.joints_[c.driver];
+    Joint& jc = model.joints_[c.coupler];
+    Joint& jr = model.joints_[c.rocker];
+    for (const Joint* j : {&jd, static_cast<const Joint*>(&jc), static_cast<const Joint*>(&jr)}) {
+      TROCAR_THROW_UNLESS(j->type == JointType::kRevolute,
+                          where << ": joint '" << j->name << "' must be revolute, is "
+                                << ToString(j->type));
+    }
+    TROCAR_THROW_UNLESS(c.driver != c.coupler && c.driver != c.rocker && c.coupler != c.rocker,
+                        where << ": driver, coupler and rocker must be three different joints");
+    TROCAR_THROW_UNLESS(jd.parent_link == jr.parent_link,
+                        where << ": driver '" << jd.name << "' and rocker '" << jr.name
+                              << "' must hang from the same (ground) link, but hang from '"
+                              << model.links_[jd.parent_link].name << "' and '"
+                              << model.links_[jr.parent_link].name << "'");
+    TROCAR_THROW_UNLESS(jc.parent_link == jd.child_link,
+                        where << ": coupler '" << jc.name << "' must hang from the driver's link '"
+                              << model.links_[jd.child_link].name << "', hangs from '"
+                              << model.links_[jc.parent_link].name << "'");
+    for (Joint* j : {&jc, &jr}) {
+      TROCAR_THROW_UNLESS(j->drive != JointDrive::kMimic && j->drive != JointDrive::kClosure,
+                          where << ": joint '" << j->name << "' is already driven ("
+                                << ToString(j->drive) << ")");
+      j->drive = JointDrive::kClosure;
+      j->closure = int(model.closures_.size());
+    }
+    c.ground_link = jd.parent_link;
+    // Geometry in the ground frame G at the zero configuration.
+    const Eigen::Isometry3d& X_GJd = jd.X_PJ;
+    const Eigen::Isometry3d X_GC = X_GJd * jc.X_PJ;
+    const Eigen::Isometry3d& X_GJr = jr.X_PJ;
+    c.n_G = (X_GJd.linear() * jd.axis_J).normalized();
+    const Eigen::Vector3d a_c = X_GC.linear() * jc.axis_J;
+    const Eigen::Vector3d a_r = X_GJr.linear() * jr.axis_J;
+    for (const auto& [joint, axis] : {std::pair{&jc, a_c}, std::pair{&jr, a_r}}) {
+      const double sine = c.n_G.cross(axis).norm();
+      TROCAR_THROW_UNLESS(sine < kParallelTolerance,
+                          where << ": axis of joint '" << joint->name << "' is "
+                                << std::asin(std::min(1.0, sine)) * 180.0 / M_PI
+                                << " deg from the driver '" << jd.name
+                                << "' axis; a four-bar needs four parallel axes");
+    }
+    c.coupler_sign = a_c.dot(c.n_G) > 0 ? 1.0 : -1.0;
+    c.rocker_sign = a_r.dot(c.n_G) > 0 ? 1.0 : -1.0;
+    PlaneBasis(c.n_G, &c.u_G, &c.v_G);
+    auto proj = [&](const Eigen::Vector3d& p) { return Eigen::Vector2d(p.dot(c.u_G), p.dot(c.v_G)); };
+    const Eigen::Vector3d P3_G = X_GC * spec.p_C3;
+    c.p_C3 = spec.p_C3;
+    if (spec.p_B3) {
+      const double gap = (X_GJr * *spec.p_B3 - P3_G).norm();
+      TROCAR_THROW_UNLESS(gap < kAssemblyTolerance,
+                          where << ": not assembled at the zero configuration: the cut points on '"
+                                << model.links_[jc.child_link].name << "' and '"
+                                << model.links_[jr.child_link].name << "' are " << gap
+                                << " m apart");
+      c.p_B3 = *spec.p_B3;
+    } else {
+      c.p_B3 = X_GJr.inverse() * P3_G;
+    }
+    TROCAR_THROW_UNLESS(c.p_C3.allFinite() && c.p_B3.allFinite(),
+                        where << ": cut point is not finite");
+    c.P1 = proj(X_GJd.translation());
+    const Eigen::Vector2d P2 = proj(X_GC.translation());
+    c.c0 = P2 - c.P1;
+    c.P4 = proj(X_GJr.translation());
+    const Eigen::Vector2d P3 = proj(P3_G);
+    c.L23 = (P3 - P2).norm();
+    c.L34 = (P3 - c.P4).norm();
+    const double scale = std::max({c.L23, c.L34, c.c0.norm(), (c.P4 - c.P1).norm()});
+    TROCAR_THROW_UNLESS(c.L23 > 1e-9 && c.L34 > 1e-9 && c.c0.norm() > 1e-9,
+                        where << ": degenerate loop: crank " << c.c0.norm() << " m, coupler "
+                              << c.L23 << " m, rocker " << c.L34 << " m");
+    c.coupler_ref_angle = Angle2(P3 - P2);
+    c.rocker_ref_angle = Angle2(P3 - c.P4);
+    const double side = Cross2(c.P4 - P2, P3 - P2);
+    TROCAR_THROW_UNLESS(std::abs(side) > 1e-9 * scale * scale,
+                        where << ": the loop is at a change point (coupler and rocker aligned) in "
+                                 "the zero configuration; its branch is undefined");
+    c.branch_sign = side > 0 ? 1.0 : -1.0;
+    model.closures_.push_back(c);
+  }
+
+  // Active joints: the plain movable ones in depth-first order, or the sidecar's list.
+  if (active_order_) {
+    std::set<int> listed;
+    for (const std::string& name : *active_order_) {
+      const int j = movable_joint(name, "active_joints");
+      Joint& joint = model.joints_[j];
+      TROCAR_THROW_UNLESS(joint.drive != JointDrive::kMimic && joint.drive != JointDrive::kClosure,
+                          src << ": active_joints: joint '" << name << "' is driven by "
+                              << ToString(joint.drive) << " and cannot be active");
+      TROCAR_THROW_UNLESS(listed.insert(j).second,
+                          src << ": active_joints: joint '" << name << "' is listed twice");
+      joint.drive = JointDrive::kActive;
+    }
+    for (int j : model.dof_joints_) {
+      Joint& joint = model.joints_[j];
+      if (joint.drive == JointDrive::kActive && !listed.count(j)) joint.drive = JointDrive::kHeld;
+    }
+    for (const std::string& name : *active_order_) {
+      const int j = joint_index[name];
+      model.joints_[j].q_index = int(model.active_joints_.size());
+      model.active_joints_.push_back(j);
+    }
+  } else {
+    for (int j : model.dof_joints_) {
+      Joint& joint = model.joints_[j];
+      if (joint.drive != JointDrive::kActive) continue;
+      joint.q_index = int(model.active_joints_.size());
+      model.active_joints_.push_back(j);
+    }
+  }
+
+  // --- Resolution order for mimic and closure joints (dependencies first, cycles refused).
+  {
+    std::vector<int> state(model.joints_.size(), 0);  // 0 new, 1 visiting, 2 done
+    std::vector<char> closure_done(model.closures_.size(), 0);
+    std::function<void(int, const std::string&)> resolve = [&](int j, const std::string& chain) {
+      Joint& joint = model.joints_[j];
+      if (joint.drive == JointDrive::kActive || joint.drive == JointDrive::kHeld) return;
+      if (state[j] == 2) return;
+      TROCAR_THROW_UNLESS(state[j] != 1, src << ": joints depend on each other in a cycle: "
+                                             << chain << " -> " << joint.name);
+      state[j] = 1;
+      const std::string next = chain.empty() ? joint.name : chain + " -> " + joint.name;
+      if (joint.drive == JointDrive::kMimic) {
+        resolve(joint.mimic.master, next);
+        model.resolve_order_.push_back(j);
+      } else {
+        const FourBarClosure& c = model.closures_[joint.closure];
+        resolve(c.driver, next);
+        if (!closure_done[joint.closure]) {
+          closure_done[joint.closure] = 1;
+          model.resolve_order_.push_back(-1 - joint.closure);
+        }
+      }
+      state[j] = 2;
+    };
+    for (int j : model.dof_joints_) resolve(j, "");
+  }
+
+  // --- Kinematic frames per body (thesis §2.4.2).
+  for (int l = 0; l < model.num_links(); ++l) {
+    Link& link = model.links_[l];
+    const Joint* parent = link.parent_joint >= 0 ? &model.joints_[link.parent_joint] : nullptr;
+    if (parent && parent->movable() && parent->drive == JointDrive::kActive) {
+      link.X_LK = FrameFromAxis(Eigen::Vector3d::Zero(), parent->axis_J, Eigen::Vector3d::UnitX());
+      continue;
+    }
+    std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> passive;  // point, axis in L
+    if (parent && parent->movable()) passive.emplace_back(Eigen::Vector3d::Zero(), parent->axis_J);
+    for (int cj : link.child_joints) {
+      const Joint& child = model.joints_[cj];
+      if (child.movable() && child.drive != JointDrive::kActive) {
+        passive.emplace_back(child.X_PJ.translation(), child.X_PJ.linear() * child.axis_J);
+      }
+    }
+    for (const FourBarClosure& c : model.closures_) {
+      if (model.joints_[c.coupler].child_link == l) {
+        passive.emplace_back(c.p_C3, model.joints_[c.coupler].axis_J);
+      }
+      if (model.joints_[c.rocker].child_link == l) {
+        passive.emplace_back(c.p_B3, model.joints_[c.rocker].axis_J);
+      }
+    }
+    if (passive.size() >= 2) {
+      const auto& [p1, a1] = passive[0];
+      const auto& [p2, a2] = passive[1];
+      link.X_LK = FrameFromAxis(0.5 * (p1 + p2), a2, p2 - p1);
+    } else {
+      link.X_LK = I;
+    }
+  }
+
+  // --- Paths from the base, used by Jacobians.
+  model.movable_paths_.resize(model.links_.size());
+  for (int l = 1; l < model.num_links(); ++l) {
+    const Joint& joint = model.joints_[model.links_[l].parent_joint];
+    model.movable_paths_[l] = model.movable_paths_[joint.parent_link];
+    if (joint.movable()) model.movable_paths_[l].push_back(model.links_[l].parent_joint);
+  }
+
+  // --- Named frames.
+  auto make_frame = [&](const FrameSpec& spec, const std::string& role) {
+    TROCAR_THROW_UNLESS(link_index.count(spec.link), src << ": " << role << " '" << spec.name
+                                                         << "': no link named '" << spec.link
+                                                         << "'");
+    TROCAR_THROW_UNLESS(spec.X_LF.matrix().allFinite(),
+                        src << ": " << role << " '" << spec.name << "': pose is not finite");
+    return Frame{spec.name, link_index[spec.link], spec.X_LF};
+  };
+  if (tool_) {
+    model.tool_ = make_frame(*tool_, "tool");
+  } else {
+    int link = model.active_joints_.empty()
+                   ? model.num_links() - 1
+                   : model.joints_[model.active_joints_.back()].child_link;
+    for (;;) {
+      const auto& children = model.links_[link].child_joints;
+      if (children.size() != 1 || model.joints_[children[0]].movable()) break;
+      link = model.joints_[children[0]].child_link;
+    }
+    model.tool_ = Frame{"tool", link, I};
+  }
+  model.frames_.push_back(model.tool_);
+  if (rcm_) {
+    model.rcm_ = make_frame(*rcm_, "rcm");
+    model.frames_.push_back(*model.rcm_);
+  }
+  std::set<std::string> frame_names{model.tool_.name};
+  if (model.rcm_) frame_names.insert(model.rcm_->name);
+  for (const FrameSpec& spec : frames_) {
+    TROCAR_THROW_UNLESS(frame_names.insert(spec.name).second,
+                        src << ": frame '" << spec.name << "' is defined twice");
+    model.frames_.push_back(make_frame(spec, "frame"));
+  }
+
+  model.controller_ = controller_;
+  if (model.controller_.task_gains.size() != 0) {
+    TROCAR_THROW_UNLESS(model.controller_.task_gains.size() == 6,
+                        src << ": controller.task_gains: expected 6 values [wx wy wz vx vy vz], got "
+                            << model.controller_.task_gains.size());
+    TROCAR_THROW_UNLESS(model.controller_.task_gains.allFinite() &&
+                            (model.controller_.task_gains.array() >= 0).all(),
+                        src << ": controller.task_gains: "
+                            << FormatVector(model.controller_.task_gains)
+                            << " must be finite and non-negative");
+  }
+  return model;
+}
+
+}  // namespace trocar::robot

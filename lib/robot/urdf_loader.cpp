@@ -1,0 +1,232 @@
+#include "robot/urdf_loader.hpp"
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <sstream>
+
+#include <console_bridge/console.h>
+#include <urdf_parser/urdf_parser.h>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "common/geometry.hpp"
+
+namespace trocar::robot {
+namespace {
+
+// urdfdom reports problems through console_bridge; collect them to put into our exception.
+class CapturingHandler : public console_bridge::OutputHandler {
+ public:
+  void log(const std::string& text, console_bridge::LogLevel level, const char*, int) override {
+    if (level >= console_bridge::CONSOLE_BRIDGE_LOG_WARN) {
+      messages_ += (messages_.empty() ? "" : "; ") + text;
+    }
+  }
+  const std::string& messages() const { return messages_; }
+
+ private:
+  std::string messages_;
+};
+
+std::mutex& ParserMutex() {
+  static std::mutex mutex;
+  return mutex;
+}
+
+Eigen::Isometry3d ToIsometry(const urdf::Pose& pose) {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.translation() << pose.position.x, pose.position.y, pose.position.z;
+  X.linear() = Eigen::Quaterniond(pose.rotation.w, pose.rotation.x, pose.rotation.y,
+                                  pose.rotation.z)
+                   .normalized()
+                   .toRotationMatrix();
+  return X;
+}
+
+std::vector<std::string> SplitPath(const char* text) {
+  std::vector<std::string> out;
+  if (text == nullptr) return out;
+  std::stringstream stream(text);
+  std::string item;
+  while (std::getline(stream, item, ':')) {
+    if (!item.empty()) out.push_back(item);
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string ResolveMeshPath(const std::string& uri, const std::string& description_file,
+                            const std::vector<std::string>& package_paths) {
+  namespace fs = std::filesystem;
+  const std::string base_dir = ParentDirectory(description_file);
+  const std::string package_prefix = "package://";
+  const std::string file_prefix = "file://";
+  if (uri.rfind(file_prefix, 0) == 0) return uri.substr(file_prefix.size());
+  if (uri.rfind(package_prefix, 0) != 0) return JoinPath(base_dir, uri);
+  const std::string rest = uri.substr(package_prefix.size());
+  const auto slash = rest.find('/');
+  TROCAR_THROW_UNLESS(slash != std::string::npos && slash > 0,
+                      description_file << ": mesh '" << uri
+                                       << "': expected package://<package>/<path>");
+  const std::string package = rest.substr(0, slash);
+  const std::string relative = rest.substr(slash + 1);
+  std::vector<std::string> candidates;
+  // 1. A folder named like the package among the description's ancestors (a package's own URDF).
+  std::error_code ec;
+  for (fs::path dir = fs::absolute(base_dir, ec); !dir.empty(); dir = dir.parent_path()) {
+    if (dir.filename() == package) candidates.push_back(dir.string());
+    candidates.push_back((dir / package).string());
+    if (dir == dir.root_path()) break;
+  }
+  // 2. Explicit package paths, then TROCAR_PACKAGE_PATH and ROS_PACKAGE_PATH.
+  std::vector<std::string> roots = package_paths;
+  for (const char* var : {"TROCAR_PACKAGE_PATH", "ROS_PACKAGE_PATH"}) {
+    for (const std::string& p : SplitPath(std::getenv(var))) roots.push_back(p);
+  }
+  for (const std::string& root : roots) {
+    if (fs::path(root).filename() == package) candidates.push_back(root);
+    candidates.push_back((fs::path(root) / package).string());
+  }
+  for (const std::string& dir : candidates) {
+    const std::string path = JoinPath(dir, relative);
+    if (IsRegularFile(path)) return path;
+  }
+  TROCAR_THROW(description_file << ": mesh '" << uri << "': package '" << package
+                                << "' not found beside the file, in TROCAR_PACKAGE_PATH or in "
+                                   "ROS_PACKAGE_PATH");
+}
+
+RobotModelBuilder ParseUrdf(const std::string& path, const LoadOptions& options) {
+  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": URDF file not found");
+  const std::string xml = ReadTextFile(path);
+  urdf::ModelInterfaceSharedPtr urdf_model;
+  std::string parser_messages;
+  {
+    std::lock_guard<std::mutex> lock(ParserMutex());
+    CapturingHandler handler;
+    console_bridge::useOutputHandler(&handler);
+    try {
+      urdf_model = urdf::parseURDF(xml);
+    } catch (const std::exception& e) {
+      parser_messages = e.what();
+    }
+    console_bridge::restorePreviousOutputHandler();
+    if (parser_messages.empty()) parser_messages = handler.messages();
+  }
+  TROCAR_THROW_UNLESS(urdf_model != nullptr,
+                      path << ": not a valid URDF: "
+                           << (parser_messages.empty() ? "parser gave no reason" : parser_messages));
+
+  RobotModelBuilder builder(urdf_model->getName(), path);
+  std::map<std::string, std::shared_ptr<const TriangleMesh>> mesh_cache;
+
+  auto convert_geometry = [&](const std::string& where, const urdf::GeometrySharedPtr& geometry,
+                              const urdf::Pose& origin) {
+    TROCAR_THROW_UNLESS(geometry != nullptr, where << ": has no <geometry>");
+    Geometry g;
+    g.X_LG = ToIsometry(origin);
+    switch (geometry->type) {
+      case urdf::Geometry::SPHERE: {
+        g.shape = Geometry::Shape::kSphere;
+        g.size[0] = static_cast<const urdf::Sphere&>(*geometry).radius;
+        break;
+      }
+      case urdf::Geometry::BOX: {
+        const auto& box = static_cast<const urdf::Box&>(*geometry);
+        g.shape = Geometry::Shape::kBox;
+        g.size << box.dim.x, box.dim.y, box.dim.z;
+        break;
+      }
+      case urdf::Geometry::CYLINDER: {
+        const auto& cylinder = static_cast<const urdf::Cylinder&>(*geometry);
+        g.shape = Geometry::Shape::kCylinder;
+        g.size << cylinder.radius, cylinder.length, 0.0;
+        break;
+      }
+      case urdf::Geometry::MESH: {
+        const auto& mesh = static_cast<const urdf::Mesh&>(*geometry);
+        g.shape = Geometry::Shape::kMesh;
+        g.mesh_scale << mesh.scale.x, mesh.scale.y, mesh.scale.z;
+        g.mesh_file = ResolveMeshPath(mesh.filename, path, options.package_paths);
+        TROCAR_THROW_UNLESS(IsRegularFile(g.mesh_file), where << ": mesh file '" << mesh.filename
+                                                              << "' not found (looked for "
+                                                              << g.mesh_file << ")");
+        if (options.load_meshes) {
+          std::ostringstream key;
+          key << g.mesh_file << '|' << g.mesh_scale.transpose();
+          auto& cached = mesh_cache[key.str()];
+          if (!cached) {
+            try {
+              cached = LoadMesh(g.mesh_file, g.mesh_scale);
+            } catch (const Error& e) {
+              TROCAR_THROW(where << ": " << e.what());
+            }
+          }
+          g.mesh = cached;
+        }
+        break;
+      }
+    }
+    return g;
+  };
+
+  // Links first (joints refer to them by name); keep a stable order: urdfdom's map order.
+  for (const auto& [name, link] : urdf_model->links_) {
+    RobotModelBuilder::LinkSpec& spec = builder.AddLink(name);
+    for (std::size_t i = 0; i < link->visual_array.size(); ++i) {
+      const auto& visual = link->visual_array[i];
+      const std::string where = path + ": link '" + name + "' visual " + std::to_string(i);
+      Geometry g = convert_geometry(where, visual->geometry, visual->origin);
+      if (visual->material) {
+        const urdf::Color& c = visual->material->color;
+        g.rgba << c.r, c.g, c.b, c.a;
+      }
+      spec.visuals.push_back(std::move(g));
+    }
+    for (std::size_t i = 0; i < link->collision_array.size(); ++i) {
+      const auto& collision = link->collision_array[i];
+      const std::string where = path + ": link '" + name + "' collision " + std::to_string(i);
+      spec.collisions.push_back(convert_geometry(where, collision->geometry, collision->origin));
+    }
+  }
+  for (const auto& [name, joint] : urdf_model->joints_) {
+    const std::string where = path + ": joint '" + name + "'";
+    RobotModelBuilder::JointSpec& spec = builder.AddJoint(name);
+    spec.parent = joint->parent_link_name;
+    spec.child = joint->child_link_name;
+    spec.X_PJ = ToIsometry(joint->parent_to_joint_origin_transform);
+    spec.axis << joint->axis.x, joint->axis.y, joint->axis.z;
+    switch (joint->type) {
+      case urdf::Joint::FIXED: spec.type = JointType::kFixed; break;
+      case urdf::Joint::REVOLUTE:
+      case urdf::Joint::CONTINUOUS: spec.type = JointType::kRevolute; break;
+      case urdf::Joint::PRISMATIC: spec.type = JointType::kPrismatic; break;
+      default:
+        TROCAR_THROW(where << ": joint type " << joint->type
+                           << " (floating or planar) is not supported; use revolute, continuous, "
+                              "prismatic or fixed");
+    }
+    if (joint->limits && spec.type != JointType::kFixed) {
+      if (joint->type != urdf::Joint::CONTINUOUS) {
+        spec.limits.lower = joint->limits->lower;
+        spec.limits.upper = joint->limits->upper;
+      }
+      // URDF requires velocity; 0 is the common way of leaving it unspecified.
+      if (joint->limits->velocity != 0.0) spec.limits.velocity = joint->limits->velocity;
+      if (joint->limits->effort != 0.0) spec.limits.effort = joint->limits->effort;
+    }
+    if (joint->mimic) {
+      spec.mimic_master = joint->mimic->joint_name;
+      spec.mimic_multiplier = joint->mimic->multiplier;
+      spec.mimic_offset = joint->mimic->offset;
+    }
+    TROCAR_THROW_UNLESS(spec.X_PJ.matrix().allFinite(), where << ": <origin> is not finite");
+  }
+  return builder;
+}
+
+}  // namespace trocar::robot

@@ -1,0 +1,118 @@
+// The `trocar` command line as a user runs it: exit codes, output and error messages.
+#include <array>
+#include <cstdio>
+#include <regex>
+#include <string>
+#include <sys/wait.h>
+
+#include <gtest/gtest.h>
+
+#include "kinematics/forward_kinematics.hpp"
+#include "robot/load_robot.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+struct CommandRun {
+  int exit_code;
+  std::string output;  // stdout and stderr together
+};
+
+CommandRun Trocar(const std::string& arguments) {
+  const std::string command = std::string(TROCAR_BINARY) + " " + arguments + " 2>&1";
+  FILE* pipe = popen(command.c_str(), "r");
+  if (pipe == nullptr) return {-1, "popen failed"};
+  std::string output;
+  std::array<char, 4096> buffer;
+  size_t n;
+  while ((n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0) output.append(buffer.data(), n);
+  const int status = pclose(pipe);
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, output};
+}
+
+TEST(TrocarRobotInfo, DescribesEveryBundledRobot) {
+  for (const char* file : {"robots/pa10/pa10.yaml", "robots/pa10/pa10.urdf",
+                           "robots/pa10/pa10_instrument.yaml",
+                           "robots/prismatic-test/prismatic10.yaml",
+                           "robots/parallelogram/parallelogram.urdf"}) {
+    const CommandRun run = Trocar("robot info " + test::SourcePath(file));
+    EXPECT_EQ(run.exit_code, 0) << file << "\n" << run.output;
+    EXPECT_NE(run.output.find("tool pose at q = 0"), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("joints (SI units"), std::string::npos) << run.output;
+  }
+}
+
+TEST(TrocarRobotInfo, PrintsTheDhTableAndTheClosure) {
+  const CommandRun pa10 = Trocar("robot info " + test::SourcePath("robots/pa10/pa10.urdf"));
+  EXPECT_NE(pa10.output.find("equivalent DH table"), std::string::npos) << pa10.output;
+  const CommandRun loop = Trocar("robot info " + test::SourcePath("robots/parallelogram/parallelogram.urdf"));
+  EXPECT_NE(loop.output.find("closure 'pitch_parallelogram': driver crank_joint"),
+            std::string::npos)
+      << loop.output;
+}
+
+TEST(TrocarRobotFk, PrintsTheSamePoseAsTheLibrary) {
+  const std::string file = test::SourcePath("robots/pa10/pa10.yaml");
+  const CommandRun run = Trocar("robot fk " + file + " 0.1 -0.5 0.3 1.2 -0.4 -0.3 0.1");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const auto model = robot::LoadRobot(file);
+  robot::RobotState state(model);
+  Eigen::VectorXd q(7);
+  q << 0.1, -0.5, 0.3, 1.2, -0.4, -0.3, 0.1;
+  kinematics::ForwardKinematics(model, q, &state);
+  const Eigen::Vector3d p = kinematics::ToolPoseInBase(model, state).translation();
+  std::smatch m;
+  const std::regex position(R"(position \(m\):\s+(\S+) (\S+) (\S+))");
+  ASSERT_TRUE(std::regex_search(run.output, m, position)) << run.output;
+  EXPECT_NEAR(std::stod(m[1]), p.x(), 1e-6);
+  EXPECT_NEAR(std::stod(m[2]), p.y(), 1e-6);
+  EXPECT_NEAR(std::stod(m[3]), p.z(), 1e-6);
+}
+
+TEST(TrocarRobotFk, AcceptsDegreesAndExpressions) {
+  const std::string file = test::SourcePath("robots/pa10/pa10.yaml");
+  const CommandRun degrees = Trocar("robot fk " + file + " --deg 0 -30 0 90 0 0 0");
+  const CommandRun radians = Trocar("robot fk " + file + " -- 0 -pi/6 0 pi/2 0 0 0");
+  ASSERT_EQ(degrees.exit_code, 0) << degrees.output;
+  ASSERT_EQ(radians.exit_code, 0) << radians.output;
+  // Same pose; only the echoed q line differs in formatting.
+  EXPECT_EQ(degrees.output.substr(degrees.output.find("position")),
+            radians.output.substr(radians.output.find("position")));
+}
+
+TEST(TrocarRobotFk, WrongCountAndOutOfLimitValuesAreClearErrors) {
+  const std::string file = test::SourcePath("robots/pa10/pa10.yaml");
+  const CommandRun count = Trocar("robot fk " + file + " 0 0 0");
+  EXPECT_EQ(count.exit_code, 1);
+  EXPECT_NE(count.output.find("error: robot 'pa10' has 7 active joints, got 3 values"),
+            std::string::npos)
+      << count.output;
+  const CommandRun limits = Trocar("robot fk " + file + " 0 2 0 0 0 0 0");
+  EXPECT_EQ(limits.exit_code, 1);
+  EXPECT_NE(limits.output.find("joint 'S2' = 2 outside"), std::string::npos) << limits.output;
+  const CommandRun nan = Trocar("robot fk " + file + " 0 nan 0 0 0 0 0");
+  EXPECT_EQ(nan.exit_code, 1);
+  EXPECT_NE(nan.output.find("value 2 ('nan') is not a finite number"), std::string::npos)
+      << nan.output;
+}
+
+TEST(TrocarRobotFk, AClosureOutOfRangeIsReportedNotCrashed) {
+  const CommandRun run = Trocar("robot fk " +
+                         test::SourcePath("robots/parallelogram/parallelogram.urdf") +
+                         " 0 1.7 0 --ignore-limits");
+  EXPECT_EQ(run.exit_code, 3);
+  EXPECT_NE(run.output.find("not reachable: closure 'pitch_parallelogram'"), std::string::npos)
+      << run.output;
+}
+
+TEST(TrocarRobotInfo, MissingFileIsNamed) {
+  const CommandRun run = Trocar("robot info /no/such/robot.urdf");
+  EXPECT_EQ(run.exit_code, 1);
+  EXPECT_NE(run.output.find("error: /no/such/robot.urdf: robot description not found"),
+            std::string::npos)
+      << run.output;
+}
+
+}  // namespace
+}  // namespace trocar

@@ -1,0 +1,104 @@
+#include "common/geometry.hpp"
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+TEST(ParseScalarExpression, AcceptsNumbersPiAndDegrees) {
+  double v = 0.0;
+  ASSERT_TRUE(ParseScalarExpression("1.25", &v));
+  EXPECT_EQ(v, 1.25);
+  ASSERT_TRUE(ParseScalarExpression("-pi/2", &v));
+  EXPECT_EQ(v, -M_PI / 2);
+  ASSERT_TRUE(ParseScalarExpression("3*pi/4", &v));
+  EXPECT_DOUBLE_EQ(v, 3 * M_PI / 4);
+  ASSERT_TRUE(ParseScalarExpression("2*pi", &v));
+  EXPECT_DOUBLE_EQ(v, 2 * M_PI);
+  ASSERT_TRUE(ParseScalarExpression("90 deg", &v));
+  EXPECT_DOUBLE_EQ(v, M_PI / 2);
+  ASSERT_TRUE(ParseScalarExpression("-30deg", &v));
+  EXPECT_DOUBLE_EQ(v, -M_PI / 6);
+}
+
+TEST(ParseScalarExpression, RejectsOtherText) {
+  double v = 7.0;
+  for (const char* text : {"", "abc", "pi/0", "1.5x", "pi*2", "deg", "2 pi"}) {
+    EXPECT_FALSE(ParseScalarExpression(text, &v)) << text;
+  }
+  EXPECT_EQ(v, 7.0);  // untouched
+}
+
+TEST(RotationFromRpy, RoundTripsOverRandomAngles) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> angle(-M_PI, M_PI), pitch(-1.5, 1.5);
+  for (int i = 0; i < 1000; ++i) {
+    const Eigen::Vector3d rpy(angle(rng), pitch(rng), angle(rng));
+    const Eigen::Matrix3d R = RotationFromRpy(rpy);
+    EXPECT_TRUE(test::CompareMatrices(RotationFromRpy(RpyFromRotation(R)), R, 1e-12));
+    // URDF convention: fixed-axis X, Y, Z.
+    const Eigen::Matrix3d expected = RotZ(rpy.z()).linear() *
+                                     Eigen::AngleAxisd(rpy.y(), Eigen::Vector3d::UnitY()).toRotationMatrix() *
+                                     RotX(rpy.x()).linear();
+    EXPECT_TRUE(test::CompareMatrices(R, expected, 1e-14));
+  }
+}
+
+TEST(WrapAngle, StaysInHalfOpenInterval) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> angle(-50, 50);
+  for (int i = 0; i < 1000; ++i) {
+    const double a = angle(rng);
+    const double w = WrapAngle(a);
+    EXPECT_GT(w, -M_PI);
+    EXPECT_LE(w, M_PI);
+    EXPECT_NEAR(std::remainder(a - w, 2 * M_PI), 0.0, 1e-12);
+  }
+}
+
+TEST(WriteFileAtomically, WritesWholeFileAndLeavesNoTemporary) {
+  const auto dir = std::filesystem::temp_directory_path() / "trocar_atomic_test";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const std::string path = (dir / "out.txt").string();
+  WriteFileAtomically(path, "first");
+  WriteFileAtomically(path, "second version");
+  EXPECT_EQ(ReadTextFile(path), "second version");
+  int files = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    (void)entry;
+    ++files;
+  }
+  EXPECT_EQ(files, 1);
+  std::filesystem::remove_all(dir);
+}
+
+TEST(WriteFileAtomically, FailureNamesThePathAndKeepsNothing) {
+  try {
+    WriteFileAtomically("/nonexistent-folder/x/out.txt", "data");
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("/nonexistent-folder/x/out.txt"), std::string::npos)
+        << e.what();
+  }
+}
+
+TEST(ReadTextFile, MissingFileNamesIt) {
+  try {
+    ReadTextFile("/no/such/file.yaml");
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()), "/no/such/file.yaml: file not found");
+  }
+}
+
+}  // namespace
+}  // namespace trocar

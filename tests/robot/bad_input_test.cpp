@@ -1,0 +1,239 @@
+// Bad input gets a clear error naming the file, element and value: never a crash, never a
+// silently wrong model.
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "robot/load_robot.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+using robot::LoadRobot;
+
+class BadInput : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = ::testing::TempDir() + "/trocar_bad_input_" +
+           ::testing::UnitTest::GetInstance()->current_test_info()->name();
+    std::filesystem::remove_all(dir_);
+    std::filesystem::create_directories(dir_);
+  }
+  std::string Write(const std::string& name, const std::string& text) {
+    const std::string path = dir_ + "/" + name;
+    std::ofstream(path) << text;
+    return path;
+  }
+  // Loads `path` and returns the error message (fails the test if nothing is thrown).
+  std::string LoadError(const std::string& path) {
+    try {
+      LoadRobot(path);
+    } catch (const Error& e) {
+      return e.what();
+    }
+    ADD_FAILURE() << "loading " << path << " did not fail";
+    return "";
+  }
+  std::string dir_;
+};
+
+#define EXPECT_CONTAINS(text, part) \
+  EXPECT_NE(std::string(text).find(part), std::string::npos) << "message: " << (text)
+
+const char* kTwoLinkUrdf = R"(<?xml version="1.0"?>
+<robot name="two">
+  <link name="a"/><link name="b"/>
+  <joint name="j1" type="revolute"><parent link="a"/><child link="b"/>
+    <axis xyz="0 0 1"/><limit lower="%LOWER%" upper="0.9" velocity="1" effort="1"/></joint>
+</robot>)";
+
+std::string WithLower(const std::string& lower) {
+  std::string text = kTwoLinkUrdf;
+  text.replace(text.find("%LOWER%"), 7, lower);
+  return text;
+}
+
+TEST_F(BadInput, MissingFileIsNamed) {
+  EXPECT_EQ(LoadError(dir_ + "/nothing.urdf"), dir_ + "/nothing.urdf: robot description not found");
+}
+
+TEST_F(BadInput, MalformedUrdfNamesTheFileAndTheParserReason) {
+  const std::string path = Write("broken.urdf", "<robot name='x'><link name='a'></robot>");
+  const std::string message = LoadError(path);
+  EXPECT_CONTAINS(message, path);
+  EXPECT_CONTAINS(message, "not a valid URDF");
+}
+
+TEST_F(BadInput, LowerLimitAboveUpperNamesJointAndValues) {
+  const std::string path = Write("limits.urdf", WithLower("1.2"));
+  EXPECT_EQ(LoadError(path), path + ": joint 'j1': lower limit 1.2 > upper limit 0.9");
+}
+
+TEST_F(BadInput, NanInUrdfIsRefused) {
+  const std::string path = Write("nan.urdf", WithLower("nan"));
+  const std::string message = LoadError(path);
+  EXPECT_CONTAINS(message, path);
+  EXPECT_CONTAINS(message, "j1");
+}
+
+TEST_F(BadInput, MissingMeshNamesLinkAndFile) {
+  const std::string path = Write("mesh.urdf", R"(<robot name="m"><link name="a"><visual>
+      <geometry><mesh filename="meshes/none.stl"/></geometry></visual></link></robot>)");
+  const std::string message = LoadError(path);
+  EXPECT_CONTAINS(message, path + ": link 'a' visual 0: mesh file 'meshes/none.stl' not found");
+}
+
+TEST_F(BadInput, UnknownPackageIsNamed) {
+  const std::string path = Write("pkg.urdf", R"(<robot name="m"><link name="a"><visual>
+      <geometry><mesh filename="package://no_such_pkg/x.stl"/></geometry></visual></link></robot>)");
+  EXPECT_CONTAINS(LoadError(path), "package 'no_such_pkg' not found");
+}
+
+TEST_F(BadInput, MeshWithNonFiniteVertexIsRefused) {
+  Write("bad.obj", "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n");
+  const std::string path = Write("nanmesh.urdf", R"(<robot name="m"><link name="a"><visual>
+      <geometry><mesh filename="bad.obj"/></geometry></visual></link></robot>)");
+  const std::string message = LoadError(path);
+  EXPECT_CONTAINS(message, "link 'a' visual 0");
+  EXPECT_CONTAINS(message, "bad.obj");
+}
+
+TEST_F(BadInput, EmptyMeshIsRefused) {
+  Write("empty.stl", "solid empty\nendsolid empty\n");
+  const std::string path = Write("emptymesh.urdf", R"(<robot name="m"><link name="a"><collision>
+      <geometry><mesh filename="empty.stl"/></geometry></collision></link></robot>)");
+  const std::string message = LoadError(path);
+  EXPECT_CONTAINS(message, "link 'a' collision 0");
+  EXPECT_CONTAINS(message, "empty.stl");
+}
+
+TEST_F(BadInput, FloatingJointIsRefused) {
+  const std::string path = Write("float.urdf", R"(<robot name="f"><link name="a"/><link name="b"/>
+      <joint name="free" type="floating"><parent link="a"/><child link="b"/></joint></robot>)");
+  EXPECT_CONTAINS(LoadError(path), "joint 'free': joint type");
+}
+
+TEST_F(BadInput, UnknownMimicMasterIsNamed) {
+  const std::string path = Write("mimic.urdf", R"(<robot name="m"><link name="a"/><link name="b"/>
+      <joint name="j" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/><mimic joint="ghost"/></joint></robot>)");
+  EXPECT_CONTAINS(LoadError(path), "joint 'j' mimic: no joint named 'ghost'");
+}
+
+TEST_F(BadInput, YamlSyntaxErrorGivesLineAndColumn) {
+  const std::string path = Write("syntax.yaml", "name: x\ndh: [unclosed\n");
+  EXPECT_CONTAINS(LoadError(path), path + ":3:1: YAML syntax error");
+}
+
+TEST_F(BadInput, DhLimitsOutOfOrderGiveLineAndField) {
+  const std::string path = Write("dh.yaml", R"(dh:
+  convention: modified
+  joints:
+    - {type: revolute, limits: {lower: 1, upper: -1}}
+)");
+  EXPECT_EQ(LoadError(path),
+            path + ":4:32: dh.joints[0].limits: lower limit 1 > upper limit -1");
+}
+
+TEST_F(BadInput, DhTypoInFieldNameIsReported) {
+  const std::string path = Write("typo.yaml", R"(dh:
+  convention: modified
+  joints:
+    - {type: revolute, alpah: 0.5}
+)");
+  EXPECT_CONTAINS(LoadError(path), "dh.joints[0]: unknown field 'alpah'");
+}
+
+TEST_F(BadInput, DhNonNumberIsReported) {
+  const std::string path = Write("nan.yaml", R"(dh:
+  convention: standard
+  joints:
+    - {type: revolute, d: abc}
+)");
+  EXPECT_CONTAINS(LoadError(path), "dh.joints[0].d: expected a number (or pi/2, 90 deg), got 'abc'");
+}
+
+TEST_F(BadInput, DhUnknownConventionIsReported) {
+  const std::string path = Write("conv.yaml", "dh:\n  convention: craig\n  joints: []\n");
+  EXPECT_CONTAINS(LoadError(path), "dh.convention: 'craig' (expected standard or modified)");
+}
+
+TEST_F(BadInput, SidecarUnknownJointIsNamedWithItsLine) {
+  const std::string path = Write("side.yaml", "urdf: " + test::SourcePath("robots/pa10/pa10.urdf") +
+                                                  "\nactive_joints: [S1, S9]\n");
+  EXPECT_CONTAINS(LoadError(path), path + ":2:21: active_joints[1]: no joint named 'S9'");
+}
+
+TEST_F(BadInput, TwoRootLinksAreReported) {
+  const std::string path = Write("roots.urdf", R"(<robot name="r"><link name="a"/><link name="b"/>
+      <link name="c"/><joint name="j" type="fixed"><parent link="a"/><child link="b"/></joint>
+      </robot>)");
+  // urdfdom itself refuses a model with two roots; either way the file is named.
+  EXPECT_CONTAINS(LoadError(path), path);
+}
+
+// A parallelogram URDF whose rocker axis can be tilted, with its closure in a sidecar.
+std::string ParallelogramUrdf(const std::string& rocker_axis) {
+  return R"(<robot name="p"><link name="g"/><link name="crank"/><link name="coupler"/>
+    <link name="rocker"/>
+    <joint name="d" type="revolute"><parent link="g"/><child link="crank"/><axis xyz="0 1 0"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+    <joint name="r" type="revolute"><parent link="g"/><child link="rocker"/>
+      <origin xyz="0.1 0 0"/><axis xyz=")" + rocker_axis + R"("/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+    <joint name="c" type="revolute"><parent link="crank"/><child link="coupler"/>
+      <origin xyz="0 0 0.3"/><axis xyz="0 1 0"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/></joint></robot>)";
+}
+
+TEST_F(BadInput, FourBarWithNonParallelAxesIsRefused) {
+  const std::string urdf = Write("tilted.urdf", ParallelogramUrdf("0.1 1 0"));
+  Write("tilted.trocar.yaml",
+        "closures: [{name: loop, type: four_bar, driver: d, coupler: c, rocker: r, "
+        "cut_point: [0.1, 0, 0]}]\n");
+  const std::string message = LoadError(urdf);
+  EXPECT_CONTAINS(message, "closure 'loop': axis of joint 'r' is 5.71");
+  EXPECT_CONTAINS(message, "four parallel axes");
+}
+
+TEST_F(BadInput, FourBarNotAssembledAtZeroIsRefused) {
+  const std::string urdf = Write("open.urdf", ParallelogramUrdf("0 1 0"));
+  Write("open.trocar.yaml",
+        "closures: [{name: loop, type: four_bar, driver: d, coupler: c, rocker: r, "
+        "cut_point: [0.1, 0, 0], cut_point_rocker: [0, 0, 0.25]}]\n");
+  EXPECT_CONTAINS(LoadError(urdf), "closure 'loop': not assembled at the zero configuration");
+}
+
+TEST_F(BadInput, FourBarWithPrismaticJointIsRefused) {
+  std::string text = ParallelogramUrdf("0 1 0");
+  text.replace(text.find("name=\"r\" type=\"revolute\""), 24, "name=\"r\" type=\"prismatic\"");
+  const std::string urdf = Write("prism.urdf", text);
+  Write("prism.trocar.yaml",
+        "closures: [{name: loop, type: four_bar, driver: d, coupler: c, rocker: r, "
+        "cut_point: [0.1, 0, 0]}]\n");
+  EXPECT_CONTAINS(LoadError(urdf), "joint 'r' must be revolute, is prismatic");
+}
+
+TEST(BadConfiguration, NanAndWrongSizeNameTheJoint) {
+  const auto model = LoadRobot(test::SourcePath("robots/pa10/pa10.yaml"));
+  robot::RobotState state(model);
+  Eigen::VectorXd q = Eigen::VectorXd::Zero(7);
+  q[3] = std::nan("");
+  try {
+    kinematics::SetConfiguration(model, q, &state);
+    FAIL() << "NaN accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "robot 'pa10': configuration value 3 (joint 'E1') is nan, expected a finite number");
+  }
+  EXPECT_THROW(kinematics::SetConfiguration(model, Eigen::VectorXd::Zero(6), &state), Error);
+  EXPECT_EQ(state.q, model.neutral_configuration());  // untouched
+}
+
+}  // namespace
+}  // namespace trocar

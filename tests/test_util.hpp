@@ -1,0 +1,74 @@
+#pragma once
+// Helpers shared by the tests: paths, seeded random configurations, matrix comparison.
+
+#include <cmath>
+#include <filesystem>
+#include <random>
+#include <sstream>
+#include <string>
+
+#include <Eigen/Core>
+#include <gtest/gtest.h>
+
+#include "robot/robot_model.hpp"
+
+namespace trocar::test {
+
+inline std::string SourcePath(const std::string& relative) {
+  return std::string(TROCAR_SOURCE_DIR) + "/" + relative;
+}
+
+inline std::string SharedDataPath(const std::string& relative) {
+  return std::string(TROCAR_SHARED_DATA_DIR) + "/" + relative;
+}
+
+/// Skips the calling test, saying which shared file is missing, when it is absent.
+#define TROCAR_REQUIRE_SHARED_FILE(path)                                                  \
+  do {                                                                                    \
+    if (!std::filesystem::exists(path)) {                                                 \
+      GTEST_SKIP() << "shared data file " << (path)                                       \
+                   << " is absent (../shared/data beside the repository); test skipped"; \
+    }                                                                                     \
+  } while (false)
+
+/// Uniform within the active joints' limits; unbounded joints in [-pi, pi].
+inline Eigen::VectorXd RandomConfiguration(const robot::RobotModel& model, std::mt19937* rng) {
+  Eigen::VectorXd q(model.num_positions());
+  for (int i = 0; i < q.size(); ++i) {
+    const auto& limits = model.joint(model.active_joints()[i]).limits;
+    const double lo = std::isfinite(limits.lower) ? limits.lower : -M_PI;
+    const double hi = std::isfinite(limits.upper) ? limits.upper : M_PI;
+    q[i] = std::uniform_real_distribution<double>(lo, hi)(*rng);
+  }
+  return q;
+}
+
+/// Drake-style comparison: reports the worst element; NaN never compares equal.
+inline ::testing::AssertionResult CompareMatrices(const Eigen::MatrixXd& a,
+                                                  const Eigen::MatrixXd& b, double tolerance) {
+  if (a.rows() != b.rows() || a.cols() != b.cols()) {
+    return ::testing::AssertionFailure() << "sizes differ: " << a.rows() << "x" << a.cols()
+                                         << " vs " << b.rows() << "x" << b.cols();
+  }
+  double worst = 0.0;
+  Eigen::Index wr = 0, wc = 0;
+  for (Eigen::Index r = 0; r < a.rows(); ++r) {
+    for (Eigen::Index c = 0; c < a.cols(); ++c) {
+      const double diff = std::abs(a(r, c) - b(r, c));
+      if (std::isnan(diff) || diff > worst) {
+        worst = std::isnan(diff) ? HUGE_VAL : diff;
+        wr = r;
+        wc = c;
+      }
+    }
+  }
+  if (worst <= tolerance) return ::testing::AssertionSuccess();
+  std::ostringstream out;
+  out << "worst element (" << wr << ", " << wc << "): " << a(wr, wc) << " vs " << b(wr, wc)
+      << ", difference " << worst << " > tolerance " << tolerance << "\n"
+      << a << "\nvs\n"
+      << b;
+  return ::testing::AssertionFailure() << out.str();
+}
+
+}  // namespace trocar::test
