@@ -1,6 +1,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <cstdlib>
 
 #include <gtest/gtest.h>
 
@@ -173,6 +174,70 @@ TEST(LoadRobot, SurrolPsmShaftPassesThroughTheRemoteCentre) {
     const Eigen::Vector3d axis = X_WI.linear() * joint.axis_J;
     const Eigen::Vector3d to_rcm = state.X_WL[rcm].translation() - X_WI.translation();
     EXPECT_LT((to_rcm - to_rcm.dot(axis) * axis).norm(), 1e-4);
+  }
+}
+
+// A unit cube as OBJ and as ASCII PLY, to check the mesh formats besides STL.
+void WriteCubeMeshes(const std::string& dir) {
+  const char* vertices[8] = {"0 0 0", "1 0 0", "1 1 0", "0 1 0", "0 0 1", "1 0 1", "1 1 1", "0 1 1"};
+  const int faces[12][3] = {{0, 2, 1}, {0, 3, 2}, {4, 5, 6}, {4, 6, 7}, {0, 1, 5}, {0, 5, 4},
+                            {1, 2, 6}, {1, 6, 5}, {2, 3, 7}, {2, 7, 6}, {3, 0, 4}, {3, 4, 7}};
+  std::ofstream obj(dir + "/cube.obj");
+  for (const char* v : vertices) obj << "v " << v << "\n";
+  for (const auto& f : faces) obj << "f " << f[0] + 1 << " " << f[1] + 1 << " " << f[2] + 1 << "\n";
+  std::ofstream ply(dir + "/cube.ply");
+  ply << "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\n"
+         "property float z\nelement face 12\nproperty list uchar int vertex_indices\n"
+         "end_header\n";
+  for (const char* v : vertices) ply << v << "\n";
+  for (const auto& f : faces) ply << "3 " << f[0] << " " << f[1] << " " << f[2] << "\n";
+}
+
+TEST(LoadRobot, ResolvesPackagePathsAndReadsObjAndPlyMeshes) {
+  const std::string root = ::testing::TempDir() + "/trocar_pkg_test";
+  std::filesystem::remove_all(root);
+  std::filesystem::create_directories(root + "/my_arm/meshes");
+  std::filesystem::create_directories(root + "/my_arm/urdf");
+  WriteCubeMeshes(root + "/my_arm/meshes");
+  const std::string urdf = root + "/my_arm/urdf/arm.urdf";
+  std::ofstream(urdf) << R"(<robot name="arm"><link name="a">
+      <visual><geometry><mesh filename="package://my_arm/meshes/cube.obj" scale="0.1 0.2 0.3"/>
+      </geometry></visual>
+      <collision><geometry><mesh filename="../meshes/cube.ply"/></geometry></collision>
+      </link></robot>)";
+  const RobotModel model = LoadRobot(urdf);
+  const auto& visual = model.link(0).visuals.at(0);
+  const auto& collision = model.link(0).collisions.at(0);
+  ASSERT_NE(visual.mesh, nullptr);
+  ASSERT_NE(collision.mesh, nullptr);
+  EXPECT_EQ(visual.mesh->triangles.size(), 12u);
+  EXPECT_EQ(collision.mesh->triangles.size(), 12u);
+  Eigen::Vector3d max_corner = Eigen::Vector3d::Zero();
+  for (const auto& v : visual.mesh->vertices) max_corner = max_corner.cwiseMax(v);
+  EXPECT_TRUE(CompareMatrices(max_corner, Eigen::Vector3d(0.1, 0.2, 0.3), 1e-7));
+  EXPECT_EQ(std::filesystem::path(visual.mesh_file),
+            std::filesystem::path(root + "/my_arm/meshes/cube.obj").lexically_normal());
+  // The same package found through TROCAR_PACKAGE_PATH from a URDF in an unrelated tree.
+  const std::string other = ::testing::TempDir() + "/trocar_pkg_other/urdf";
+  std::filesystem::create_directories(other);
+  const std::string elsewhere = other + "/elsewhere.urdf";
+  std::ofstream(elsewhere) << R"(<robot name="arm2"><link name="a"><visual><geometry>
+      <mesh filename="package://my_arm/meshes/cube.obj"/></geometry></visual></link></robot>)";
+  EXPECT_THROW(LoadRobot(elsewhere), Error);
+  setenv("TROCAR_PACKAGE_PATH", root.c_str(), 1);
+  EXPECT_EQ(LoadRobot(elsewhere).link(0).visuals.at(0).mesh->triangles.size(), 12u);
+  unsetenv("TROCAR_PACKAGE_PATH");
+}
+
+TEST(LoadRobot, SurrolEcmLoads) {
+  const std::string path = test::SharedDataPath("robots/surrol-ecm/ecm.urdf");
+  TROCAR_REQUIRE_SHARED_FILE(path);
+  const RobotModel model = LoadRobot(path);
+  EXPECT_GE(model.num_positions(), 4);
+  RobotState state(model);
+  std::mt19937 rng(12);
+  for (int trial = 0; trial < 100; ++trial) {
+    ASSERT_TRUE(ForwardKinematics(model, test::RandomConfiguration(model, &rng), &state).ok);
   }
 }
 
