@@ -9,6 +9,7 @@
 #include "common/geometry.hpp"
 #include "kinematics/dh_extraction.hpp"
 #include "kinematics/forward_kinematics.hpp"
+#include "kinematics/setup_joints.hpp"
 #include "robot/load_robot.hpp"
 
 namespace trocar::apps {
@@ -224,6 +225,40 @@ int RunFk(const FkOptions& options) {
   return 0;
 }
 
+struct SujOptions {
+  std::string file;
+  std::string frame;
+  std::vector<double> position;
+  std::vector<double> axis;
+  unsigned seed = 1;
+};
+
+int RunSuj(const SujOptions& options) {
+  robot::LoadOptions load;
+  load.load_meshes = false;
+  const RobotModel model = robot::LoadRobot(options.file, load);
+  kinematics::SetupJointRequest request;
+  request.frame = options.frame;
+  request.p_WF = Eigen::Vector3d(options.position[0], options.position[1], options.position[2]);
+  if (!options.axis.empty()) {
+    request.axis_W = Eigen::Vector3d(options.axis[0], options.axis[1], options.axis[2]);
+  }
+  robot::RobotState state(model);
+  const auto configured = kinematics::SetConfiguration(model, model.neutral_configuration(), &state);
+  TROCAR_THROW_UNLESS(configured.ok, "robot '" << model.name() << "': neutral configuration: "
+                                               << configured.message);
+  kinematics::SetupJointOptions solver;
+  solver.seed = options.seed;
+  const auto result = kinematics::SolveSetupJoints(model, state, request, solver);
+  std::cout << result.message << "\n";
+  std::cout << (result.solved() ? "setup joints:\n" : "best setup joints found:\n");
+  for (std::size_t i = 0; i < result.joints.size() && i < std::size_t(result.values.size()); ++i) {
+    std::cout << "  " << std::left << std::setw(28) << result.joints[i] << std::right
+              << result.values[i] << "\n";
+  }
+  return result.solved() ? 0 : 3;
+}
+
 }  // namespace
 
 void AddRobotCommand(CLI::App* app) {
@@ -253,6 +288,23 @@ void AddRobotCommand(CLI::App* app) {
   fk_cmd->add_option("--frame", fk->frame, "named frame instead of the tool (e.g. rcm)");
   fk_cmd->callback([fk]() {
     const int code = RunFk(*fk);
+    if (code != 0) throw CLI::RuntimeError(code);
+  });
+
+  auto suj = std::make_shared<SujOptions>();
+  CLI::App* suj_cmd = robot->add_subcommand(
+      "suj", "Solve the held setup joints that put a frame (an arm's RCM) at a port");
+  suj_cmd->add_option("file", suj->file, "robot description, e.g. a da Vinci cart")->required();
+  suj_cmd->add_option("--frame", suj->frame, "frame to place, e.g. psm1_rcm")->required();
+  suj_cmd->add_option("--position", suj->position, "target position x y z in the world (m)")
+      ->required()
+      ->expected(3);
+  suj_cmd->add_option("--axis", suj->axis,
+                      "direction x y z the instrument axis (the frame's -z) must point along")
+      ->expected(3);
+  suj_cmd->add_option("--seed", suj->seed, "seed of the solver's random starts");
+  suj_cmd->callback([suj]() {
+    const int code = RunSuj(*suj);
     if (code != 0) throw CLI::RuntimeError(code);
   });
 }

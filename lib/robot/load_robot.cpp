@@ -107,14 +107,14 @@ JointType ReadJointType(const YamlReader& r, const YAML::Node& node, const std::
                                    << "' (expected revolute or prismatic)");
 }
 
-const std::initializer_list<const char*> kSidecarKeys = {
-    "name",       "tool",         "rcm",      "frames",    "active_joints", "held_joints",
-    "joint_limits", "closures", "collision", "controller", "urdf",         "dh"};
+const std::initializer_list<const char*> kTopLevelKeys = {
+    "name",      "tool",       "rcm",  "frames", "active_joints", "held_joints", "joint_limits",
+    "closures",  "collision",  "controller", "urdf", "dh", "links", "joints", "include"};
 
 // Applies the sidecar fields of `root` to `builder`.
 void ApplySidecar(const YamlReader& r, const YAML::Node& root, RobotModelBuilder* builder,
                   const LoadOptions& options) {
-  r.ExpectMap(root, "", kSidecarKeys);
+  r.ExpectMap(root, "", kTopLevelKeys);
   if (root["name"]) builder->set_name(r.String(root["name"], "name"));
   auto read_frame = [&](const YAML::Node& node, const std::string& path,
                         const std::string& default_name) {
@@ -272,6 +272,198 @@ DhTable ReadDhTable(const YamlReader& r, const YAML::Node& dh, const LoadOptions
   return table;
 }
 
+// X = T(xyz) R(rpy) · Π Rx(alpha) Tx(a) Rz(theta) Tz(d) over the `dh` rows (modified DH).
+Eigen::Isometry3d ReadOrigin(const YamlReader& r, const YAML::Node& node, const std::string& path) {
+  r.ExpectMap(node, path, {"xyz", "rpy", "dh"});
+  Eigen::Isometry3d X = ReadPose(r, node, path);
+  if (node["dh"]) {
+    const YAML::Node dh = node["dh"];
+    const bool list = dh.IsSequence();
+    const std::size_t count = list ? dh.size() : 1;
+    for (std::size_t i = 0; i < count; ++i) {
+      const YAML::Node row = list ? dh[i] : dh;
+      const std::string row_path = path + ".dh" + (list ? "[" + std::to_string(i) + "]" : "");
+      r.ExpectMap(row, row_path, {"alpha", "a", "theta", "d"});
+      X = X * RotX(r.NumberOr(row, "alpha", row_path, 0.0)) *
+          TransX(r.NumberOr(row, "a", row_path, 0.0)) *
+          RotZ(r.NumberOr(row, "theta", row_path, 0.0)) *
+          TransZ(r.NumberOr(row, "d", row_path, 0.0));
+    }
+  }
+  return X;
+}
+
+void ReadTree(const YamlReader& r, const YAML::Node& root, RobotModelBuilder* builder,
+              const LoadOptions& options) {
+  if (root["links"]) {
+    const YAML::Node links = root["links"];
+    r.ExpectSequence(links, "links");
+    for (std::size_t i = 0; i < links.size(); ++i) {
+      const std::string path = "links[" + std::to_string(i) + "]";
+      const YAML::Node node = links[i];
+      r.ExpectMap(node, path, {"name", "visual", "collision"});
+      const std::string name = r.String(r.Require(node, "name", path), path + ".name");
+      TROCAR_THROW_UNLESS(builder->FindLink(name) == nullptr,
+                          r.Where(node["name"], path + ".name")
+                              << ": link '" << name << "' is defined twice");
+      RobotModelBuilder::LinkSpec& link = builder->AddLink(name);
+      if (node["visual"]) {
+        link.visuals = ReadGeometryList(r, node["visual"], path + ".visual", options);
+      }
+      if (node["collision"]) {
+        link.collisions = ReadGeometryList(r, node["collision"], path + ".collision", options);
+      }
+    }
+  }
+  if (!root["joints"]) return;
+  const YAML::Node joints = root["joints"];
+  r.ExpectSequence(joints, "joints");
+  for (std::size_t i = 0; i < joints.size(); ++i) {
+    const std::string path = "joints[" + std::to_string(i) + "]";
+    const YAML::Node node = joints[i];
+    r.ExpectMap(node, path,
+                {"name", "type", "parent", "child", "origin", "axis", "limits", "mimic"});
+    const std::string name = r.String(r.Require(node, "name", path), path + ".name");
+    TROCAR_THROW_UNLESS(builder->FindJoint(name) == nullptr,
+                        r.Where(node["name"], path + ".name")
+                            << ": joint '" << name << "' is defined twice");
+    const std::string type = r.String(r.Require(node, "type", path), path + ".type");
+    RobotModelBuilder::JointSpec& joint = builder->AddJoint(name);
+    if (type == "revolute" || type == "continuous") {
+      joint.type = JointType::kRevolute;
+    } else if (type == "prismatic") {
+      joint.type = JointType::kPrismatic;
+    } else if (type == "fixed") {
+      joint.type = JointType::kFixed;
+    } else {
+      TROCAR_THROW(r.Where(node["type"], path + ".type")
+                   << ": joint type '" << type
+                   << "' (expected revolute, continuous, prismatic or fixed)");
+    }
+    for (const char* key : {"parent", "child"}) {
+      const std::string link = r.String(r.Require(node, key, path), path + "." + key);
+      TROCAR_THROW_UNLESS(builder->FindLink(link) != nullptr,
+                          r.Where(node[key], path + "." + key)
+                              << ": no link named '" << link << "'");
+      (std::string(key) == "parent" ? joint.parent : joint.child) = link;
+    }
+    if (node["origin"]) joint.X_PJ = ReadOrigin(r, node["origin"], path + ".origin");
+    if (node["axis"]) joint.axis = r.Vector3(node["axis"], path + ".axis");
+    if (node["limits"]) ReadLimits(r, node["limits"], path + ".limits", &joint.limits);
+    if (node["mimic"]) {
+      const YAML::Node mimic = node["mimic"];
+      r.ExpectMap(mimic, path + ".mimic", {"joint", "multiplier", "offset"});
+      joint.mimic_master = r.String(r.Require(mimic, "joint", path + ".mimic"), path + ".mimic.joint");
+      joint.mimic_multiplier = r.NumberOr(mimic, "multiplier", path + ".mimic", 1.0);
+      joint.mimic_offset = r.NumberOr(mimic, "offset", path + ".mimic", 0.0);
+    }
+  }
+}
+
+struct IncludeSpec {
+  std::string file;
+  std::string prefix;
+  std::string parent;
+  Eigen::Isometry3d X_PC = Eigen::Isometry3d::Identity();
+  std::string where;
+};
+
+std::vector<IncludeSpec> ReadIncludes(const YamlReader& r, const YAML::Node& root) {
+  std::vector<IncludeSpec> out;
+  if (!root["include"]) return out;
+  const YAML::Node list = root["include"];
+  r.ExpectSequence(list, "include");
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const std::string path = "include[" + std::to_string(i) + "]";
+    const YAML::Node node = list[i];
+    r.ExpectMap(node, path, {"file", "prefix", "parent", "origin"});
+    IncludeSpec spec;
+    spec.where = r.Where(node, path);
+    spec.file = JoinPath(ParentDirectory(r.file()),
+                         r.String(r.Require(node, "file", path), path + ".file"));
+    if (node["prefix"]) spec.prefix = r.String(node["prefix"], path + ".prefix");
+    if (node["parent"]) spec.parent = r.String(node["parent"], path + ".parent");
+    if (node["origin"]) spec.X_PC = ReadOrigin(r, node["origin"], path + ".origin");
+    TROCAR_THROW_UNLESS(!spec.parent.empty() || i == 0,
+                        spec.where << ": only the first include may omit 'parent' (it becomes "
+                                      "the base of this description)");
+    out.push_back(spec);
+  }
+  return out;
+}
+
+RobotModelBuilder LoadDescription(const std::string& path, const LoadOptions& options,
+                                  std::vector<std::string>* stack);
+
+RobotModelBuilder LoadYamlDescription(const std::string& path, const LoadOptions& options,
+                                      std::vector<std::string>* stack) {
+  const YamlReader r = YamlReader::Load(path);
+  const YAML::Node& root = r.root();
+  const std::vector<IncludeSpec> includes = ReadIncludes(r, root);
+  const int kinds = (root["urdf"] ? 1 : 0) + (root["dh"] ? 1 : 0) +
+                    (root["links"] || root["joints"] ? 1 : 0) +
+                    (!includes.empty() && includes[0].parent.empty() ? 1 : 0);
+  TROCAR_THROW_UNLESS(kinds > 0, r.Where(root, "")
+                                     << ": a robot YAML needs 'urdf: <file>', a 'dh:' table, "
+                                        "'links:'/'joints:', or a first 'include' without parent");
+  TROCAR_THROW_UNLESS(kinds == 1 || (kinds == 2 && (root["links"] || root["joints"]) &&
+                                     !includes.empty() && includes[0].parent.empty()),
+                      r.Where(root, "") << ": give only one of 'urdf', 'dh', or a base include "
+                                           "(links and joints may extend a base include)");
+  RobotModelBuilder builder(std::filesystem::path(path).stem().string(), path);
+  auto include = [&](const IncludeSpec& spec) {
+    RobotModelBuilder sub = LoadDescription(spec.file, options, stack);
+    try {
+      builder.Attach(sub, spec.prefix, spec.parent, spec.X_PC);
+    } catch (const Error& e) {
+      TROCAR_THROW(spec.where << ": " << e.what());
+    }
+  };
+  std::size_t next_include = 0;
+  if (root["urdf"]) {
+    builder = ParseUrdf(JoinPath(ParentDirectory(path), r.String(root["urdf"], "urdf")), options);
+  } else if (root["dh"]) {
+    AddDhChain(ReadDhTable(r, root["dh"], options), &builder);
+  } else if (!includes.empty() && includes[0].parent.empty()) {
+    include(includes[0]);
+    next_include = 1;
+  }
+  ReadTree(r, root, &builder, options);
+  for (; next_include < includes.size(); ++next_include) include(includes[next_include]);
+  ApplySidecar(r, root, &builder, options);
+  return builder;
+}
+
+RobotModelBuilder LoadDescription(const std::string& path, const LoadOptions& options,
+                                  std::vector<std::string>* stack) {
+  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": robot description not found");
+  const std::string canonical = std::filesystem::weakly_canonical(path).string();
+  for (const std::string& open : *stack) {
+    TROCAR_THROW_UNLESS(open != canonical, path << ": included from itself (include cycle)");
+  }
+  TROCAR_THROW_UNLESS(stack->size() < 16, path << ": includes nested more than 16 deep");
+  stack->push_back(canonical);
+  RobotModelBuilder builder("", path);
+  if (EndsWith(path, ".urdf") || EndsWith(path, ".URDF") || EndsWith(path, ".xml")) {
+    builder = ParseUrdf(path, options);
+    const std::string sidecar = path.substr(0, path.rfind('.')) + ".trocar.yaml";
+    if (IsRegularFile(sidecar)) {
+      const YamlReader r = YamlReader::Load(sidecar);
+      TROCAR_THROW_UNLESS(!r.root()["urdf"] && !r.root()["dh"] && !r.root()["links"] &&
+                              !r.root()["joints"] && !r.root()["include"],
+                          sidecar << ": a sidecar beside a URDF holds only sidecar fields (no "
+                                     "urdf, dh, links, joints or include)");
+      ApplySidecar(r, r.root(), &builder, options);
+    }
+  } else {
+    TROCAR_THROW_UNLESS(EndsWith(path, ".yaml") || EndsWith(path, ".yml"),
+                        path << ": unknown robot description type (expected .urdf or .yaml)");
+    builder = LoadYamlDescription(path, options, stack);
+  }
+  stack->pop_back();
+  return builder;
+}
+
 }  // namespace
 
 DhTable LoadDhTable(const std::string& path) {
@@ -281,38 +473,13 @@ DhTable LoadDhTable(const std::string& path) {
   return ReadDhTable(r, r.Require(r.root(), "dh", ""), options);
 }
 
+RobotModelBuilder LoadRobotDescription(const std::string& path, const LoadOptions& options) {
+  std::vector<std::string> stack;
+  return LoadDescription(path, options, &stack);
+}
+
 RobotModel LoadRobot(const std::string& path, const LoadOptions& options) {
-  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": robot description not found");
-  if (EndsWith(path, ".urdf") || EndsWith(path, ".URDF") || EndsWith(path, ".xml")) {
-    RobotModelBuilder builder = ParseUrdf(path, options);
-    const std::string stem = path.substr(0, path.rfind('.'));
-    const std::string sidecar = stem + ".trocar.yaml";
-    if (IsRegularFile(sidecar)) {
-      const YamlReader r = YamlReader::Load(sidecar);
-      TROCAR_THROW_UNLESS(!r.root()["urdf"] && !r.root()["dh"],
-                          sidecar << ": a sidecar beside a URDF must not name 'urdf' or 'dh'");
-      ApplySidecar(r, r.root(), &builder, options);
-    }
-    return builder.Build();
-  }
-  TROCAR_THROW_UNLESS(EndsWith(path, ".yaml") || EndsWith(path, ".yml"),
-                      path << ": unknown robot description type (expected .urdf or .yaml)");
-  const YamlReader r = YamlReader::Load(path);
-  const YAML::Node& root = r.root();
-  if (root["urdf"]) {
-    const std::string urdf =
-        JoinPath(ParentDirectory(path), r.String(root["urdf"], "urdf"));
-    RobotModelBuilder builder = ParseUrdf(urdf, options);
-    ApplySidecar(r, root, &builder, options);
-    return builder.Build();
-  }
-  TROCAR_THROW_UNLESS(root["dh"], r.Where(root, "")
-                                      << ": a robot YAML needs 'urdf: <file>' or a 'dh:' table");
-  const DhTable table = ReadDhTable(r, root["dh"], options);
-  RobotModelBuilder builder(std::filesystem::path(path).stem().string(), path);
-  AddDhChain(table, &builder);
-  ApplySidecar(r, root, &builder, options);
-  return builder.Build();
+  return LoadRobotDescription(path, options).Build();
 }
 
 }  // namespace trocar::robot

@@ -4,6 +4,12 @@
 /// - `arm.urdf` — URDF; a trocar sidecar `arm.trocar.yaml` beside it is applied when present.
 /// - `arm.yaml` with `urdf: arm.urdf` — a URDF plus the sidecar fields in the same file.
 /// - `arm.yaml` with `dh:` — a Denavit-Hartenberg table (standard or modified) plus sidecar fields.
+/// - `arm.yaml` with `links:` and `joints:` — a tree written in YAML; a joint origin is
+///   `{xyz, rpy, dh: [rows]}`, X = T(xyz) R(rpy) · Π Rx(alpha) Tx(a) Rz(theta) Tz(d), so published
+///   modified-DH tables can be copied in exactly.
+/// - any of these may `include:` other descriptions: `{file, prefix, parent, origin}` attaches the
+///   file's robot, names prefixed, under link `parent`; a first include without `parent` is the
+///   base that this file extends (RobotModelBuilder::Attach).
 ///
 /// Sidecar fields (all optional), for what URDF lacks; see robots/README.md for the full format:
 ///   name, tool {link, xyz, rpy}, rcm {link, xyz, rpy}, frames [{name, link, xyz, rpy}],
@@ -18,6 +24,10 @@
 #include "robot/urdf_loader.hpp"
 
 namespace trocar::robot {
+
+/// The description before validation, for composing (RobotModelBuilder::Attach).
+/// @throws trocar::Error naming the file, line and field for any problem.
+RobotModelBuilder LoadRobotDescription(const std::string& path, const LoadOptions& options = {});
 
 /// @throws trocar::Error naming the file, line and field for any problem.
 RobotModel LoadRobot(const std::string& path, const LoadOptions& options = {});

@@ -194,6 +194,76 @@ RobotModelBuilder::JointSpec& RobotModelBuilder::GetJoint(const std::string& nam
   return *joint;
 }
 
+void RobotModelBuilder::Attach(const RobotModelBuilder& other, const std::string& prefix,
+                               const std::string& parent_link, const Eigen::Isometry3d& X_PC) {
+  std::string root;
+  for (const LinkSpec& link : other.links_) {
+    bool has_parent = false;
+    for (const JointSpec& joint : other.joints_) has_parent = has_parent || joint.child == link.name;
+    if (!has_parent && root.empty()) root = link.name;
+  }
+  TROCAR_THROW_UNLESS(!root.empty(), source_ << ": included description '" << other.source_
+                                             << "' has no root link");
+  if (!parent_link.empty()) {
+    TROCAR_THROW_UNLESS(FindLink(parent_link) != nullptr,
+                        source_ << ": include of '" << other.source_ << "': no parent link '"
+                                << parent_link << "'");
+  }
+  for (const LinkSpec& link : other.links_) {
+    LinkSpec& copy = AddLink(prefix + link.name);
+    copy.visuals = link.visuals;
+    copy.collisions = link.collisions;
+  }
+  for (const JointSpec& joint : other.joints_) {
+    JointSpec& copy = AddJoint(prefix + joint.name);
+    copy = joint;
+    copy.name = prefix + joint.name;
+    copy.parent = prefix + joint.parent;
+    copy.child = prefix + joint.child;
+    if (joint.mimic_master) copy.mimic_master = prefix + *joint.mimic_master;
+  }
+  for (FourBarSpec bar : other.four_bars_) {
+    bar.name = prefix + bar.name;
+    bar.driver = prefix + bar.driver;
+    bar.coupler = prefix + bar.coupler;
+    bar.rocker = prefix + bar.rocker;
+    four_bars_.push_back(bar);
+  }
+  auto prefixed = [&](FrameSpec frame, const std::string& name) {
+    frame.name = prefix + name;
+    frame.link = prefix + frame.link;
+    return frame;
+  };
+  for (const FrameSpec& frame : other.frames_) frames_.push_back(prefixed(frame, frame.name));
+  const bool as_base = parent_link.empty();
+  if (other.tool_) {
+    if (as_base && !tool_ && prefix.empty()) {
+      tool_ = other.tool_;
+    } else {
+      frames_.push_back(prefixed(*other.tool_, "tool"));
+    }
+  }
+  if (other.rcm_) {
+    if (as_base && !rcm_ && prefix.empty()) {
+      rcm_ = other.rcm_;
+    } else {
+      frames_.push_back(prefixed(*other.rcm_, "rcm"));
+    }
+  }
+  if (other.active_order_) {
+    if (!active_order_) active_order_.emplace();
+    for (const std::string& name : *other.active_order_) active_order_->push_back(prefix + name);
+  }
+  if (as_base && controller_.task_gains.size() == 0) controller_ = other.controller_;
+  if (!as_base) {
+    JointSpec& mount = AddJoint(prefix + "mount");
+    mount.type = JointType::kFixed;
+    mount.parent = parent_link;
+    mount.child = prefix + root;
+    mount.X_PJ = X_PC;
+  }
+}
+
 namespace {
 
 constexpr double kParallelTolerance = 1e-6;  // sine of the largest accepted angle between axes

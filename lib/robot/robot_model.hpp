@@ -276,6 +276,16 @@ class RobotModelBuilder {
   void AddFrame(FrameSpec frame) { frames_.push_back(std::move(frame)); }
   ControllerSettings& controller() { return controller_; }
 
+  /// Copies every element of `other` into this description with names prefixed by `prefix`:
+  /// links, joints (mimic masters and held flags included), closures, frames; its tool and RCM
+  /// become frames `<prefix>tool` and `<prefix>rcm`, and its active-joint list (when it has one)
+  /// is appended to this one's. With a `parent_link`, other's root is attached to it by a fixed
+  /// joint `<prefix>mount` at X_PC; without one, other becomes this description's base and also
+  /// lends its tool, RCM and controller settings where this one has none.
+  /// @throws trocar::Error on name clashes or an unknown parent link.
+  void Attach(const RobotModelBuilder& other, const std::string& prefix,
+              const std::string& parent_link, const Eigen::Isometry3d& X_PC);
+
   /// Validates and builds. Default tool frame: the child link of the last active joint,
   /// followed down single fixed joints.
   RobotModel Build() const;

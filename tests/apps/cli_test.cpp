@@ -35,7 +35,11 @@ TEST(TrocarRobotInfo, DescribesEveryBundledRobot) {
   for (const char* file : {"robots/pa10/pa10.yaml", "robots/pa10/pa10.urdf",
                            "robots/pa10/pa10_instrument.yaml",
                            "robots/prismatic-test/prismatic10.yaml",
-                           "robots/parallelogram/parallelogram.urdf"}) {
+                           "robots/parallelogram/parallelogram.urdf",
+                           "robots/davinci-classic/psm.yaml", "robots/davinci-classic/psm_si.yaml",
+                           "robots/davinci-classic/ecm.yaml", "robots/davinci-classic/ecm_30.yaml",
+                           "robots/davinci-classic/suj_psm.yaml",
+                           "robots/davinci-classic/suj_ecm.yaml"}) {
     const CommandRun run = Trocar("robot info " + test::SourcePath(file));
     EXPECT_EQ(run.exit_code, 0) << file << "\n" << run.output;
     EXPECT_NE(run.output.find("tool pose at q = 0"), std::string::npos) << run.output;
@@ -104,6 +108,30 @@ TEST(TrocarRobotFk, AClosureOutOfRangeIsReportedNotCrashed) {
   EXPECT_EQ(run.exit_code, 3);
   EXPECT_NE(run.output.find("not reachable: closure 'pitch_parallelogram'"), std::string::npos)
       << run.output;
+}
+
+TEST(TrocarRobotInfo, ShowsTheWholeDaVinciCart) {
+  const CommandRun run = Trocar("robot info " + test::SourcePath("robots/davinci-classic/cart.yaml"));
+  EXPECT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("18 active, 16 held"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("psm2_rcm on link"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("closure 'ecm_pitch_parallelogram_2'"), std::string::npos);
+}
+
+TEST(TrocarRobotSuj, PlacesAnRcmOrSaysHowFarOffItIs) {
+  const std::string cart = test::SourcePath("robots/davinci-classic/cart.yaml");
+  const CommandRun ok = Trocar("robot suj " + cart +
+                               " --frame psm1_rcm --position 0.9 -0.15 1.1 --axis 0.2 0 -1");
+  EXPECT_EQ(ok.exit_code, 0) << ok.output;
+  EXPECT_NE(ok.output.find("frame 'psm1_rcm' placed within"), std::string::npos) << ok.output;
+  EXPECT_NE(ok.output.find("psm1_suj_wrist_3"), std::string::npos) << ok.output;
+  const CommandRun far = Trocar("robot suj " + cart + " --frame ecm_rcm --position 5 0 1");
+  EXPECT_EQ(far.exit_code, 3) << far.output;
+  EXPECT_NE(far.output.find("unreachable: frame 'ecm_rcm' stays"), std::string::npos)
+      << far.output;
+  const CommandRun bad = Trocar("robot suj " + cart + " --frame psm9_rcm --position 1 0 1");
+  EXPECT_EQ(bad.exit_code, 1) << bad.output;
+  EXPECT_NE(bad.output.find("has no frame 'psm9_rcm'"), std::string::npos) << bad.output;
 }
 
 TEST(TrocarRobotInfo, MissingFileIsNamed) {

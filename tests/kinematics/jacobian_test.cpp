@@ -85,6 +85,13 @@ TEST(Jacobian, MatchesFiniteDifferencesPrismaticTestRobot) {
 TEST(Jacobian, MatchesFiniteDifferencesThroughFourBarClosure) {
   CheckJacobian(test::SourcePath("robots/parallelogram/parallelogram.urdf"), 1000, 5);
 }
+TEST(Jacobian, MatchesFiniteDifferencesThroughTheDaVinciDoubleParallelogram) {
+  CheckJacobian(test::SourcePath("robots/davinci-classic/psm.yaml"), 1000, 7);
+  CheckJacobian(test::SourcePath("robots/davinci-classic/ecm.yaml"), 1000, 8);
+}
+TEST(Jacobian, MatchesFiniteDifferencesOnTheWholeCart) {
+  CheckJacobian(test::SourcePath("robots/davinci-classic/cart.yaml"), 200, 9);
+}
 TEST(Jacobian, MatchesFiniteDifferencesThroughMimicJoints) {
   const std::string path = test::SharedDataPath("robots/surrol-psm/psm.urdf");
   TROCAR_REQUIRE_SHARED_FILE(path);

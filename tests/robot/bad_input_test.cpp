@@ -219,6 +219,42 @@ TEST_F(BadInput, FourBarWithPrismaticJointIsRefused) {
   EXPECT_CONTAINS(LoadError(urdf), "joint 'r' must be revolute, is prismatic");
 }
 
+TEST_F(BadInput, IncludeCycleIsRefused) {
+  const std::string a = Write("a.yaml", "include: [{file: b.yaml}]\n");
+  Write("b.yaml", "include: [{file: a.yaml}]\n");
+  EXPECT_CONTAINS(LoadError(a), "included from itself (include cycle)");
+}
+
+TEST_F(BadInput, IncludeUnderAnUnknownLinkIsNamed) {
+  Write("arm.yaml", "links: [{name: a}, {name: b}]\n"
+                    "joints: [{name: j, type: revolute, parent: a, child: b}]\n");
+  const std::string cart = Write("cart.yaml", "links: [{name: cart}]\n"
+                                              "include: [{file: arm.yaml, prefix: x_, parent: kart}]\n");
+  EXPECT_CONTAINS(LoadError(cart), "include[0]: " + cart + ": include of '");
+  EXPECT_CONTAINS(LoadError(cart), "no parent link 'kart'");
+}
+
+TEST_F(BadInput, IncludingTheSameArmTwiceWithoutPrefixesClashes) {
+  Write("arm.yaml", "links: [{name: a}, {name: b}]\n"
+                    "joints: [{name: j, type: revolute, parent: a, child: b}]\n");
+  const std::string cart = Write("twice.yaml", "links: [{name: cart}]\ninclude:\n"
+                                               "  - {file: arm.yaml, parent: cart}\n"
+                                               "  - {file: arm.yaml, parent: cart}\n");
+  EXPECT_CONTAINS(LoadError(cart), "link 'a' is defined twice");
+}
+
+TEST_F(BadInput, TreeJointWithUnknownLinkGivesLine) {
+  const std::string path = Write("tree.yaml", "links: [{name: a}]\n"
+                                              "joints:\n  - {name: j, type: revolute, parent: a, child: zz}\n");
+  EXPECT_CONTAINS(LoadError(path), path + ":3:49: joints[0].child: no link named 'zz'");
+}
+
+TEST_F(BadInput, TreeJointTypeIsChecked) {
+  const std::string path = Write("type.yaml", "links: [{name: a}, {name: b}]\n"
+                                              "joints: [{name: j, type: ball, parent: a, child: b}]\n");
+  EXPECT_CONTAINS(LoadError(path), "joints[0].type: joint type 'ball'");
+}
+
 TEST(BadConfiguration, NanAndWrongSizeNameTheJoint) {
   const auto model = LoadRobot(test::SourcePath("robots/pa10/pa10.yaml"));
   robot::RobotState state(model);

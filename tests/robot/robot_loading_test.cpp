@@ -35,6 +35,13 @@ const BundledRobot kBundledRobots[] = {
     {"robots/pa10/pa10_instrument.yaml", 9},
     {"robots/prismatic-test/prismatic10.yaml", 13},
     {"robots/parallelogram/parallelogram.urdf", 3},
+    {"robots/davinci-classic/psm.yaml", 7},
+    {"robots/davinci-classic/psm_si.yaml", 7},
+    {"robots/davinci-classic/ecm.yaml", 4},
+    {"robots/davinci-classic/ecm_30.yaml", 4},
+    {"robots/davinci-classic/suj_psm.yaml", 0},
+    {"robots/davinci-classic/suj_ecm.yaml", 0},
+    {"robots/davinci-classic/cart.yaml", 18},
 };
 
 TEST(LoadRobot, EveryBundledRobotLoads) {

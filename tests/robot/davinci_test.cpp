@@ -1,0 +1,294 @@
+// The da Vinci Classic models against the public dVRK kinematics (../shared/reference/
+// davinci-kinematics.md): tool-tip poses, the fixed remote centre of motion, the cart, and the
+// setup-joint solver.
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+#include "common/geometry.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "kinematics/four_bar.hpp"
+#include "kinematics/setup_joints.hpp"
+#include "robot/dh_table.hpp"
+#include "robot/load_robot.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+using kinematics::ForwardKinematics;
+using robot::DhRow;
+using robot::DhTable;
+using robot::JointType;
+using robot::RobotModel;
+using robot::RobotState;
+using test::CompareMatrices;
+
+constexpr double kRcmTolerance = 1e-9;  // m
+constexpr double kDhTolerance = 1e-9;   // m, and rotation entries
+
+std::string DaVinci(const std::string& file) {
+  return test::SourcePath("robots/davinci-classic/" + file);
+}
+
+DhRow Row(JointType type, double alpha, double a, double d, double offset) {
+  DhRow row;
+  row.type = type;
+  row.alpha = alpha;
+  row.a = a;
+  row.d = d;
+  row.offset = offset;
+  return row;
+}
+
+// The dVRK tables as published (modified DH; offset adds to theta, or to d for the prismatic).
+DhTable DvrkPsm(double insertion_offset, double roll_d) {
+  const auto R = JointType::kRevolute;
+  DhTable t;
+  t.rows = {Row(R, M_PI / 2, 0, 0, M_PI / 2),
+            Row(R, -M_PI / 2, 0, 0, -M_PI / 2),
+            Row(JointType::kPrismatic, M_PI / 2, 0, 0, insertion_offset),
+            Row(R, 0, 0, roll_d, 0),
+            Row(R, -M_PI / 2, 0, 0, -M_PI / 2),
+            Row(R, -M_PI / 2, 0.0091, 0, -M_PI / 2)};
+  t.X_NT.linear() << 0, -1, 0, 0, 0, 1, -1, 0, 0;  // the dVRK's tool-tip rotation
+  return t;
+}
+
+DhTable DvrkEcm() {
+  DhTable t;
+  t.rows = {Row(JointType::kRevolute, M_PI / 2, 0, 0, M_PI / 2),
+            Row(JointType::kRevolute, -M_PI / 2, 0, 0, -M_PI / 2),
+            Row(JointType::kPrismatic, M_PI / 2, 0, 0, -0.3822),
+            Row(JointType::kRevolute, 0, 0, 0.3829, 0)};
+  return t;
+}
+
+void ExpectToolMatchesDvrk(const std::string& file, const DhTable& table, unsigned seed) {
+  SCOPED_TRACE(file);
+  const RobotModel model = robot::LoadRobot(file);
+  RobotState state(model);
+  std::mt19937 rng(seed);
+  const int n = static_cast<int>(table.rows.size());
+  for (int trial = 0; trial < 1000; ++trial) {
+    const Eigen::VectorXd q = test::RandomConfiguration(model, &rng);
+    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok) << q.transpose();
+    ASSERT_TRUE(CompareMatrices(kinematics::ToolPoseInBase(model, state).matrix(),
+                                robot::DhToolPose(table, q.head(n)).matrix(), kDhTolerance))
+        << "q = " << q.transpose();
+  }
+}
+
+TEST(DaVinci, PsmToolTipMatchesTheDvrkTable) {
+  ExpectToolMatchesDvrk(DaVinci("psm.yaml"), DvrkPsm(-0.4318, 0.4162), 1);
+}
+TEST(DaVinci, SiPsmToolTipMatchesTheDvrkTable) {
+  ExpectToolMatchesDvrk(DaVinci("psm_si.yaml"), DvrkPsm(-0.4826, 0.4670), 2);
+}
+TEST(DaVinci, EcmToolTipMatchesTheDvrkTable) {
+  ExpectToolMatchesDvrk(DaVinci("ecm.yaml"), DvrkEcm(), 3);
+}
+TEST(DaVinci, ThirtyDegreeScopeLooksThirtyDegreesDown) {
+  DhTable table = DvrkEcm();
+  table.X_NT = RotX(-M_PI / 6);
+  ExpectToolMatchesDvrk(DaVinci("ecm_30.yaml"), table, 4);
+}
+
+TEST(DaVinci, JointLimitsAreTheDvrkRanges) {
+  const RobotModel psm = robot::LoadRobot(DaVinci("psm.yaml"));
+  const double lower[7] = {-1.588, -0.925, 0, -4.538, -1.396, -1.396, -0.698};
+  const double upper[7] = {1.588, 0.925, 0.240, 4.538, 1.396, 1.396, 1.396};
+  for (int i = 0; i < 7; ++i) {
+    EXPECT_EQ(psm.lower_limits()[i], lower[i]) << i;
+    EXPECT_EQ(psm.upper_limits()[i], upper[i]) << i;
+  }
+  const RobotModel ecm = robot::LoadRobot(DaVinci("ecm.yaml"));
+  EXPECT_EQ(ecm.lower_limits()[1], -0.768);
+  EXPECT_EQ(ecm.upper_limits()[1], 1.134);
+  EXPECT_EQ(ecm.upper_limits()[2], 0.255);
+}
+
+// Where the shaft crosses the RCM: the insertion axis passes within `distance` of the RCM frame.
+double ShaftDistanceFromRcm(const RobotModel& model, const RobotState& state,
+                            const std::string& insertion_joint, const std::string& rcm_frame) {
+  const robot::Joint& joint = model.joint(model.GetJoint(insertion_joint));
+  const Eigen::Isometry3d& X_WI = state.X_WL[joint.child_link];
+  const Eigen::Vector3d axis = X_WI.linear() * joint.axis_J;
+  const Eigen::Vector3d to_rcm =
+      kinematics::FramePose(state, model.GetFrame(rcm_frame)).translation() - X_WI.translation();
+  return (to_rcm - to_rcm.dot(axis) * axis).norm();
+}
+
+void ExpectRcmFixedOverSweeps(const std::string& file, const std::string& insertion_joint) {
+  SCOPED_TRACE(file);
+  const RobotModel model = robot::LoadRobot(file);
+  RobotState state(model);
+  std::mt19937 rng(5);
+  const Eigen::VectorXd lower = model.lower_limits(), upper = model.upper_limits();
+  // Sweep yaw (0), pitch (1) and roll (3) over their full ranges, the other joints random.
+  for (int swept : {0, 1, 3}) {
+    for (int repeat = 0; repeat < 5; ++repeat) {
+      Eigen::VectorXd q = test::RandomConfiguration(model, &rng);
+      for (int step = 0; step <= 200; ++step) {
+        q[swept] = lower[swept] + (upper[swept] - lower[swept]) * step / 200.0;
+        ASSERT_TRUE(ForwardKinematics(model, q, &state).ok) << q.transpose();
+        // The RCM frame itself is the base, fixed; the shaft must pass through it.
+        ASSERT_LT(ShaftDistanceFromRcm(model, state, insertion_joint, "rcm"), kRcmTolerance)
+            << "joint " << swept << " q = " << q.transpose();
+        // And the loops stay closed.
+        for (const auto& c : model.closures()) {
+          const auto value = [&](int j) { return state.joint_values[model.joint(j).dof_index]; };
+          ASSERT_LT(kinematics::FourBarClosureGap(model, c, value(c.driver), value(c.coupler),
+                                                  value(c.rocker)),
+                    1e-12);
+        }
+      }
+    }
+  }
+}
+
+TEST(DaVinci, PsmRcmStaysFixedOverFullSweeps) {
+  ExpectRcmFixedOverSweeps(DaVinci("psm.yaml"), "outer_insertion");
+}
+TEST(DaVinci, SiPsmRcmStaysFixedOverFullSweeps) {
+  ExpectRcmFixedOverSweeps(DaVinci("psm_si.yaml"), "outer_insertion");
+}
+TEST(DaVinci, EcmRcmStaysFixedOverFullSweeps) {
+  ExpectRcmFixedOverSweeps(DaVinci("ecm.yaml"), "insertion");
+}
+
+TEST(DaVinci, ParallelogramLinksAreRealBodiesDrivenByTwoClosures) {
+  const RobotModel model = robot::LoadRobot(DaVinci("psm.yaml"));
+  ASSERT_EQ(model.closures().size(), 2u);
+  // The two loops share the back -> bottom joint: loop 1's coupler drives loop 2.
+  EXPECT_EQ(model.closures()[0].coupler, model.closures()[1].driver);
+  for (const char* link : {"pitch_back_link", "pitch_front_link", "pitch_bottom_link",
+                           "pitch_top_link", "pitch_end_link"}) {
+    EXPECT_FALSE(model.link(model.GetLink(link)).collisions.empty()) << link;
+  }
+  for (const char* joint : {"pitch_front", "pitch_bottom", "pitch_top", "pitch_end"}) {
+    EXPECT_EQ(model.joint(model.GetJoint(joint)).drive, robot::JointDrive::kClosure) << joint;
+  }
+  // The bottom link stays parallel to the yaw axis and the end link turns with the pitch.
+  RobotState state(model);
+  Eigen::VectorXd q = Eigen::VectorXd::Zero(7);
+  q[1] = 0.6;
+  ASSERT_TRUE(ForwardKinematics(model, q, &state).ok);
+  const Eigen::Matrix3d R_yaw = state.X_WL[model.GetLink("yaw_link")].linear();
+  EXPECT_TRUE(CompareMatrices(state.X_WL[model.GetLink("pitch_bottom_link")].linear(), R_yaw, 1e-12));
+  EXPECT_TRUE(CompareMatrices(
+      state.X_WL[model.GetLink("pitch_end_link")].linear(),
+      R_yaw * Eigen::AngleAxisd(0.6, Eigen::Vector3d::UnitY()).toRotationMatrix(), 1e-12));
+}
+
+TEST(DaVinciCart, IsOneDescriptionWithHeldSetupJointsAndActiveArms) {
+  const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"));
+  EXPECT_EQ(cart.num_positions(), 18);
+  int held = 0;
+  for (int j : cart.dof_joints()) held += cart.joint(j).drive == robot::JointDrive::kHeld;
+  EXPECT_EQ(held, 16);
+  EXPECT_EQ(cart.closures().size(), 6u);
+  for (const char* frame : {"psm1_rcm", "psm2_rcm", "ecm_rcm", "psm1_tool", "psm2_tool",
+                            "ecm_tool", "ecm_camera_30_down"}) {
+    EXPECT_NO_THROW(cart.GetFrame(frame)) << frame;
+  }
+  // Each arm keeps its RCM when it moves, wherever the setup joints put it.
+  RobotState state(cart);
+  std::mt19937 rng(6);
+  for (int trial = 0; trial < 200; ++trial) {
+    for (int j : cart.dof_joints()) {
+      const robot::Joint& joint = cart.joint(j);
+      if (joint.drive != robot::JointDrive::kHeld) continue;
+      state.joint_values[joint.dof_index] =
+          std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
+    }
+    ASSERT_TRUE(ForwardKinematics(cart, test::RandomConfiguration(cart, &rng), &state).ok);
+    EXPECT_LT(ShaftDistanceFromRcm(cart, state, "psm1_outer_insertion", "psm1_rcm"), 1e-9);
+    EXPECT_LT(ShaftDistanceFromRcm(cart, state, "psm2_outer_insertion", "psm2_rcm"), 1e-9);
+    EXPECT_LT(ShaftDistanceFromRcm(cart, state, "ecm_insertion", "ecm_rcm"), 1e-9);
+  }
+}
+
+TEST(SetupJointSolver, PlacesEachRcmWhereRandomSetupJointsPutIt) {
+  const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"), {false, {}});
+  std::mt19937 rng(7);
+  for (const std::string arm : {"psm1", "psm2", "ecm"}) {
+    SCOPED_TRACE(arm);
+    const robot::Frame& rcm = cart.GetFrame(arm + "_rcm");
+    for (int trial = 0; trial < 40; ++trial) {
+      // A reachable target: forward kinematics of random setup-joint values.
+      RobotState truth(cart);
+      for (int j : cart.movable_path(rcm.link)) {
+        const robot::Joint& joint = cart.joint(j);
+        if (joint.drive != robot::JointDrive::kHeld) continue;
+        truth.joint_values[joint.dof_index] =
+            std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
+      }
+      const Eigen::VectorXd q = test::RandomConfiguration(cart, &rng);
+      const auto fk = ForwardKinematics(cart, q, &truth);
+      ASSERT_TRUE(fk.ok) << fk.message;
+      const Eigen::Isometry3d X_WR = kinematics::FramePose(truth, rcm);
+      kinematics::SetupJointRequest request;
+      request.frame = rcm.name;
+      request.p_WF = X_WR.translation();
+      request.axis_W = X_WR.linear() * -Eigen::Vector3d::UnitZ();
+      RobotState start(cart);  // setup joints at their neutral values
+      ASSERT_TRUE(kinematics::SetConfiguration(cart, q, &start).ok);
+      const auto result = kinematics::SolveSetupJoints(cart, start, request);
+      ASSERT_TRUE(result.solved()) << result.message << " trial " << trial;
+      // Check independently: put the values in and run forward kinematics.
+      RobotState check = start;
+      for (std::size_t i = 0; i < result.joints.size(); ++i) {
+        ASSERT_TRUE(kinematics::SetHeldJoint(cart, result.joints[i], result.values[i], &check).ok);
+      }
+      ForwardKinematics(cart, &check);
+      const Eigen::Isometry3d X_WR_found = kinematics::FramePose(check, rcm);
+      EXPECT_LT((X_WR_found.translation() - request.p_WF).norm(), 1e-4);
+      const Eigen::Vector3d axis = X_WR_found.linear() * -Eigen::Vector3d::UnitZ();
+      EXPECT_LT(std::acos(std::min(1.0, axis.dot(*request.axis_W))), 0.1 * M_PI / 180);
+    }
+  }
+}
+
+TEST(SetupJointSolver, ATargetOutOfReachIsUnreachableWithTheDistanceShort) {
+  const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"), {false, {}});
+  RobotState state(cart);
+  ForwardKinematics(cart, Eigen::VectorXd::Zero(18), &state);
+  kinematics::SetupJointRequest request;
+  request.frame = "psm1_rcm";
+  request.p_WF = Eigen::Vector3d(6.0, 0.0, 1.0);  // far beyond the setup joints' reach
+  request.axis_W = -Eigen::Vector3d::UnitZ();
+  const auto result = kinematics::SolveSetupJoints(cart, state, request);
+  EXPECT_FALSE(result.solved());
+  EXPECT_GT(result.position_error, 3.0);
+  EXPECT_LT(result.position_error, 6.0);
+  EXPECT_NE(result.message.find("unreachable: frame 'psm1_rcm' stays"), std::string::npos)
+      << result.message;
+  ASSERT_EQ(result.values.size(), 6);
+  for (std::size_t i = 0; i < result.joints.size(); ++i) {  // best attempt within the limits
+    const auto& limits = cart.joint(cart.GetJoint(result.joints[i])).limits;
+    EXPECT_GE(result.values[i], limits.lower);
+    EXPECT_LE(result.values[i], limits.upper);
+  }
+}
+
+TEST(SetupJointSolver, BadRequestsAreErrorsNamingTheProblem) {
+  const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"), {false, {}});
+  RobotState state(cart);
+  kinematics::SetupJointRequest request;
+  request.frame = "psm3_rcm";
+  EXPECT_THROW(kinematics::SolveSetupJoints(cart, state, request), Error);
+  request.frame = "psm1_rcm";
+  request.p_WF = Eigen::Vector3d(std::nan(""), 0, 1);
+  EXPECT_THROW(kinematics::SolveSetupJoints(cart, state, request), Error);
+  request.p_WF = Eigen::Vector3d(1, 0, 1);
+  request.axis_W = Eigen::Vector3d::Zero();
+  EXPECT_THROW(kinematics::SolveSetupJoints(cart, state, request), Error);
+  request.axis_W.reset();
+  request.joints = {"psm1_outer_yaw"};
+  EXPECT_THROW(kinematics::SolveSetupJoints(cart, state, request), Error);
+}
+
+}  // namespace
+}  // namespace trocar
