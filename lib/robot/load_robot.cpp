@@ -208,14 +208,25 @@ void ApplySidecar(const YamlReader& r, const YAML::Node& root, RobotModelBuilder
   }
   if (root["controller"]) {
     const YAML::Node node = root["controller"];
-    r.ExpectMap(node, "controller", {"task_gains"});
-    if (node["task_gains"]) {
-      const std::vector<double> gains = r.Numbers(node["task_gains"], "controller.task_gains");
-      TROCAR_THROW_UNLESS(gains.size() == 6, r.Where(node["task_gains"], "controller.task_gains")
+    r.ExpectMap(node, "controller", {"task_gains", "gains"});
+    auto read_gains = [&](const YAML::Node& list, const std::string& path) {
+      const std::vector<double> gains = r.Numbers(list, path);
+      TROCAR_THROW_UNLESS(gains.size() == 6, r.Where(list, path)
                                                  << ": expected 6 values [wx wy wz vx vy vz], got "
                                                  << gains.size());
-      builder->controller().task_gains =
-          Eigen::Map<const Eigen::VectorXd>(gains.data(), static_cast<Eigen::Index>(gains.size()));
+      return Eigen::VectorXd(Eigen::Map<const Eigen::VectorXd>(gains.data(), 6));
+    };
+    if (node["task_gains"]) {
+      builder->controller().task_gains = read_gains(node["task_gains"], "controller.task_gains");
+    }
+    if (node["gains"]) {
+      TROCAR_THROW_UNLESS(node["gains"].IsMap(), r.Where(node["gains"], "controller.gains")
+                                                     << ": expected a mapping from controller "
+                                                        "name to 6 gains");
+      for (const auto& entry : node["gains"]) {
+        const std::string name = r.String(entry.first, "controller.gains");
+        builder->controller().gains[name] = read_gains(entry.second, "controller.gains." + name);
+      }
     }
   }
 }

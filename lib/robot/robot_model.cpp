@@ -254,7 +254,9 @@ void RobotModelBuilder::Attach(const RobotModelBuilder& other, const std::string
     if (!active_order_) active_order_.emplace();
     for (const std::string& name : *other.active_order_) active_order_->push_back(prefix + name);
   }
-  if (as_base && controller_.task_gains.size() == 0) controller_ = other.controller_;
+  if (as_base && controller_.task_gains.size() == 0 && controller_.gains.empty()) {
+    controller_ = other.controller_;
+  }
   if (!as_base) {
     JointSpec& mount = AddJoint(prefix + "mount");
     mount.type = JointType::kFixed;
@@ -701,15 +703,19 @@ RobotModel RobotModelBuilder::Build() const {
   }
 
   model.controller_ = controller_;
-  if (model.controller_.task_gains.size() != 0) {
-    TROCAR_THROW_UNLESS(model.controller_.task_gains.size() == 6,
-                        src << ": controller.task_gains: expected 6 values [wx wy wz vx vy vz], got "
-                            << model.controller_.task_gains.size());
-    TROCAR_THROW_UNLESS(model.controller_.task_gains.allFinite() &&
-                            (model.controller_.task_gains.array() >= 0).all(),
-                        src << ": controller.task_gains: "
-                            << FormatVector(model.controller_.task_gains)
+  auto check_gains = [&](const Eigen::VectorXd& gains, const std::string& field) {
+    TROCAR_THROW_UNLESS(gains.size() == 6, src << ": " << field
+                                               << ": expected 6 values [wx wy wz vx vy vz], got "
+                                               << gains.size());
+    TROCAR_THROW_UNLESS(gains.allFinite() && (gains.array() >= 0).all(),
+                        src << ": " << field << ": " << FormatVector(gains)
                             << " must be finite and non-negative");
+  };
+  if (model.controller_.task_gains.size() != 0) {
+    check_gains(model.controller_.task_gains, "controller.task_gains");
+  }
+  for (const auto& [name, gains] : model.controller_.gains) {
+    check_gains(gains, "controller.gains." + name);
   }
   return model;
 }

@@ -12,6 +12,7 @@
 /// - Jacobians stack angular over linear velocity, [ω; v] (Angeles, thesis eq. 4.24), like Drake.
 
 #include <limits>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -133,8 +134,10 @@ struct FourBarClosure {
 
 /// Controller settings carried by a robot description (trocar YAML sidecar `controller:`).
 struct ControllerSettings {
-  /// Gain per task axis [ωx ωy ωz vx vy vz] for Jacobian-transpose control; empty when unset.
+  /// Gain per task axis [ωx ωy ωz vx vy vz] (1/s) for every controller; empty when unset.
   Eigen::VectorXd task_gains;
+  /// Gains for one controller by name ("jt", "dls", ...), overriding task_gains for it.
+  std::map<std::string, Eigen::VectorXd> gains;
 };
 
 class RobotModelBuilder;

@@ -1,0 +1,58 @@
+#include "control/joint_limits.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace trocar::control {
+
+double BrakingSpeed(double distance, double acceleration, double dt) {
+  if (distance <= 0.0) return 0.0;
+  if (!std::isfinite(acceleration)) return distance / dt;
+  // Steps at v, v − a·dt, v − 2a·dt, … (m positive terms) travel dt·(m·v − a·dt·m(m−1)/2).
+  // For m terms the largest v with that ≤ distance is (distance/dt + a·dt·m(m−1)/2) / m, valid
+  // when (m−1)·a·dt < v ≤ m·a·dt. Start from the continuous estimate and check neighbours.
+  const double h = acceleration * dt;
+  const double estimate = acceleration * (-0.5 * dt + std::sqrt(0.25 * dt * dt + 2.0 * distance / acceleration));
+  const double m0 = std::max(1.0, std::ceil(estimate / h));
+  double best = 0.0;
+  for (double m = std::max(1.0, m0 - 2.0); m <= m0 + 2.0; m += 1.0) {
+    const double v = (distance / dt + h * m * (m - 1.0) / 2.0) / m;
+    if (v > (m - 1.0) * h && v <= m * h + 1e-15) best = std::max(best, v);
+  }
+  return std::min(best, distance / dt);
+}
+
+LimitReport ApplyJointLimits(const robot::RobotModel& model, const Eigen::VectorXd& q,
+                             const Eigen::VectorXd& qdot_previous,
+                             const Eigen::VectorXd& qdot_command, double dt,
+                             Eigen::VectorXd* qdot, Eigen::VectorXd* q_next) {
+  LimitReport report;
+  const int n = model.num_positions();
+  qdot->resize(n);
+  q_next->resize(n);
+  for (int i = 0; i < n; ++i) {
+    const auto& l = model.joint(model.active_joints()[i]).limits;
+    double v = qdot_command[i];
+    if (std::isfinite(l.acceleration)) {
+      const double lo = qdot_previous[i] - l.acceleration * dt;
+      const double hi = qdot_previous[i] + l.acceleration * dt;
+      if (v < lo || v > hi) ++report.acceleration_limited;
+      v = std::clamp(v, lo, hi);
+    }
+    if (std::isfinite(l.velocity)) {
+      if (std::abs(v) > l.velocity) ++report.velocity_limited;
+      v = std::clamp(v, -l.velocity, l.velocity);
+    }
+    const double up = std::isfinite(l.upper) ? BrakingSpeed(l.upper - q[i], l.acceleration, dt)
+                                             : HUGE_VAL;
+    const double down = std::isfinite(l.lower) ? BrakingSpeed(q[i] - l.lower, l.acceleration, dt)
+                                               : HUGE_VAL;
+    if (v > up || v < -down) ++report.position_limited;
+    v = std::clamp(v, -down, up);
+    (*qdot)[i] = v;
+    (*q_next)[i] = std::clamp(q[i] + v * dt, l.lower, l.upper);
+  }
+  return report;
+}
+
+}  // namespace trocar::control
