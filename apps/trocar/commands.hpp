@@ -9,4 +9,7 @@ namespace trocar::apps {
 /// `trocar robot info FILE`, `trocar robot fk FILE q1 … qn`.
 void AddRobotCommand(CLI::App* app);
 
+/// `trocar teleop --robot R --input sinusoid|circle|step|roll|FILE.csv ...`.
+void AddTeleopCommand(CLI::App* app);
+
 }  // namespace trocar::apps

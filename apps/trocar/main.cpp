@@ -10,6 +10,7 @@ int main(int argc, char** argv) {
   CLI::App app{"trocar: plans ports and robot placement for robotic minimally invasive surgery"};
   app.require_subcommand(1);
   trocar::apps::AddRobotCommand(&app);
+  trocar::apps::AddTeleopCommand(&app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

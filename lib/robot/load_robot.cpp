@@ -109,7 +109,8 @@ JointType ReadJointType(const YamlReader& r, const YAML::Node& node, const std::
 
 const std::initializer_list<const char*> kTopLevelKeys = {
     "name",      "tool",       "rcm",  "frames", "active_joints", "held_joints", "joint_limits",
-    "closures",  "collision",  "controller", "urdf", "dh", "links", "joints", "include"};
+    "closures",  "collision",  "controller", "urdf", "dh", "links", "joints", "include",
+    "home"};
 
 // Applies the sidecar fields of `root` to `builder`.
 void ApplySidecar(const YamlReader& r, const YAML::Node& root, RobotModelBuilder* builder,
@@ -206,6 +207,7 @@ void ApplySidecar(const YamlReader& r, const YAML::Node& root, RobotModelBuilder
       collisions.insert(collisions.end(), shapes.begin(), shapes.end());
     }
   }
+  if (root["home"]) builder->SetHome(r.Numbers(root["home"], "home"));
   if (root["controller"]) {
     const YAML::Node node = root["controller"];
     r.ExpectMap(node, "controller", {"task_gains", "gains"});

@@ -126,6 +126,10 @@ Eigen::VectorXd RobotModel::neutral_configuration() const {
   return q;
 }
 
+Eigen::VectorXd RobotModel::home_configuration() const {
+  return home_.size() == num_positions() ? home_ : neutral_configuration();
+}
+
 RobotState::RobotState(const RobotModel& model)
     : q(model.neutral_configuration()),
       joint_values(Eigen::VectorXd::Zero(model.num_dofs())),
@@ -250,6 +254,7 @@ void RobotModelBuilder::Attach(const RobotModelBuilder& other, const std::string
       frames_.push_back(prefixed(*other.rcm_, "rcm"));
     }
   }
+  if (as_base && !home_) home_ = other.home_;
   if (other.active_order_) {
     if (!active_order_) active_order_.emplace();
     for (const std::string& name : *other.active_order_) active_order_->push_back(prefix + name);
@@ -702,6 +707,19 @@ RobotModel RobotModelBuilder::Build() const {
     model.frames_.push_back(make_frame(spec, "frame"));
   }
 
+  if (home_) {
+    TROCAR_THROW_UNLESS(static_cast<int>(home_->size()) == model.num_positions(),
+                        src << ": home: " << home_->size() << " values, expected "
+                            << model.num_positions() << " (one per active joint)");
+    model.home_ = Eigen::Map<const Eigen::VectorXd>(home_->data(), model.num_positions());
+    for (int i = 0; i < model.num_positions(); ++i) {
+      const Joint& joint = model.joints_[model.active_joints_[i]];
+      TROCAR_THROW_UNLESS(model.home_[i] >= joint.limits.lower && model.home_[i] <= joint.limits.upper,
+                          src << ": home: joint '" << joint.name << "' value " << model.home_[i]
+                              << " is outside its limits [" << joint.limits.lower << ", "
+                              << joint.limits.upper << "]");
+    }
+  }
   model.controller_ = controller_;
   auto check_gains = [&](const Eigen::VectorXd& gains, const std::string& field) {
     TROCAR_THROW_UNLESS(gains.size() == 6, src << ": " << field

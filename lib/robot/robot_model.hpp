@@ -198,6 +198,8 @@ class RobotModel {
   Eigen::VectorXd acceleration_limits() const;
   /// A configuration inside the limits: 0 where allowed, otherwise the middle of the range.
   Eigen::VectorXd neutral_configuration() const;
+  /// Where sessions start: the sidecar's `home` when given, else the neutral configuration.
+  Eigen::VectorXd home_configuration() const;
 
   const ControllerSettings& controller() const { return controller_; }
 
@@ -218,6 +220,7 @@ class RobotModel {
   std::optional<Frame> rcm_;
   std::vector<Frame> frames_;
   ControllerSettings controller_;
+  Eigen::VectorXd home_;
 };
 
 /// Collects a robot description by name and turns it into a validated RobotModel. Loaders (URDF,
@@ -278,6 +281,8 @@ class RobotModelBuilder {
   void SetRcm(FrameSpec rcm) { rcm_ = std::move(rcm); }
   void AddFrame(FrameSpec frame) { frames_.push_back(std::move(frame)); }
   ControllerSettings& controller() { return controller_; }
+  /// Active joint values (in q order) where sessions start; checked against the limits.
+  void SetHome(std::vector<double> home) { home_ = std::move(home); }
 
   /// Copies every element of `other` into this description with names prefixed by `prefix`:
   /// links, joints (mimic masters and held flags included), closures, frames; its tool and RCM
@@ -304,6 +309,7 @@ class RobotModelBuilder {
   std::optional<FrameSpec> rcm_;
   std::vector<FrameSpec> frames_;
   ControllerSettings controller_;
+  std::optional<std::vector<double>> home_;
 };
 
 }  // namespace trocar::robot

@@ -1,5 +1,7 @@
 // The `trocar` command line as a user runs it: exit codes, output and error messages.
 #include <array>
+#include <filesystem>
+#include <fstream>
 #include <cstdio>
 #include <regex>
 #include <string>
@@ -132,6 +134,39 @@ TEST(TrocarRobotSuj, PlacesAnRcmOrSaysHowFarOffItIs) {
   const CommandRun bad = Trocar("robot suj " + cart + " --frame psm9_rcm --position 1 0 1");
   EXPECT_EQ(bad.exit_code, 1) << bad.output;
   EXPECT_NE(bad.output.find("has no frame 'psm9_rcm'"), std::string::npos) << bad.output;
+}
+
+TEST(TrocarTeleop, RunsHeadlessAndRecords) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_teleop";
+  std::filesystem::remove_all(dir);
+  const CommandRun run = Trocar("teleop --robot " + test::SourcePath("robots/davinci-classic/psm.yaml") +
+                                " --input step --scale 5 --duration 2 --controller dls --record " + dir);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("scale 5:1"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("settling time after the step"), std::string::npos) << run.output;
+  std::ifstream csv(dir + "/record.csv");
+  std::string header;
+  std::getline(csv, header);
+  EXPECT_EQ(header.rfind("t,xd,yd,zd,qwd,qxd,qyd,qzd,x,y,z,qw,qx,qy,qz,q_outer_yaw", 0), 0u) << header;
+  int rows = 0;
+  for (std::string line; std::getline(csv, line);) ++rows;
+  EXPECT_EQ(rows, 2001);
+}
+
+TEST(TrocarTeleop, BadInputsAreClearErrors) {
+  const std::string robot = test::SourcePath("robots/pa10/pa10.yaml");
+  const CommandRun unknown = Trocar("teleop --robot " + robot + " --input zigzag");
+  EXPECT_EQ(unknown.exit_code, 1);
+  EXPECT_NE(unknown.output.find("unknown scripted input 'zigzag'"), std::string::npos) << unknown.output;
+  const std::string csv = ::testing::TempDir() + "/trocar_cli_bad_device.csv";
+  std::ofstream(csv) << "t,x,y,z,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n0.1,0,0,0,1,0,zero,0\n";
+  const CommandRun bad = Trocar("teleop --robot " + robot + " --input " + csv);
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.output.find(csv + ":3: column 7 ('qy'): 'zero' is not a number"), std::string::npos)
+      << bad.output;
+  const CommandRun scale = Trocar("teleop --robot " + robot + " --scale -2 --duration 0.1");
+  EXPECT_EQ(scale.exit_code, 1);
+  EXPECT_NE(scale.output.find("scale -2 must be a positive number"), std::string::npos) << scale.output;
 }
 
 TEST(TrocarRobotInfo, MissingFileIsNamed) {

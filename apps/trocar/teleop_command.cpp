@@ -1,0 +1,148 @@
+// trocar teleop: a headless teleoperation session on a simulated clock.
+#include <filesystem>
+#include <iomanip>
+#include <iostream>
+#include <memory>
+
+#include "apps/trocar/commands.hpp"
+#include "common/error.hpp"
+#include "common/geometry.hpp"
+#include "control/control_loop.hpp"
+#include "control/device_input.hpp"
+#include "control/teleop_session.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "robot/load_robot.hpp"
+
+namespace trocar::apps {
+namespace {
+
+struct TeleopCommandOptions {
+  std::string robot;
+  std::string input = "sinusoid";
+  double scale = 1.0;
+  double duration = 10.0;
+  double rate = 1000.0;
+  std::string record;
+  std::string controller = "jt";
+  bool position_only = false;
+  std::string filter = "none";
+  double amplitude = 0.04;
+  std::vector<double> q0;
+  std::vector<double> camera_rpy;
+  double max_jump = 0.05;
+};
+
+int RunTeleop(const TeleopCommandOptions& o) {
+  robot::LoadOptions load;
+  load.load_meshes = false;
+  const robot::RobotModel model = robot::LoadRobot(o.robot, load);
+  Eigen::VectorXd q0 = model.home_configuration();
+  if (!o.q0.empty()) {
+    TROCAR_THROW_UNLESS(static_cast<int>(o.q0.size()) == model.num_positions(),
+                        "--q0: " << o.q0.size() << " values, robot '" << model.name()
+                                 << "' has " << model.num_positions() << " active joints");
+    q0 = Eigen::Map<const Eigen::VectorXd>(o.q0.data(), model.num_positions());
+  }
+  const auto violations = kinematics::LimitViolations(model, q0);
+  TROCAR_THROW_UNLESS(violations.empty(), "start configuration outside the joint limits: "
+                                              << violations.front());
+  const control::Vector6d fallback = (control::Vector6d() << 20, 20, 20, 40, 40, 40).finished();
+  control::ControlLoop loop(model, control::MakeController(o.controller, model, fallback), q0);
+
+  std::unique_ptr<control::DeviceInput> input;
+  std::optional<double> step_time;
+  const bool is_file = o.input.size() > 4 && o.input.substr(o.input.size() - 4) == ".csv";
+  if (is_file) {
+    input = std::make_unique<control::CsvReplayInput>(o.input);
+  } else {
+    control::ScriptedMotion motion;
+    motion.kind = control::ParseScriptedMotion(o.input);
+    TROCAR_THROW_UNLESS(std::isfinite(o.amplitude) && o.amplitude > 0,
+                        "--amplitude " << o.amplitude << " must be positive");
+    motion.amplitude = o.amplitude;
+    if (motion.kind == control::ScriptedMotion::Kind::kStep) step_time = motion.step_time;
+    input = std::make_unique<control::ScriptedInput>(motion);
+  }
+  control::TeleopSessionOptions session;
+  session.duration = o.duration;
+  session.rate_hz = o.rate;
+  session.mapping.scale = o.scale;
+  session.mapping.position_only = o.position_only;
+  session.mapping.filter = control::ParseTremorFilter(o.filter);
+  session.mapping.max_jump = o.max_jump;
+  if (!o.camera_rpy.empty()) {
+    session.mapping.R_WC = RotationFromRpy(Eigen::Vector3d(o.camera_rpy[0], o.camera_rpy[1], o.camera_rpy[2]));
+  }
+  if (!o.record.empty()) {  // fail before the run, not after it
+    std::error_code ec;
+    std::filesystem::create_directories(o.record, ec);
+    TROCAR_THROW_UNLESS(!ec && std::filesystem::is_directory(o.record),
+                        "--record " << o.record << ": cannot create the folder: " << ec.message());
+  }
+  const control::Recorder recorder = control::RunTeleopSession(&loop, input.get(), session);
+  const control::TrackingSummary s = recorder.Summarize(step_time);
+
+  std::cout << std::setprecision(4);
+  std::cout << "teleop: robot '" << model.name() << "', controller " << o.controller
+            << ", input " << input->name() << ", scale " << o.scale << ":1"
+            << (o.position_only ? ", position only" : "") << ", filter " << o.filter << ", "
+            << o.duration << " s at " << o.rate << " Hz\n";
+  std::cout << "  position error:    RMS " << s.rms_position_error * 1e3 << " mm, max "
+            << s.max_position_error * 1e3 << " mm\n";
+  if (!o.position_only) {
+    std::cout << "  orientation error: RMS " << s.rms_orientation_error * 180 / M_PI << " deg, max "
+              << s.max_orientation_error * 180 / M_PI << " deg\n";
+  }
+  if (step_time) {
+    if (s.settling_time) {
+      std::cout << "  settling time after the step (0.1 mm, 0.1 deg): " << *s.settling_time << " s\n";
+    } else {
+      std::cout << "  not settled within 0.1 mm and 0.1 deg by the end of the run\n";
+    }
+  }
+  int limited_steps = 0;
+  for (const auto& row : recorder.rows()) limited_steps += row.limited_joints > 0;
+  std::cout << "  samples: " << s.steps << " (" << s.dropped << " dropped, " << s.held
+            << " held); a joint limit acted at " << limited_steps << " steps\n";
+  if (!o.record.empty()) {
+    std::vector<std::string> names;
+    for (int j : model.active_joints()) names.push_back(model.joint(j).name);
+    const std::string path = (std::filesystem::path(o.record) / "record.csv").string();
+    recorder.WriteCsv(path, names);
+    std::cout << "  record: " << path << "\n";
+  }
+  return 0;
+}
+
+}  // namespace
+
+void AddTeleopCommand(CLI::App* app) {
+  auto o = std::make_shared<TeleopCommandOptions>();
+  CLI::App* cmd = app->add_subcommand(
+      "teleop", "Drive a simulated robot from a device input, headless, and report tracking");
+  cmd->add_option("--robot", o->robot, "robot description (.urdf or .yaml)")->required();
+  cmd->add_option("--input", o->input,
+                  "sinusoid (thesis 5.4.2.1), circle, step, roll, or a recorded FILE.csv "
+                  "(t,x,y,z,qw,qx,qy,qz[,clutch,present])")
+      ->capture_default_str();
+  cmd->add_option("--scale", o->scale, "device:tool motion ratio (5 means 5:1)")->capture_default_str();
+  cmd->add_option("--duration", o->duration, "seconds of simulated time")->capture_default_str();
+  cmd->add_option("--rate", o->rate, "control and device rate (Hz)")->capture_default_str();
+  cmd->add_option("--record", o->record, "folder for record.csv");
+  cmd->add_option("--controller", o->controller, "jt (Jacobian transpose), dls, jla")
+      ->capture_default_str();
+  cmd->add_flag("--position-only", o->position_only, "control position only");
+  cmd->add_option("--filter", o->filter, "tremor filter: none, lowpass, oneeuro")->capture_default_str();
+  cmd->add_option("--amplitude", o->amplitude, "scripted input amplitude (m)")->capture_default_str();
+  cmd->add_option("--q0", o->q0, "start configuration (default: the robot's home)");
+  cmd->add_option("--camera-rpy", o->camera_rpy, "camera frame in the world, roll pitch yaw")
+      ->expected(3);
+  cmd->add_option("--max-jump", o->max_jump, "device jump (m) beyond which a sample is dropped")
+      ->capture_default_str();
+  cmd->callback([o]() {
+    const int code = RunTeleop(*o);
+    if (code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+}  // namespace trocar::apps
