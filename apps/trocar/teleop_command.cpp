@@ -30,6 +30,7 @@ struct TeleopCommandOptions {
   std::vector<double> q0;
   std::vector<double> camera_rpy;
   double max_jump = 0.05;
+  bool realtime = false;
 };
 
 int RunTeleop(const TeleopCommandOptions& o) {
@@ -79,6 +80,9 @@ int RunTeleop(const TeleopCommandOptions& o) {
     TROCAR_THROW_UNLESS(!ec && std::filesystem::is_directory(o.record),
                         "--record " << o.record << ": cannot create the folder: " << ec.message());
   }
+  control::RunnerStats timing;
+  session.realtime = o.realtime;
+  session.runner_stats = &timing;
   const control::Recorder recorder = control::RunTeleopSession(&loop, input.get(), session);
   const control::TrackingSummary s = recorder.Summarize(step_time);
 
@@ -86,7 +90,8 @@ int RunTeleop(const TeleopCommandOptions& o) {
   std::cout << "teleop: robot '" << model.name() << "', controller " << o.controller
             << ", input " << input->name() << ", scale " << o.scale << ":1"
             << (o.position_only ? ", position only" : "") << ", filter " << o.filter << ", "
-            << o.duration << " s at " << o.rate << " Hz\n";
+            << o.duration << " s at " << o.rate << " Hz" << (o.realtime ? " (real time)" : "")
+            << "\n";
   std::cout << "  position error:    RMS " << s.rms_position_error * 1e3 << " mm, max "
             << s.max_position_error * 1e3 << " mm\n";
   if (!o.position_only) {
@@ -104,6 +109,12 @@ int RunTeleop(const TeleopCommandOptions& o) {
   for (const auto& row : recorder.rows()) limited_steps += row.limited_joints > 0;
   std::cout << "  samples: " << s.steps << " (" << s.dropped << " dropped, " << s.held
             << " held); a joint limit acted at " << limited_steps << " steps\n";
+  if (o.realtime) {
+    std::cout << "  real time: " << timing.steps << " steps, mean period "
+              << timing.mean_period * 1e3 << " ms, period error p99 "
+              << timing.p99_period_error * 1e6 << " us, max " << timing.max_period_error * 1e6
+              << " us, " << timing.overruns << " overruns\n";
+  }
   if (!o.record.empty()) {
     std::vector<std::string> names;
     for (int j : model.active_joints()) names.push_back(model.joint(j).name);
@@ -137,6 +148,8 @@ void AddTeleopCommand(CLI::App* app) {
   cmd->add_option("--q0", o->q0, "start configuration (default: the robot's home)");
   cmd->add_option("--camera-rpy", o->camera_rpy, "camera frame in the world, roll pitch yaw")
       ->expected(3);
+  cmd->add_flag("--realtime", o->realtime,
+                "run in real time in a fixed-rate control thread (measured step times)");
   cmd->add_option("--max-jump", o->max_jump, "device jump (m) beyond which a sample is dropped")
       ->capture_default_str();
   cmd->callback([o]() {
