@@ -12,4 +12,7 @@ void AddRobotCommand(CLI::App* app);
 /// `trocar teleop --robot R --input sinusoid|circle|step|roll|FILE.csv ...`.
 void AddTeleopCommand(CLI::App* app);
 
+/// `trocar tune --robot R --controller jt [--save]`: gain auto-tuning.
+void AddTuneCommand(CLI::App* app);
+
 }  // namespace trocar::apps

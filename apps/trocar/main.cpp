@@ -11,6 +11,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   trocar::apps::AddRobotCommand(&app);
   trocar::apps::AddTeleopCommand(&app);
+  trocar::apps::AddTuneCommand(&app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

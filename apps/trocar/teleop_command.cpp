@@ -9,6 +9,7 @@
 #include "common/geometry.hpp"
 #include "control/control_loop.hpp"
 #include "control/device_input.hpp"
+#include "control/gain_tuning.hpp"
 #include "control/teleop_session.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "robot/load_robot.hpp"
@@ -125,7 +126,57 @@ int RunTeleop(const TeleopCommandOptions& o) {
   return 0;
 }
 
+struct TuneCommandOptions {
+  std::string robot;
+  std::string controller = "jt";
+  std::string input = "sinusoid";
+  double scale = 1.0;
+  double duration = 6.0;
+  int evaluations = 80;
+  bool save = false;
+};
+
+int RunTune(const TuneCommandOptions& o) {
+  robot::LoadOptions load;
+  load.load_meshes = false;
+  const robot::RobotModel model = robot::LoadRobot(o.robot, load);
+  control::GainTuningOptions options;
+  options.controller = o.controller;
+  options.trajectory.kind = control::ParseScriptedMotion(o.input);
+  options.scale = o.scale;
+  options.duration = o.duration;
+  options.max_evaluations = o.evaluations;
+  const auto r = control::TuneGains(model, model.home_configuration(), options);
+  std::cout << std::setprecision(4) << "tune: robot '" << model.name() << "', controller "
+            << o.controller << ", reference " << o.input << " (" << o.duration << " s, scale "
+            << o.scale << ":1), " << r.evaluations << " evaluations\n";
+  std::cout << "  gains [wx wy wz vx vy vz]: " << FormatVector(r.gains, 5) << "\n";
+  std::cout << "  position error RMS " << r.rms_position_error * 1e3 << " mm (was "
+            << r.initial_rms_position_error * 1e3 << " mm), max " << r.max_position_error * 1e3
+            << " mm; orientation RMS " << r.rms_orientation_error * 180 / M_PI
+            << " deg; step overshoot " << r.overshoot * 100 << " %\n";
+  if (o.save) {
+    std::cout << "  saved to " << control::SaveControllerGains(o.robot, o.controller, r.gains)
+              << " (controller.gains." << o.controller << ")\n";
+  }
+  return 0;
+}
+
 }  // namespace
+
+void AddTuneCommand(CLI::App* app) {
+  auto o = std::make_shared<TuneCommandOptions>();
+  CLI::App* cmd = app->add_subcommand(
+      "tune", "Find controller gains that track a reference trajectory without oscillating");
+  cmd->add_option("--robot", o->robot, "robot description (.urdf or .yaml)")->required();
+  cmd->add_option("--controller", o->controller, "jt, dls or jla")->capture_default_str();
+  cmd->add_option("--input", o->input, "reference: sinusoid, circle, step or roll")->capture_default_str();
+  cmd->add_option("--scale", o->scale, "device:tool motion ratio")->capture_default_str();
+  cmd->add_option("--duration", o->duration, "seconds of reference per evaluation")->capture_default_str();
+  cmd->add_option("--evaluations", o->evaluations, "most evaluations")->capture_default_str();
+  cmd->add_flag("--save", o->save, "write the gains into the robot's sidecar file");
+  cmd->callback([o]() { RunTune(*o); });
+}
 
 void AddTeleopCommand(CLI::App* app) {
   auto o = std::make_shared<TeleopCommandOptions>();

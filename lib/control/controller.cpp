@@ -176,7 +176,11 @@ void SoftwareRcmController::ComputeVelocity(const robot::RobotModel& model,
 std::unique_ptr<Controller> MakeController(const std::string& name,
                                            const robot::RobotModel& model,
                                            const Vector6d& fallback_gains) {
-  const Vector6d gains = TaskGains(model, name, fallback_gains);
+  return MakeControllerWithGains(name, TaskGains(model, name, fallback_gains));
+}
+
+std::unique_ptr<Controller> MakeControllerWithGains(const std::string& name,
+                                                    const Vector6d& gains) {
   if (name == "jt") return std::make_unique<JacobianTransposeController>(gains);
   if (name == "dls") return std::make_unique<DampedLeastSquaresController>(gains);
   if (name == "jla") return std::make_unique<JointLimitAvoidanceController>(gains);

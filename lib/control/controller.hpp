@@ -130,6 +130,10 @@ class SoftwareRcmController final : public DampedLeastSquaresController {
   double rcm_gain_;
 };
 
+/// Makes a controller by name ("jt", "dls", "jla") with exactly these gains.
+/// @throws trocar::Error for an unknown name.
+std::unique_ptr<Controller> MakeControllerWithGains(const std::string& name, const Vector6d& gains);
+
 /// Makes a controller by name ("jt", "dls", "jla") with the robot's gains (or `fallback`).
 /// @throws trocar::Error for an unknown name (the RCM controller needs a port: construct it).
 std::unique_ptr<Controller> MakeController(const std::string& name,
