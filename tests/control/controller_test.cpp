@@ -56,77 +56,101 @@ TEST(TaskError, LuhErrorIsTwiceSineTimesAxis) {
 
 // ---- Conformance suite: every controller passes the same properties. -----------------------
 
+const RobotModel& Pa10Instrument() {
+  static const RobotModel model =
+      robot::LoadRobot(test::SourcePath("robots/pa10/pa10_instrument.yaml"));
+  return model;
+}
+
+// A controller for a robot, made for a start configuration q (the software RCM puts its port
+// where the shaft is at q, 0.1 m above the wrist).
 struct ControllerCase {
   const char* name;
-  std::function<std::unique_ptr<control::Controller>(const RobotModel&)> make;
+  const RobotModel& (*robot)();
+  std::function<std::unique_ptr<control::Controller>(const RobotModel&, const Eigen::VectorXd& q)> make;
 };
 
-class ControllerConformance : public ::testing::TestWithParam<ControllerCase> {};
+Vector6d TestGains() { return (Vector6d() << 20, 20, 20, 40, 40, 40).finished(); }
+
+std::unique_ptr<control::Controller> MakeRcm(const RobotModel& model, const Eigen::VectorXd& q) {
+  RobotState state(model);
+  kinematics::ForwardKinematics(model, q, &state);
+  const int rod = model.GetLink("rod");
+  const Eigen::Vector3d p_WR = state.X_WL[rod] * Eigen::Vector3d(0, 0, -0.1);
+  return std::make_unique<control::SoftwareRcmController>(TestGains(), rod, Eigen::Vector3d(0, 0, -0.35), p_WR);
+}
+
+class ControllerConformance : public ::testing::TestWithParam<ControllerCase> {
+ protected:
+  const RobotModel& model() const { return GetParam().robot(); }
+  Eigen::VectorXd Home() const { return model().home_configuration(); }
+};
 
 TEST_P(ControllerConformance, ZeroErrorLeavesTheToolStill) {
-  const RobotModel& model = Pa10();
-  const auto controller = GetParam().make(model);
-  RobotState state(model);
+  RobotState state(model());
   std::mt19937 rng(2);
   control::ControllerWorkspace ws;
   Eigen::VectorXd qdot;
   kinematics::Matrix6Xd J;
   for (int trial = 0; trial < 200; ++trial) {
-    kinematics::ForwardKinematics(model, test::RandomConfiguration(model, &rng), &state);
+    const Eigen::VectorXd q = 0.8 * test::RandomConfiguration(model(), &rng);
+    const auto controller = GetParam().make(model(), q);
+    kinematics::ForwardKinematics(model(), q, &state);
     TaskTarget target;
-    target.X_WD = kinematics::FramePose(state, model.tool_frame());
-    controller->ComputeVelocity(model, state, target, &ws, &qdot);
+    target.X_WD = kinematics::FramePose(state, model().tool_frame());
+    controller->ComputeVelocity(model(), state, target, &ws, &qdot);
     ASSERT_TRUE(qdot.allFinite());
-    kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &J);
-    EXPECT_LT((J * qdot).norm(), 1e-6) << "q = " << state.q.transpose();
+    kinematics::ComputeFrameJacobian(model(), state, model().tool_frame(), &J);
+    EXPECT_LT((J * qdot).norm(), 1e-6) << "q = " << q.transpose();
   }
 }
 
 TEST_P(ControllerConformance, MovesTheToolTowardTheTarget) {
-  const RobotModel& model = Pa10();
-  const auto controller = GetParam().make(model);
-  RobotState state(model);
+  RobotState state(model());
   std::mt19937 rng(3);
   std::normal_distribution<double> g(0.0, 0.01);
   control::ControllerWorkspace ws;
   Eigen::VectorXd qdot;
   kinematics::Matrix6Xd J;
   for (int trial = 0; trial < 200; ++trial) {
-    Eigen::VectorXd q = test::RandomConfiguration(model, &rng);
-    q *= 0.8;  // away from the limits
-    kinematics::ForwardKinematics(model, q, &state);
+    const Eigen::VectorXd q = 0.8 * test::RandomConfiguration(model(), &rng);  // off the limits
+    const auto controller = GetParam().make(model(), q);
+    kinematics::ForwardKinematics(model(), q, &state);
     TaskTarget target;
-    target.X_WD = kinematics::FramePose(state, model.tool_frame());
+    target.X_WD = kinematics::FramePose(state, model().tool_frame());
     target.X_WD.translation() += Eigen::Vector3d(g(rng), g(rng), g(rng));
     target.X_WD.linear() = Eigen::AngleAxisd(0.05, Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized()) *
                            target.X_WD.linear();
-    controller->ComputeVelocity(model, state, target, &ws, &qdot);
-    kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &J);
-    const Vector6d e = control::TaskError(target.X_WD, kinematics::FramePose(state, model.tool_frame()));
+    controller->ComputeVelocity(model(), state, target, &ws, &qdot);
+    kinematics::ComputeFrameJacobian(model(), state, model().tool_frame(), &J);
+    const Vector6d e = control::TaskError(target.X_WD, kinematics::FramePose(state, model().tool_frame()));
     EXPECT_GT(e.dot(J * qdot), 0.0) << "q = " << q.transpose();
   }
 }
 
 TEST_P(ControllerConformance, StaysFiniteAtASingularity) {
-  const RobotModel& model = Pa10();
-  const auto controller = GetParam().make(model);
-  RobotState state(model);
-  kinematics::ForwardKinematics(model, Eigen::VectorXd::Zero(7), &state);  // arm straight up
+  RobotState state(model());
+  const Eigen::VectorXd q = Eigen::VectorXd::Zero(model().num_positions());  // arm straight up
+  const auto controller = GetParam().make(model(), q);
+  kinematics::ForwardKinematics(model(), q, &state);
   TaskTarget target;
-  target.X_WD = kinematics::FramePose(state, model.tool_frame());
+  target.X_WD = kinematics::FramePose(state, model().tool_frame());
   target.X_WD.translation() += Eigen::Vector3d(0, 0, 0.05);  // further up: unreachable direction
   control::ControllerWorkspace ws;
   Eigen::VectorXd qdot;
-  controller->ComputeVelocity(model, state, target, &ws, &qdot);
+  controller->ComputeVelocity(model(), state, target, &ws, &qdot);
   EXPECT_TRUE(qdot.allFinite());
   EXPECT_LT(qdot.norm(), 1e3);
 }
 
-TEST_P(ControllerConformance, ConvergesOnAStepOnThePa10AndThePsm) {
-  for (const RobotModel* model : {&Pa10(), &Psm()}) {
-    SCOPED_TRACE(model->name());
-    const Eigen::VectorXd q0 = model == &Pa10() ? Pa10Start() : PsmStart();
-    control::ControlLoop loop(*model, GetParam().make(*model), q0);
+TEST_P(ControllerConformance, ConvergesOnAStep) {
+  // The robot of the case, and (for controllers that need no port) the PSM too.
+  std::vector<const RobotModel*> robots = {&model()};
+  if (std::string(GetParam().name) != "rcm") robots.push_back(&Psm());
+  for (const RobotModel* robot : robots) {
+    SCOPED_TRACE(robot->name());
+    const Eigen::VectorXd q0 = robot->home_configuration();
+    control::ControlLoop loop(*robot, GetParam().make(*robot, q0), q0);
     TaskTarget target;
     target.X_WD = loop.ToolPose();
     target.X_WD.translation() += Eigen::Vector3d(0.01, -0.008, 0.006);  // a 14 mm step
@@ -142,15 +166,44 @@ TEST_P(ControllerConformance, ConvergesOnAStepOnThePa10AndThePsm) {
   }
 }
 
-Vector6d TestGains() { return (Vector6d() << 20, 20, 20, 40, 40, 40).finished(); }
-
 INSTANTIATE_TEST_SUITE_P(
     AllControllers, ControllerConformance,
     ::testing::Values(
-        ControllerCase{"jt", [](const RobotModel& m) { return control::MakeController("jt", m, TestGains()); }},
-        ControllerCase{"dls", [](const RobotModel& m) { return control::MakeController("dls", m, TestGains()); }},
-        ControllerCase{"jla", [](const RobotModel& m) { return control::MakeController("jla", m, TestGains()); }}),
+        ControllerCase{"jt", &Pa10, [](const RobotModel& m, const Eigen::VectorXd&) { return control::MakeController("jt", m, TestGains()); }},
+        ControllerCase{"dls", &Pa10, [](const RobotModel& m, const Eigen::VectorXd&) { return control::MakeController("dls", m, TestGains()); }},
+        ControllerCase{"jla", &Pa10, [](const RobotModel& m, const Eigen::VectorXd&) { return control::MakeController("jla", m, TestGains()); }},
+        ControllerCase{"rcm", &Pa10Instrument, &MakeRcm}),
     [](const ::testing::TestParamInfo<ControllerCase>& info) { return std::string(info.param.name); });
+
+TEST(SoftwareRcm, KeepsTheShaftThroughThePortWhileTheToolMoves) {
+  const RobotModel& model = Pa10Instrument();
+  const Eigen::VectorXd q0 = model.home_configuration();
+  auto rcm = MakeRcm(model, q0);
+  const auto* controller = static_cast<const control::SoftwareRcmController*>(rcm.get());
+  control::ControlLoop loop(model, std::move(rcm), q0);
+  const Eigen::Isometry3d X0 = loop.ToolPose();
+  double worst_rcm = 0.0;
+  TaskTarget target;
+  // A 15 mm circle about the start, 2 s per turn, fading in over the first second (a hand starts
+  // at rest), with its velocity fed forward as a teleoperation session does.
+  auto circle = [&](double t) {
+    const double x = std::min(1.0, t), fade = x * x * x * (x * (6 * x - 15) + 10);
+    const double phase = 2 * M_PI * t / 2.0;
+    return Eigen::Vector3d(0.015 * fade * (std::cos(phase) - 1.0), 0.015 * fade * std::sin(phase), 0.0);
+  };
+  for (int step = 0; step < 6000; ++step) {
+    const double t = step * 1e-3;
+    target.X_WD = X0;
+    target.X_WD.translation() += circle(t);
+    target.V_WD.tail<3>() = (circle(t + 1e-6) - circle(t - 1e-6)) / 2e-6;
+    loop.Step(target, 1e-3);
+    worst_rcm = std::max(worst_rcm, controller->RcmError(model, loop.state()));
+  }
+  EXPECT_LT(worst_rcm, 1e-3);  // the shaft never leaves the port by more than 1 mm
+  // And the tool followed.
+  const auto final_report = loop.Step(target, 1e-3);
+  EXPECT_LT(final_report.position_error, 2e-3);
+}
 
 // ---- Limits ---------------------------------------------------------------------------------
 
