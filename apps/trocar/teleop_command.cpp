@@ -122,6 +122,9 @@ int RunTeleop(const TeleopCommandOptions& o) {
     const std::string path = (std::filesystem::path(o.record) / "record.csv").string();
     recorder.WriteCsv(path, names);
     std::cout << "  record: " << path << "\n";
+    for (const std::string& plot : recorder.WritePlots(o.record, model.name() + " " + o.controller)) {
+      std::cout << "  figure: " << plot << "\n";
+    }
   }
   return 0;
 }
@@ -190,7 +193,7 @@ void AddTeleopCommand(CLI::App* app) {
   cmd->add_option("--scale", o->scale, "device:tool motion ratio (5 means 5:1)")->capture_default_str();
   cmd->add_option("--duration", o->duration, "seconds of simulated time")->capture_default_str();
   cmd->add_option("--rate", o->rate, "control and device rate (Hz)")->capture_default_str();
-  cmd->add_option("--record", o->record, "folder for record.csv");
+  cmd->add_option("--record", o->record, "folder for record.csv, tracking.png and errors.png");
   cmd->add_option("--controller", o->controller, "jt (Jacobian transpose), dls, jla")
       ->capture_default_str();
   cmd->add_flag("--position-only", o->position_only, "control position only");

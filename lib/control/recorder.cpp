@@ -1,10 +1,12 @@
 #include "control/recorder.hpp"
 
+#include <array>
 #include <cmath>
 #include <iomanip>
 #include <sstream>
 
 #include "common/file_util.hpp"
+#include "common/plot.hpp"
 
 namespace trocar::control {
 
@@ -67,6 +69,49 @@ void Recorder::WriteCsv(const std::string& path,
         << ToString(row.status) << "," << row.limited_joints << "\n";
   }
   WriteFileAtomically(path, out.str());
+}
+
+std::vector<std::string> Recorder::WritePlots(const std::string& folder,
+                                             const std::string& title) const {
+  const std::array<std::uint8_t, 3> desired{40, 90, 200}, actual{220, 80, 30};
+  std::vector<PlotPanel> tracking(3);
+  const char* axes = "xyz";
+  const Eigen::Vector3d origin =
+      rows_.empty() ? Eigen::Vector3d::Zero() : Eigen::Vector3d(rows_.front().X_WT.translation());
+  for (int a = 0; a < 3; ++a) {
+    PlotPanel& panel = tracking[a];
+    panel.title = title + ": " + axes[a] + " of the tool";
+    panel.y_label = "mm from start";
+    panel.x_label = "time (s)";
+    PlotSeries d{"desired", {}, {}, desired}, c{"actual", {}, {}, actual};
+    for (const RecordRow& row : rows_) {
+      d.x.push_back(row.t);
+      c.x.push_back(row.t);
+      d.y.push_back(1e3 * (row.X_WD.translation()[a] - origin[a]));
+      c.y.push_back(1e3 * (row.X_WT.translation()[a] - origin[a]));
+    }
+    panel.series = {d, c};
+  }
+  std::vector<PlotPanel> errors(2);
+  errors[0].title = title + ": position error";
+  errors[0].y_label = "mm";
+  errors[1].title = title + ": orientation error";
+  errors[1].y_label = "deg";
+  PlotSeries p{"position", {}, {}, {200, 40, 40}}, o{"orientation", {}, {}, {40, 140, 60}};
+  for (const RecordRow& row : rows_) {
+    p.x.push_back(row.t);
+    o.x.push_back(row.t);
+    p.y.push_back(1e3 * row.position_error);
+    o.y.push_back(row.orientation_error * 180.0 / M_PI);
+  }
+  errors[0].series = {p};
+  errors[1].series = {o};
+  errors[0].x_label = errors[1].x_label = "time (s)";
+  const std::string tracking_path = JoinPath(folder, "tracking.png");
+  const std::string errors_path = JoinPath(folder, "errors.png");
+  WritePlotPng(tracking_path, tracking);
+  WritePlotPng(errors_path, errors);
+  return {tracking_path, errors_path};
 }
 
 }  // namespace trocar::control

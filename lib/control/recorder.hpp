@@ -47,6 +47,10 @@ class Recorder {
   /// CSV: t, desired x y z qw qx qy qz, actual x y z qw qx qy qz, q..., position and orientation
   /// error, status, limited joints. Written to a temporary name, then renamed.
   void WriteCsv(const std::string& path, const std::vector<std::string>& joint_names) const;
+  /// Figures like the thesis' 5.4–5.15: `tracking.png` (desired and actual x, y, z relative to
+  /// the start, mm, against time) and `errors.png` (position error in mm and orientation error
+  /// in degrees against time), in `folder`. @returns the two paths.
+  std::vector<std::string> WritePlots(const std::string& folder, const std::string& title) const;
 
  private:
   std::vector<RecordRow> rows_;

@@ -9,6 +9,8 @@
 
 #include <gtest/gtest.h>
 
+#include "common/file_util.hpp"
+#include "common/plot.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "robot/load_robot.hpp"
 #include "test_util.hpp"
@@ -151,6 +153,11 @@ TEST(TrocarTeleop, RunsHeadlessAndRecords) {
   int rows = 0;
   for (std::string line; std::getline(csv, line);) ++rows;
   EXPECT_EQ(rows, 2001);
+  for (const char* figure : {"tracking.png", "errors.png"}) {
+    const Image image = DecodePng(ReadTextFile(dir + "/" + figure));
+    EXPECT_EQ(image.width, 960) << figure;
+    EXPECT_GT(image.height, 500) << figure;
+  }
 }
 
 TEST(TrocarTeleop, BadInputsAreClearErrors) {
