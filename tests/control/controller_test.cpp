@@ -296,7 +296,9 @@ TEST(Tracking, ARotationOfMoreThan180DegreesIsFollowed) {
     EXPECT_LT(final_report.position_error, 1e-4);
     EXPECT_LT(worst, 5.0 * M_PI / 180);  // it followed: never more than a few degrees behind
     // The PSM has one way to do it, its roll joint; the redundant PA10 shares it among joints.
-    if (model == &Psm()) EXPECT_NEAR(loop.state().q[roll_joint] - q0[roll_joint], total, 0.01);
+    if (model == &Psm()) {
+      EXPECT_NEAR(loop.state().q[roll_joint] - q0[roll_joint], total, 0.01);
+    }
   }
 }
 
