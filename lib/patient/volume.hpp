@@ -1,0 +1,49 @@
+#pragma once
+/// @file
+/// A CT volume in the patient frame. The patient frame P is LPS (x toward the patient's left,
+/// y posterior, z superior, as DICOM) in metres; every reader converts once, at import (NIfTI's
+/// RAS by negating x and y; millimetres to metres).
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+namespace trocar::patient {
+
+struct Volume {
+  Eigen::Vector3i size = Eigen::Vector3i::Zero();  ///< voxels along i, j, k
+  /// Patient position of voxel (i, j, k): p_P = origin_P + index_to_P · (i, j, k). Columns are
+  /// the index axes' directions times the spacing (m).
+  Eigen::Matrix3d index_to_P = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d origin_P = Eigen::Vector3d::Zero();  ///< m, centre of voxel (0, 0, 0)
+  std::vector<float> values;   ///< i fastest, then j, then k
+  bool hounsfield = false;     ///< values are Hounsfield units (else raw, e.g. 8-bit windowed)
+  std::string source;          ///< file it came from
+
+  long voxel_count() const { return static_cast<long>(size.x()) * size.y() * size.z(); }
+  long Index(int i, int j, int k) const {
+    return i + static_cast<long>(size.x()) * (j + static_cast<long>(size.y()) * k);
+  }
+  float at(int i, int j, int k) const { return values[Index(i, j, k)]; }
+  Eigen::Vector3d PatientPoint(double i, double j, double k) const {
+    return origin_P + index_to_P * Eigen::Vector3d(i, j, k);
+  }
+  /// Voxel size along each index axis (m).
+  Eigen::Vector3d spacing() const { return index_to_P.colwise().norm(); }
+  /// (i, j, k) of a patient point, continuous.
+  Eigen::Vector3d IndexOf(const Eigen::Vector3d& p_P) const {
+    return index_to_P.inverse() * (p_P - origin_P);
+  }
+};
+
+/// Reads a CT volume by its extension: .nrrd/.nhdr (raw or gzip, attached or detached data),
+/// .nii/.nii.gz (NIfTI-1, sform or qform), .mha/.mhd (MetaImage, raw or zlib).
+/// @throws trocar::Error naming the file and the header field or what is wrong with the data:
+///         unknown type, wrong sizes, truncated or garbled data, missing data file, NaN values.
+Volume LoadVolume(const std::string& path);
+
+/// Writes a volume as NRRD (gzip, attached header) in the LPS or RAS space, atomically.
+void WriteNrrd(const Volume& volume, const std::string& path, bool ras = false);
+
+}  // namespace trocar::patient

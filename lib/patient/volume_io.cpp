@@ -1,0 +1,550 @@
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <iomanip>
+#include <map>
+#include <sstream>
+
+#include <zlib.h>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "patient/volume.hpp"
+
+namespace trocar::patient {
+namespace {
+
+constexpr double kMillimetre = 1e-3;
+
+enum class VoxelType { kUint8, kInt8, kInt16, kUint16, kInt32, kUint32, kFloat32, kFloat64 };
+
+int BytesOf(VoxelType t) {
+  switch (t) {
+    case VoxelType::kUint8:
+    case VoxelType::kInt8: return 1;
+    case VoxelType::kInt16:
+    case VoxelType::kUint16: return 2;
+    case VoxelType::kInt32:
+    case VoxelType::kUint32:
+    case VoxelType::kFloat32: return 4;
+    case VoxelType::kFloat64: return 8;
+  }
+  return 1;
+}
+
+bool IsSigned(VoxelType t) {
+  return t == VoxelType::kInt8 || t == VoxelType::kInt16 || t == VoxelType::kInt32 ||
+         t == VoxelType::kFloat32 || t == VoxelType::kFloat64;
+}
+
+bool EndsWith(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+std::string Trim(const std::string& s) {
+  const auto b = s.find_first_not_of(" \t\r\n");
+  if (b == std::string::npos) return "";
+  return s.substr(b, s.find_last_not_of(" \t\r\n") - b + 1);
+}
+
+std::string Lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+// gzip or zlib, detected from the stream.
+std::string Inflate(const std::string& data, const std::string& what) {
+  z_stream stream{};
+  TROCAR_THROW_UNLESS(inflateInit2(&stream, 15 + 32) == Z_OK, what << ": cannot start decompression");
+  stream.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
+  stream.avail_in = static_cast<uInt>(data.size());
+  std::string out;
+  char buffer[1 << 16];
+  int status = Z_OK;
+  while (status == Z_OK) {
+    stream.next_out = reinterpret_cast<Bytef*>(buffer);
+    stream.avail_out = sizeof(buffer);
+    status = inflate(&stream, Z_NO_FLUSH);
+    if (status == Z_STREAM_END && stream.avail_in > 0) {
+      // Concatenated gzip members: continue with the next one.
+      out.append(buffer, sizeof(buffer) - stream.avail_out);
+      inflateReset(&stream);
+      status = Z_OK;
+      continue;
+    }
+    if (status != Z_OK && status != Z_STREAM_END) break;
+    out.append(buffer, sizeof(buffer) - stream.avail_out);
+    if (status == Z_OK && stream.avail_in == 0 && stream.avail_out != 0) {
+      status = Z_BUF_ERROR;  // input ended before the stream did
+    }
+  }
+  inflateEnd(&stream);
+  TROCAR_THROW_UNLESS(status == Z_STREAM_END,
+                      what << ": compressed data is "
+                           << (status == Z_BUF_ERROR ? "truncated" : "corrupt") << " (zlib "
+                           << (stream.msg ? stream.msg : std::to_string(status)) << ")");
+  return out;
+}
+
+// Raw voxel bytes → floats, checking the count and that every value is finite.
+std::vector<float> Convert(const std::string& bytes, std::size_t offset, VoxelType type,
+                           bool big_endian, long count, double slope, double intercept,
+                           const std::string& what) {
+  const int n = BytesOf(type);
+  const std::size_t needed = static_cast<std::size_t>(count) * n;
+  TROCAR_THROW_UNLESS(bytes.size() >= offset && bytes.size() - offset >= needed,
+                      what << ": voxel data is truncated: " << (bytes.size() >= offset ? bytes.size() - offset : 0)
+                           << " bytes, expected " << needed);
+  TROCAR_THROW_UNLESS(bytes.size() - offset == needed,
+                      what << ": voxel data has " << bytes.size() - offset - needed
+                           << " bytes more than the " << needed << " its header describes");
+  std::vector<float> values(static_cast<std::size_t>(count));
+  const unsigned char* p = reinterpret_cast<const unsigned char*>(bytes.data()) + offset;
+  unsigned char word[8];
+  long bad = 0;
+  for (long v = 0; v < count; ++v, p += n) {
+    for (int b = 0; b < n; ++b) word[b] = big_endian ? p[n - 1 - b] : p[b];
+    double x = 0.0;
+    switch (type) {
+      case VoxelType::kUint8: x = word[0]; break;
+      case VoxelType::kInt8: x = static_cast<std::int8_t>(word[0]); break;
+      case VoxelType::kInt16: { std::int16_t t; std::memcpy(&t, word, 2); x = t; break; }
+      case VoxelType::kUint16: { std::uint16_t t; std::memcpy(&t, word, 2); x = t; break; }
+      case VoxelType::kInt32: { std::int32_t t; std::memcpy(&t, word, 4); x = t; break; }
+      case VoxelType::kUint32: { std::uint32_t t; std::memcpy(&t, word, 4); x = t; break; }
+      case VoxelType::kFloat32: { float t; std::memcpy(&t, word, 4); x = t; break; }
+      case VoxelType::kFloat64: { double t; std::memcpy(&t, word, 8); x = t; break; }
+    }
+    x = slope * x + intercept;
+    if (!std::isfinite(x)) ++bad;
+    values[static_cast<std::size_t>(v)] = static_cast<float>(x);
+  }
+  TROCAR_THROW_UNLESS(bad == 0, what << ": " << bad << " voxels are NaN or infinite");
+  return values;
+}
+
+// Hounsfield units are recognised by signed data reaching into air (−1000 HU).
+bool LooksLikeHounsfield(VoxelType type, const std::vector<float>& values) {
+  if (!IsSigned(type) || values.empty()) return false;
+  return *std::min_element(values.begin(), values.end()) <= -500.0f;
+}
+
+void CheckGeometry(const Volume& v, const std::string& what) {
+  TROCAR_THROW_UNLESS((v.size.array() > 0).all(), what << ": sizes " << v.size.transpose()
+                                                       << " must be positive");
+  TROCAR_THROW_UNLESS(v.index_to_P.allFinite() && v.origin_P.allFinite(),
+                      what << ": spacing, directions or origin is not finite");
+  TROCAR_THROW_UNLESS(std::abs(v.index_to_P.determinant()) > 1e-15,
+                      what << ": the voxel axes are degenerate (zero spacing or parallel directions)");
+}
+
+// ---------------------------------------------------------------------------------------------
+// NRRD
+
+VoxelType NrrdType(const std::string& raw, const std::string& what) {
+  const std::string t = Lower(Trim(raw));
+  static const std::map<std::string, VoxelType> types = {
+      {"uchar", VoxelType::kUint8},  {"unsigned char", VoxelType::kUint8},
+      {"uint8", VoxelType::kUint8},  {"uint8_t", VoxelType::kUint8},
+      {"signed char", VoxelType::kInt8}, {"int8", VoxelType::kInt8}, {"int8_t", VoxelType::kInt8},
+      {"short", VoxelType::kInt16},  {"short int", VoxelType::kInt16},
+      {"signed short", VoxelType::kInt16}, {"int16", VoxelType::kInt16}, {"int16_t", VoxelType::kInt16},
+      {"ushort", VoxelType::kUint16}, {"unsigned short", VoxelType::kUint16},
+      {"uint16", VoxelType::kUint16}, {"uint16_t", VoxelType::kUint16},
+      {"int", VoxelType::kInt32},    {"int32", VoxelType::kInt32}, {"int32_t", VoxelType::kInt32},
+      {"signed int", VoxelType::kInt32},
+      {"uint", VoxelType::kUint32},  {"unsigned int", VoxelType::kUint32},
+      {"uint32", VoxelType::kUint32}, {"uint32_t", VoxelType::kUint32},
+      {"float", VoxelType::kFloat32}, {"double", VoxelType::kFloat64}};
+  const auto it = types.find(t);
+  TROCAR_THROW_UNLESS(it != types.end(), what << ": field 'type': '" << raw
+                                              << "' is not a supported voxel type");
+  return it->second;
+}
+
+Eigen::Vector3d ParseVector(const std::string& raw, const std::string& what) {
+  std::string s = raw;
+  for (char& c : s) {
+    if (c == '(' || c == ')' || c == ',') c = ' ';
+  }
+  std::istringstream in(s);
+  Eigen::Vector3d v;
+  TROCAR_THROW_UNLESS(static_cast<bool>(in >> v.x() >> v.y() >> v.z()),
+                      what << ": expected a vector (x,y,z), got '" << raw << "'");
+  std::string rest;
+  TROCAR_THROW_UNLESS(!(in >> rest), what << ": expected a 3-vector, got '" << raw << "'");
+  return v;
+}
+
+std::vector<std::string> SplitVectors(const std::string& raw) {
+  std::vector<std::string> out;
+  std::size_t at = 0;
+  while ((at = raw.find('(', at)) != std::string::npos) {
+    const std::size_t end = raw.find(')', at);
+    if (end == std::string::npos) break;
+    out.push_back(raw.substr(at, end - at + 1));
+    at = end + 1;
+  }
+  return out;
+}
+
+Volume LoadNrrd(const std::string& path) {
+  const std::string text = ReadTextFile(path);
+  TROCAR_THROW_UNLESS(text.rfind("NRRD000", 0) == 0,
+                      path << ": not a NRRD file (it must start with NRRD000x)");
+  std::map<std::string, std::string> fields;
+  std::size_t at = text.find('\n') + 1;
+  std::size_t data_start = std::string::npos;
+  while (at < text.size()) {
+    std::size_t end = text.find('\n', at);
+    if (end == std::string::npos) end = text.size();
+    const std::string line = text.substr(at, end - at);
+    at = end + 1;
+    if (Trim(line).empty()) {
+      data_start = at;  // attached data follows the blank line
+      break;
+    }
+    if (line[0] == '#') continue;
+    if (line.find(":=") != std::string::npos) continue;  // key/value pairs: not geometry
+    const std::size_t colon = line.find(": ");
+    TROCAR_THROW_UNLESS(colon != std::string::npos,
+                        path << ": header line '" << Trim(line) << "' is not 'field: value'");
+    fields[Lower(Trim(line.substr(0, colon)))] = Trim(line.substr(colon + 2));
+  }
+  auto field = [&](const std::string& name) -> const std::string& {
+    const auto it = fields.find(name);
+    TROCAR_THROW_UNLESS(it != fields.end(), path << ": missing field '" << name << "'");
+    return it->second;
+  };
+  const std::string where = path;
+  const VoxelType type = NrrdType(field("type"), where);
+  TROCAR_THROW_UNLESS(Trim(field("dimension")) == "3",
+                      path << ": field 'dimension': " << field("dimension")
+                           << " (only 3-D volumes are supported)");
+  Volume v;
+  v.source = path;
+  {
+    std::istringstream in(field("sizes"));
+    TROCAR_THROW_UNLESS(static_cast<bool>(in >> v.size.x() >> v.size.y() >> v.size.z()),
+                        path << ": field 'sizes': expected three integers, got '" << field("sizes") << "'");
+  }
+  double flip = 1.0;  // RAS → LPS negates x and y
+  Eigen::Matrix3d directions_mm = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d origin_mm = Eigen::Vector3d::Zero();
+  if (fields.count("space")) {
+    const std::string space = Lower(field("space"));
+    if (space == "left-posterior-superior" || space == "lps") {
+      flip = 1.0;
+    } else if (space == "right-anterior-superior" || space == "ras") {
+      flip = -1.0;
+    } else {
+      TROCAR_THROW(path << ": field 'space': '" << field("space")
+                        << "' (expected left-posterior-superior or right-anterior-superior)");
+    }
+    const auto vectors = SplitVectors(field("space directions"));
+    TROCAR_THROW_UNLESS(vectors.size() == 3, path << ": field 'space directions': expected three "
+                                                     "vectors (x,y,z), got '"
+                                                  << field("space directions") << "'");
+    for (int a = 0; a < 3; ++a) {
+      directions_mm.col(a) = ParseVector(vectors[a], path + ": field 'space directions'");
+    }
+    if (fields.count("space origin")) {
+      origin_mm = ParseVector(field("space origin"), path + ": field 'space origin'");
+    }
+  } else {
+    // No space: axis-aligned with "spacings" (or 1 mm), taken as LPS.
+    if (fields.count("spacings")) {
+      std::istringstream in(field("spacings"));
+      Eigen::Vector3d s;
+      TROCAR_THROW_UNLESS(static_cast<bool>(in >> s.x() >> s.y() >> s.z()),
+                          path << ": field 'spacings': expected three numbers");
+      directions_mm = s.asDiagonal();
+    }
+  }
+  const Eigen::Vector3d to_lps(flip, flip, 1.0);
+  v.index_to_P = to_lps.asDiagonal() * directions_mm * kMillimetre;
+  v.origin_P = to_lps.asDiagonal() * origin_mm * kMillimetre;
+  if (fields.count("space units")) {
+    const std::string units = Lower(field("space units"));
+    TROCAR_THROW_UNLESS(units.find("mm") != std::string::npos,
+                        path << ": field 'space units': '" << field("space units")
+                             << "' (only millimetres are supported)");
+  }
+  CheckGeometry(v, path);
+
+  const std::string encoding = Lower(field("encoding"));
+  TROCAR_THROW_UNLESS(encoding == "raw" || encoding == "gzip" || encoding == "gz",
+                      path << ": field 'encoding': '" << field("encoding")
+                           << "' (expected raw or gzip)");
+  const bool big_endian = fields.count("endian") && Lower(field("endian")) == "big";
+  std::string data;
+  std::string data_name = path;
+  if (fields.count("data file") || fields.count("datafile")) {
+    const std::string name = fields.count("data file") ? field("data file") : field("datafile");
+    TROCAR_THROW_UNLESS(name.find(' ') == std::string::npos || name.rfind("LIST", 0) != 0,
+                        path << ": field 'data file': multi-file data is not supported");
+    data_name = JoinPath(ParentDirectory(path), name);
+    TROCAR_THROW_UNLESS(IsRegularFile(data_name), path << ": field 'data file': '" << name
+                                                       << "' not found (looked for " << data_name << ")");
+    data = ReadTextFile(data_name);
+  } else {
+    TROCAR_THROW_UNLESS(data_start != std::string::npos,
+                        path << ": no attached data and no 'data file' field");
+    data = text.substr(data_start);
+  }
+  if (encoding != "raw") data = Inflate(data, data_name);
+  v.values = Convert(data, 0, type, big_endian, v.voxel_count(), 1.0, 0.0, data_name);
+  v.hounsfield = LooksLikeHounsfield(type, v.values);
+  return v;
+}
+
+// ---------------------------------------------------------------------------------------------
+// NIfTI-1
+
+Volume LoadNifti(const std::string& path) {
+  std::string bytes = ReadTextFile(path);
+  if (EndsWith(Lower(path), ".gz")) bytes = Inflate(bytes, path);
+  TROCAR_THROW_UNLESS(bytes.size() >= 352, path << ": too short for a NIfTI-1 header ("
+                                                << bytes.size() << " bytes)");
+  std::int32_t header_size;
+  std::memcpy(&header_size, bytes.data(), 4);
+  bool swap = false;
+  if (header_size != 348) {
+    std::uint32_t u;
+    std::memcpy(&u, bytes.data(), 4);
+    u = ((u & 0xff) << 24) | ((u & 0xff00) << 8) | ((u >> 8) & 0xff00) | (u >> 24);
+    TROCAR_THROW_UNLESS(u == 348, path << ": not a NIfTI-1 file (sizeof_hdr " << header_size
+                                       << ", expected 348)");
+    swap = true;
+  }
+  auto read = [&](std::size_t offset, int n) {
+    unsigned char w[8];
+    for (int b = 0; b < n; ++b) {
+      w[b] = static_cast<unsigned char>(bytes[offset + (swap ? n - 1 - b : b)]);
+    }
+    return std::string(reinterpret_cast<char*>(w), n);
+  };
+  auto i16 = [&](std::size_t o) { std::int16_t v; std::memcpy(&v, read(o, 2).data(), 2); return v; };
+  auto f32 = [&](std::size_t o) { float v; std::memcpy(&v, read(o, 4).data(), 4); return static_cast<double>(v); };
+  const std::string magic = bytes.substr(344, 3);
+  TROCAR_THROW_UNLESS(magic == "n+1", path << ": NIfTI magic '" << magic
+                                           << "' (only single-file .nii, magic n+1, is supported)");
+  const int ndim = i16(40);
+  TROCAR_THROW_UNLESS(ndim == 3 || (ndim == 4 && i16(48) == 1),
+                      path << ": dim[0] = " << ndim << " (only 3-D volumes are supported)");
+  Volume v;
+  v.source = path;
+  v.size << i16(42), i16(44), i16(46);
+  VoxelType type;
+  switch (i16(70)) {
+    case 2: type = VoxelType::kUint8; break;
+    case 4: type = VoxelType::kInt16; break;
+    case 8: type = VoxelType::kInt32; break;
+    case 16: type = VoxelType::kFloat32; break;
+    case 64: type = VoxelType::kFloat64; break;
+    case 256: type = VoxelType::kInt8; break;
+    case 512: type = VoxelType::kUint16; break;
+    case 768: type = VoxelType::kUint32; break;
+    default: TROCAR_THROW(path << ": datatype " << i16(70) << " is not supported");
+  }
+  double pixdim[8];
+  for (int k = 0; k < 8; ++k) pixdim[k] = f32(76 + 4 * k);
+  const double vox_offset = f32(108);
+  double slope = f32(112), intercept = f32(116);
+  if (slope == 0.0 || !std::isfinite(slope)) {
+    slope = 1.0;
+    intercept = 0.0;
+  }
+  const int qform = i16(252), sform = i16(254);
+  Eigen::Matrix3d directions_mm;
+  Eigen::Vector3d origin_mm;
+  if (sform > 0) {
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) directions_mm(r, c) = f32(280 + 16 * r + 4 * c);
+      origin_mm[r] = f32(280 + 16 * r + 12);
+    }
+  } else if (qform > 0) {
+    const double b = f32(256), c = f32(260), d = f32(264);
+    const double a = std::sqrt(std::max(0.0, 1.0 - (b * b + c * c + d * d)));
+    const Eigen::Matrix3d R = Eigen::Quaterniond(a, b, c, d).toRotationMatrix();
+    const double qfac = pixdim[0] < 0 ? -1.0 : 1.0;
+    directions_mm = R * Eigen::Vector3d(pixdim[1], pixdim[2], qfac * pixdim[3]).asDiagonal();
+    origin_mm << f32(268), f32(272), f32(276);
+  } else {
+    directions_mm = Eigen::Vector3d(pixdim[1], pixdim[2], pixdim[3]).asDiagonal();
+    origin_mm.setZero();
+  }
+  // NIfTI world coordinates are RAS millimetres.
+  const Eigen::Vector3d to_lps(-1.0, -1.0, 1.0);
+  v.index_to_P = to_lps.asDiagonal() * directions_mm * kMillimetre;
+  v.origin_P = to_lps.asDiagonal() * origin_mm * kMillimetre;
+  CheckGeometry(v, path);
+  TROCAR_THROW_UNLESS(vox_offset >= 348 && std::isfinite(vox_offset),
+                      path << ": vox_offset " << vox_offset << " is not past the header");
+  // Convert() assumes little-endian bytes after our own swap of the header only: voxel data
+  // follow the header's byte order.
+  const bool big_endian = swap;
+  v.values = Convert(bytes, static_cast<std::size_t>(vox_offset), type, big_endian,
+                     v.voxel_count(), slope, intercept, path);
+  v.hounsfield = LooksLikeHounsfield(type, v.values);
+  return v;
+}
+
+// ---------------------------------------------------------------------------------------------
+// MetaImage
+
+Volume LoadMetaImage(const std::string& path) {
+  const std::string text = ReadTextFile(path);
+  std::map<std::string, std::string> fields;
+  std::size_t at = 0;
+  std::size_t data_start = std::string::npos;
+  while (at < text.size()) {
+    std::size_t end = text.find('\n', at);
+    if (end == std::string::npos) end = text.size();
+    const std::string line = text.substr(at, end - at);
+    at = end + 1;
+    if (Trim(line).empty()) continue;
+    const std::size_t eq = line.find('=');
+    TROCAR_THROW_UNLESS(eq != std::string::npos,
+                        path << ": header line '" << Trim(line).substr(0, 60) << "' is not 'Key = Value'");
+    const std::string key = Trim(line.substr(0, eq));
+    fields[key] = Trim(line.substr(eq + 1));
+    if (key == "ElementDataFile") {
+      data_start = at;
+      break;
+    }
+  }
+  auto field = [&](const std::string& name) -> const std::string& {
+    const auto it = fields.find(name);
+    TROCAR_THROW_UNLESS(it != fields.end(), path << ": missing field '" << name << "'");
+    return it->second;
+  };
+  TROCAR_THROW_UNLESS(Trim(field("NDims")) == "3",
+                      path << ": field 'NDims': " << field("NDims") << " (only 3-D volumes)");
+  if (fields.count("ElementNumberOfChannels")) {
+    TROCAR_THROW_UNLESS(Trim(field("ElementNumberOfChannels")) == "1",
+                        path << ": field 'ElementNumberOfChannels' must be 1");
+  }
+  Volume v;
+  v.source = path;
+  {
+    std::istringstream in(field("DimSize"));
+    TROCAR_THROW_UNLESS(static_cast<bool>(in >> v.size.x() >> v.size.y() >> v.size.z()),
+                        path << ": field 'DimSize': expected three integers");
+  }
+  Eigen::Vector3d spacing(1, 1, 1);
+  const std::string spacing_key = fields.count("ElementSpacing") ? "ElementSpacing" : "ElementSize";
+  if (fields.count(spacing_key)) {
+    std::istringstream in(fields[spacing_key]);
+    TROCAR_THROW_UNLESS(static_cast<bool>(in >> spacing.x() >> spacing.y() >> spacing.z()),
+                        path << ": field '" << spacing_key << "': expected three numbers");
+  }
+  Eigen::Vector3d origin_mm = Eigen::Vector3d::Zero();
+  for (const char* key : {"Offset", "Origin", "Position"}) {
+    if (!fields.count(key)) continue;
+    std::istringstream in(fields[key]);
+    TROCAR_THROW_UNLESS(static_cast<bool>(in >> origin_mm.x() >> origin_mm.y() >> origin_mm.z()),
+                        path << ": field '" << key << "': expected three numbers");
+  }
+  Eigen::Matrix3d directions = Eigen::Matrix3d::Identity();
+  for (const char* key : {"TransformMatrix", "Rotation", "Orientation"}) {
+    if (!fields.count(key)) continue;
+    std::istringstream in(fields[key]);
+    // Axis i's direction is the i-th triple (ITK writes the direction matrix column by column).
+    for (int c = 0; c < 3; ++c) {
+      for (int r = 0; r < 3; ++r) {
+        TROCAR_THROW_UNLESS(static_cast<bool>(in >> directions(r, c)),
+                            path << ": field '" << key << "': expected nine numbers");
+      }
+    }
+  }
+  // MetaImage physical space is LPS millimetres (ITK's convention).
+  v.index_to_P = directions * spacing.asDiagonal() * kMillimetre;
+  v.origin_P = origin_mm * kMillimetre;
+  CheckGeometry(v, path);
+  static const std::map<std::string, VoxelType> types = {
+      {"MET_UCHAR", VoxelType::kUint8},  {"MET_CHAR", VoxelType::kInt8},
+      {"MET_SHORT", VoxelType::kInt16},  {"MET_USHORT", VoxelType::kUint16},
+      {"MET_INT", VoxelType::kInt32},    {"MET_UINT", VoxelType::kUint32},
+      {"MET_FLOAT", VoxelType::kFloat32}, {"MET_DOUBLE", VoxelType::kFloat64}};
+  const auto type_it = types.find(field("ElementType"));
+  TROCAR_THROW_UNLESS(type_it != types.end(), path << ": field 'ElementType': '"
+                                                   << field("ElementType") << "' is not supported");
+  bool big_endian = false;
+  for (const char* key : {"BinaryDataByteOrderMSB", "ElementByteOrderMSB"}) {
+    if (fields.count(key)) big_endian = Lower(fields[key]) == "true";
+  }
+  const std::string file = field("ElementDataFile");
+  std::string data;
+  std::string data_name = path;
+  if (file == "LOCAL") {
+    TROCAR_THROW_UNLESS(data_start != std::string::npos && data_start <= text.size(),
+                        path << ": ElementDataFile = LOCAL but no data follows");
+    data = text.substr(data_start);
+  } else {
+    data_name = JoinPath(ParentDirectory(path), file);
+    TROCAR_THROW_UNLESS(IsRegularFile(data_name), path << ": field 'ElementDataFile': '" << file
+                                                       << "' not found (looked for " << data_name << ")");
+    data = ReadTextFile(data_name);
+  }
+  if (fields.count("CompressedData") && Lower(fields["CompressedData"]) == "true") {
+    data = Inflate(data, data_name);
+  }
+  v.values = Convert(data, 0, type_it->second, big_endian, v.voxel_count(), 1.0, 0.0, data_name);
+  v.hounsfield = LooksLikeHounsfield(type_it->second, v.values);
+  return v;
+}
+
+std::string Deflate(const std::string& data, bool gzip) {
+  z_stream stream{};
+  TROCAR_THROW_UNLESS(deflateInit2(&stream, 6, Z_DEFLATED, 15 + (gzip ? 16 : 0), 8,
+                                   Z_DEFAULT_STRATEGY) == Z_OK,
+                      "cannot start compression");
+  stream.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
+  stream.avail_in = static_cast<uInt>(data.size());
+  std::string out(deflateBound(&stream, static_cast<uLong>(data.size())), '\0');
+  stream.next_out = reinterpret_cast<Bytef*>(&out[0]);
+  stream.avail_out = static_cast<uInt>(out.size());
+  const int status = deflate(&stream, Z_FINISH);
+  out.resize(stream.total_out);
+  deflateEnd(&stream);
+  TROCAR_THROW_UNLESS(status == Z_STREAM_END, "compression failed");
+  return out;
+}
+
+}  // namespace
+
+Volume LoadVolume(const std::string& path) {
+  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": CT volume not found");
+  const std::string name = Lower(path);
+  if (EndsWith(name, ".nrrd") || EndsWith(name, ".nhdr")) return LoadNrrd(path);
+  if (EndsWith(name, ".nii") || EndsWith(name, ".nii.gz")) return LoadNifti(path);
+  if (EndsWith(name, ".mha") || EndsWith(name, ".mhd")) return LoadMetaImage(path);
+  TROCAR_THROW(path << ": unknown volume format (expected .nrrd, .nhdr, .nii, .nii.gz, .mha or "
+                       ".mhd)");
+}
+
+void WriteNrrd(const Volume& volume, const std::string& path, bool ras) {
+  TROCAR_THROW_UNLESS(static_cast<long>(volume.values.size()) == volume.voxel_count(),
+                      path << ": volume has " << volume.values.size() << " values for "
+                           << volume.voxel_count() << " voxels");
+  const Eigen::Vector3d to_space(ras ? -1.0 : 1.0, ras ? -1.0 : 1.0, 1.0);
+  const Eigen::Matrix3d directions_mm = to_space.asDiagonal() * volume.index_to_P / kMillimetre;
+  const Eigen::Vector3d origin_mm = to_space.asDiagonal() * volume.origin_P / kMillimetre;
+  std::ostringstream header;
+  header << std::setprecision(12) << "NRRD0004\n# written by trocar\ntype: float\ndimension: 3\n"
+         << "space: " << (ras ? "right-anterior-superior" : "left-posterior-superior") << "\n"
+         << "sizes: " << volume.size.x() << " " << volume.size.y() << " " << volume.size.z() << "\n"
+         << "space directions:";
+  for (int c = 0; c < 3; ++c) {
+    header << " (" << directions_mm(0, c) << "," << directions_mm(1, c) << "," << directions_mm(2, c) << ")";
+  }
+  header << "\nspace origin: (" << origin_mm.x() << "," << origin_mm.y() << "," << origin_mm.z()
+         << ")\nendian: little\nencoding: gzip\n\n";
+  std::string raw(volume.values.size() * sizeof(float), '\0');
+  std::memcpy(&raw[0], volume.values.data(), raw.size());
+  WriteFileAtomically(path, header.str() + Deflate(raw, true));
+}
+
+}  // namespace trocar::patient
