@@ -10,6 +10,19 @@
 
 namespace trocar::control {
 
+namespace {
+
+// Task velocity V_d + K e for the tool, after filling the tool Jacobian into the workspace.
+Vector6d ToolTaskVelocity(const robot::RobotModel& model, const robot::RobotState& state,
+                          const TaskTarget& target, const Vector6d& gains,
+                          ControllerWorkspace* ws) {
+  kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &ws->J);
+  return target.V_WD +
+         gains.asDiagonal() * TaskError(target.X_WD, kinematics::FramePose(state, model.tool_frame()));
+}
+
+}  // namespace
+
 Vector6d TaskGains(const robot::RobotModel& model, const std::string& name,
                    const Vector6d& fallback) {
   const auto& settings = model.controller();
@@ -58,11 +71,7 @@ void DampedLeastSquaresController::ComputeVelocity(const robot::RobotModel& mode
                                                    const TaskTarget& target,
                                                    ControllerWorkspace* ws,
                                                    Eigen::VectorXd* qdot) const {
-  kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &ws->J);
-  const Vector6d v =
-      target.V_WD + gains_.asDiagonal() *
-                        TaskError(target.X_WD, kinematics::FramePose(state, model.tool_frame()));
-  *qdot = Solve(ws->J, v, target.position_only, {});
+  *qdot = Solve(ws->J, ToolTaskVelocity(model, state, target, gains_, ws), target.position_only, {});
 }
 
 void JointLimitAvoidanceController::ComputeVelocity(const robot::RobotModel& model,
@@ -70,10 +79,7 @@ void JointLimitAvoidanceController::ComputeVelocity(const robot::RobotModel& mod
                                                     const TaskTarget& target,
                                                     ControllerWorkspace* ws,
                                                     Eigen::VectorXd* qdot) const {
-  kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &ws->J);
-  const Vector6d v =
-      target.V_WD + gains_.asDiagonal() *
-                        TaskError(target.X_WD, kinematics::FramePose(state, model.tool_frame()));
+  const Vector6d v = ToolTaskVelocity(model, state, target, gains_, ws);
   const int n = model.num_positions();
   // Secondary motion: the gradient of Σ ((q − mid) / range)², pushing toward mid-range.
   Eigen::VectorXd q0 = Eigen::VectorXd::Zero(n);
@@ -163,9 +169,7 @@ void SoftwareRcmController::ComputeVelocity(const robot::RobotModel& model,
   const Eigen::VectorXd q1 = J_rcm_pinv * (rcm_gain_ * e_rcm);
   const Eigen::MatrixXd N = Eigen::MatrixXd::Identity(n, n) - J_rcm_pinv * J_rcm;
   // Tool task in the constraint's null space.
-  kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &ws->J);
-  Vector6d v = target.V_WD + gains_.asDiagonal() *
-                                 TaskError(target.X_WD, kinematics::FramePose(state, model.tool_frame()));
+  const Vector6d v = ToolTaskVelocity(model, state, target, gains_, ws);
   Eigen::MatrixXd J_t = target.position_only ? Eigen::MatrixXd(ws->J.bottomRows<3>())
                                              : Eigen::MatrixXd(ws->J);
   const Eigen::VectorXd v_t = target.position_only ? Eigen::VectorXd(v.tail<3>()) : Eigen::VectorXd(v);

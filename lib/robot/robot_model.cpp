@@ -87,30 +87,17 @@ const Frame& RobotModel::GetFrame(const std::string& name) const {
   return frames_[index];
 }
 
-Eigen::VectorXd RobotModel::lower_limits() const {
+Eigen::VectorXd RobotModel::ActiveLimits(double JointLimits::*member) const {
   Eigen::VectorXd v(num_positions());
-  for (int i = 0; i < num_positions(); ++i) v[i] = joints_[active_joints_[i]].limits.lower;
+  for (int i = 0; i < num_positions(); ++i) v[i] = joints_[active_joints_[i]].limits.*member;
   return v;
 }
 
-Eigen::VectorXd RobotModel::upper_limits() const {
-  Eigen::VectorXd v(num_positions());
-  for (int i = 0; i < num_positions(); ++i) v[i] = joints_[active_joints_[i]].limits.upper;
-  return v;
-}
-
-Eigen::VectorXd RobotModel::velocity_limits() const {
-  Eigen::VectorXd v(num_positions());
-  for (int i = 0; i < num_positions(); ++i) v[i] = joints_[active_joints_[i]].limits.velocity;
-  return v;
-}
-
+Eigen::VectorXd RobotModel::lower_limits() const { return ActiveLimits(&JointLimits::lower); }
+Eigen::VectorXd RobotModel::upper_limits() const { return ActiveLimits(&JointLimits::upper); }
+Eigen::VectorXd RobotModel::velocity_limits() const { return ActiveLimits(&JointLimits::velocity); }
 Eigen::VectorXd RobotModel::acceleration_limits() const {
-  Eigen::VectorXd v(num_positions());
-  for (int i = 0; i < num_positions(); ++i) {
-    v[i] = joints_[active_joints_[i]].limits.acceleration;
-  }
-  return v;
+  return ActiveLimits(&JointLimits::acceleration);
 }
 
 namespace {

@@ -206,6 +206,7 @@ class RobotModel {
  private:
   friend class RobotModelBuilder;
   RobotModel() = default;
+  Eigen::VectorXd ActiveLimits(double JointLimits::*member) const;
 
   std::string name_;
   std::string source_;
