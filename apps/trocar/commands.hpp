@@ -15,4 +15,7 @@ void AddTeleopCommand(CLI::App* app);
 /// `trocar tune --robot R --controller jt [--save]`: gain auto-tuning.
 void AddTuneCommand(CLI::App* app);
 
+/// `trocar phantom --out DIR --seed N ...`.
+void AddPatientCommands(CLI::App* app);
+
 }  // namespace trocar::apps

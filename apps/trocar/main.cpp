@@ -12,6 +12,7 @@ int main(int argc, char** argv) {
   trocar::apps::AddRobotCommand(&app);
   trocar::apps::AddTeleopCommand(&app);
   trocar::apps::AddTuneCommand(&app);
+  trocar::apps::AddPatientCommands(&app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -515,6 +515,44 @@ std::string Deflate(const std::string& data, bool gzip) {
 
 }  // namespace
 
+SliceImage RenderSlice(const Volume& v, int axis, int index, double level, double width) {
+  TROCAR_THROW_UNLESS(axis >= 0 && axis <= 2 && index >= 0 && index < v.size[axis],
+                      "slice " << index << " on axis " << axis << " is outside the volume");
+  // Image axes: u (columns), w (rows, drawn downward from the top).
+  const int u_axis = axis == 0 ? 1 : 0;
+  const int w_axis = axis == 2 ? 1 : 2;
+  const Eigen::Vector3d spacing = v.spacing();
+  const double pixel = spacing.minCoeff();
+  SliceImage image;
+  image.width = static_cast<int>(std::lround(v.size[u_axis] * spacing[u_axis] / pixel));
+  image.height = static_cast<int>(std::lround(v.size[w_axis] * spacing[w_axis] / pixel));
+  image.rgb.resize(3 * static_cast<std::size_t>(image.width) * image.height);
+  // Which way is up: anterior (−y in LPS) for axial, superior (+z) otherwise.
+  const Eigen::Vector3d up = axis == 2 ? Eigen::Vector3d(0, -1, 0) : Eigen::Vector3d(0, 0, 1);
+  const bool flip = v.index_to_P.col(w_axis).dot(up) > 0;  // index grows upward: draw reversed
+  const Eigen::Vector3d right = axis == 0 ? Eigen::Vector3d(0, -1, 0) : Eigen::Vector3d(-1, 0, 0);
+  // Radiological convention: the patient's right on the image's left, so columns run toward the
+  // patient's left; reverse them when the index grows toward the patient's right.
+  const bool mirror = v.index_to_P.col(u_axis).dot(right) > 0;
+  for (int r = 0; r < image.height; ++r) {
+    for (int c = 0; c < image.width; ++c) {
+      int iu = std::min(v.size[u_axis] - 1, static_cast<int>(c * pixel / spacing[u_axis]));
+      int iw = std::min(v.size[w_axis] - 1, static_cast<int>(r * pixel / spacing[w_axis]));
+      if (flip) iw = v.size[w_axis] - 1 - iw;
+      if (mirror) iu = v.size[u_axis] - 1 - iu;
+      Eigen::Vector3i ijk;
+      ijk[axis] = index;
+      ijk[u_axis] = iu;
+      ijk[w_axis] = iw;
+      const double x = (v.at(ijk.x(), ijk.y(), ijk.z()) - (level - 0.5 * width)) / width;
+      const auto grey = static_cast<unsigned char>(std::lround(255.0 * std::clamp(x, 0.0, 1.0)));
+      const std::size_t at = 3 * (static_cast<std::size_t>(r) * image.width + c);
+      image.rgb[at] = image.rgb[at + 1] = image.rgb[at + 2] = grey;
+    }
+  }
+  return image;
+}
+
 Volume LoadVolume(const std::string& path) {
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": CT volume not found");
   const std::string name = Lower(path);

@@ -176,6 +176,23 @@ TEST(TrocarTeleop, BadInputsAreClearErrors) {
   EXPECT_NE(scale.output.find("scale -2 must be a positive number"), std::string::npos) << scale.output;
 }
 
+TEST(TrocarPhantom, WritesACaseAPersonCanOpen) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_phantom";
+  std::filesystem::remove_all(dir);
+  const CommandRun run = Trocar("phantom --out " + dir + " --seed 3 --voxel 0.004");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("18 ribs, 16 intercostal spaces"), std::string::npos) << run.output;
+  for (const char* file : {"ct.nrrd", "patient.yaml", "truth.json", "markups/LAD.mrk.json",
+                           "markups/LIMA.mrk.json", "markups/intercostal_left.mrk.json"}) {
+    EXPECT_TRUE(IsRegularFile(dir + "/" + file)) << file;
+  }
+  const Image preview = DecodePng(ReadTextFile(dir + "/preview.png"));
+  EXPECT_GT(preview.width, 100);
+  const CommandRun bad = Trocar("phantom --out " + dir + " --body-width 3");
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.output.find("phantom: body_width = 3 is outside"), std::string::npos) << bad.output;
+}
+
 TEST(TrocarRobotInfo, MissingFileIsNamed) {
   const CommandRun run = Trocar("robot info /no/such/robot.urdf");
   EXPECT_EQ(run.exit_code, 1);

@@ -1,0 +1,277 @@
+#include "patient/phantom.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <random>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+
+namespace trocar::patient {
+namespace {
+
+void Check(double value, double lo, double hi, const char* name) {
+  TROCAR_THROW_UNLESS(std::isfinite(value) && value >= lo && value <= hi,
+                      "phantom: " << name << " = " << value << " is outside [" << lo << ", " << hi
+                                  << "]");
+}
+
+// Rib geometry shared by the volume and the truth.
+struct RibLayout {
+  double a_r, b_r;        // ellipse of the rib centrelines (m)
+  double phi0, phi1;      // rib extent: from beside the spine to the costal cartilage
+  double z_top, spacing, drop;
+  double Z(int k, double phi) const {
+    return z_top - k * spacing - drop * (phi - phi0) / (phi1 - phi0);
+  }
+  Eigen::Vector3d Point(int side, int k, double phi) const {
+    return {side * a_r * std::sin(phi), b_r * std::cos(phi), Z(k, phi)};
+  }
+};
+
+// Sets every voxel within `radius` of the polyline to `value`.
+void StampTube(const Curve& curve, double radius, float value, Volume* v) {
+  const Eigen::Matrix3d to_index = v->index_to_P.inverse();
+  const double voxel = v->spacing().minCoeff();
+  for (std::size_t s = 0; s + 1 < curve.size(); ++s) {
+    const Eigen::Vector3d a = curve[s], b = curve[s + 1];
+    const int steps = std::max(1, static_cast<int>(std::ceil((b - a).norm() / (0.5 * voxel))));
+    for (int t = 0; t <= steps; ++t) {
+      const Eigen::Vector3d p = a + (b - a) * (static_cast<double>(t) / steps);
+      const Eigen::Vector3d c = to_index * (p - v->origin_P);
+      const int reach = static_cast<int>(std::ceil(radius / voxel)) + 1;
+      for (int dk = -reach; dk <= reach; ++dk) {
+        for (int dj = -reach; dj <= reach; ++dj) {
+          for (int di = -reach; di <= reach; ++di) {
+            const int i = static_cast<int>(std::lround(c.x())) + di;
+            const int j = static_cast<int>(std::lround(c.y())) + dj;
+            const int k = static_cast<int>(std::lround(c.z())) + dk;
+            if (i < 0 || j < 0 || k < 0 || i >= v->size.x() || j >= v->size.y() || k >= v->size.z()) continue;
+            // The voxel nearest the curve always belongs to it, so that a vessel thinner than a
+            // voxel still shows.
+            const bool nearest = di == 0 && dj == 0 && dk == 0;
+            if (nearest || (v->PatientPoint(i, j, k) - p).norm() <= radius) {
+              v->values[v->Index(i, j, k)] = value;
+            }
+          }
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+
+Phantom GeneratePhantom(const PhantomParameters& in) {
+  Check(in.body_width, 0.20, 0.60, "body_width");
+  Check(in.body_depth, 0.14, 0.45, "body_depth");
+  Check(in.length, 0.15, 0.60, "length");
+  Check(in.fat_thickness, 0.0, 0.06, "fat_thickness");
+  Check(in.wall_thickness, 0.003, 0.03, "wall_thickness");
+  Check(in.ribs_per_side, 2, 12, "ribs_per_side");
+  Check(in.rib_spacing, 0.015, 0.05, "rib_spacing");
+  Check(in.rib_radius, 0.002, 0.012, "rib_radius");
+  Check(in.rib_drop, 0.0, 0.12, "rib_drop");
+  Check(in.heart_scale, 0.6, 1.5, "heart_scale");
+  Check(in.voxel_size, 0.0005, 0.005, "voxel_size");
+  TROCAR_THROW_UNLESS(in.heart_offset.allFinite() && in.heart_offset.norm() < 0.05,
+                      "phantom: heart_offset " << in.heart_offset.transpose()
+                                               << " must be finite and under 0.05 m");
+  TROCAR_THROW_UNLESS(in.rib_spacing * 1.04 * (in.ribs_per_side - 1) + in.rib_drop + 0.05 <= in.length,
+                      "phantom: " << in.ribs_per_side << " ribs " << in.rib_spacing
+                                  << " m apart do not fit in a length of " << in.length << " m");
+  Phantom out;
+  out.parameters = in;
+  std::mt19937 rng(in.seed);
+  std::uniform_real_distribution<double> jitter(-1.0, 1.0);
+  // Small seeded variation: body ±3 %, rib spacing ±4 %, heart position ±5 mm.
+  const double a = 0.5 * in.body_width * (1.0 + 0.03 * jitter(rng));
+  const double b = 0.5 * in.body_depth * (1.0 + 0.03 * jitter(rng));
+  const double spacing = in.rib_spacing * (1.0 + 0.04 * jitter(rng));
+  const Eigen::Vector3d heart_jitter(0.005 * jitter(rng), 0.005 * jitter(rng), 0.005 * jitter(rng));
+
+  RibLayout ribs;
+  ribs.a_r = a - in.fat_thickness - in.wall_thickness - in.rib_radius;
+  ribs.b_r = b - in.fat_thickness - in.wall_thickness - in.rib_radius;
+  ribs.phi0 = 0.28;
+  ribs.phi1 = M_PI - 0.42;
+  ribs.z_top = in.length - 0.03;
+  ribs.spacing = spacing;
+  ribs.drop = in.rib_drop;
+  const double a_p = ribs.a_r - in.rib_radius - 0.004;  // pleura
+  const double b_p = ribs.b_r - in.rib_radius - 0.004;
+
+  // Heart: an ellipsoid against the anterior chest wall, left of the midline, at the level of
+  // the 4th-6th ribs.
+  const Eigen::Vector3d semi = Eigen::Vector3d(0.065, 0.055, 0.07) * in.heart_scale;
+  Eigen::Vector3d heart(0.025, -b_p + semi.y() + 0.008, ribs.Z(4, ribs.phi0) - 0.02);
+  heart += in.heart_offset + heart_jitter;
+  out.truth.heart_centre = heart;
+  out.truth.heart_semi_axes = semi;
+
+  Volume& v = out.ct;
+  const double h = in.voxel_size;
+  const double margin = 0.02;
+  v.size = Eigen::Vector3i(static_cast<int>(std::ceil((2 * a + 2 * margin) / h)),
+                           static_cast<int>(std::ceil((2 * b + 2 * margin) / h)),
+                           static_cast<int>(std::ceil(in.length / h)));
+  v.index_to_P = Eigen::Matrix3d::Identity() * h;
+  v.origin_P = Eigen::Vector3d(-a - margin, -b - margin, 0.0);
+  v.values.assign(static_cast<std::size_t>(v.voxel_count()), PhantomHu::kAir);
+  v.hounsfield = true;
+  v.source = "phantom seed " + std::to_string(in.seed);
+
+  const double vertebra_y = b_p - 0.018, vertebra_r = 0.02;
+  for (int k = 0; k < v.size.z(); ++k) {
+    for (int j = 0; j < v.size.y(); ++j) {
+      for (int i = 0; i < v.size.x(); ++i) {
+        const Eigen::Vector3d p = v.PatientPoint(i, j, k);
+        const double x = p.x(), y = p.y(), z = p.z();
+        auto inside = [&](double ea, double eb) { return (x * x) / (ea * ea) + (y * y) / (eb * eb) <= 1.0; };
+        float hu = PhantomHu::kAir;
+        if (inside(a, b)) hu = PhantomHu::kFat;
+        if (inside(a - in.fat_thickness, b - in.fat_thickness)) hu = PhantomHu::kMuscle;
+        if (inside(a_p, b_p)) {
+          hu = PhantomHu::kLung;
+          // Mediastinum between the lungs, in front of the spine.
+          if ((x * x) / (0.05 * 0.05) + ((y - 0.01) * (y - 0.01)) / (b_p * b_p) <= 1.0) hu = PhantomHu::kMuscle;
+        }
+        const Eigen::Vector3d d = (p - heart).cwiseQuotient(semi);
+        const double r = d.norm();
+        if (r <= 1.0) hu = r <= 1.0 - 0.008 / semi.minCoeff() ? PhantomHu::kBlood : PhantomHu::kMyocardium;
+        if (std::hypot(x, y - vertebra_y) <= vertebra_r) hu = PhantomHu::kVertebra;
+        // Ribs: distance to the rib centreline at this voxel's angle about the body axis.
+        const double ex = std::abs(x) / ribs.a_r, ey = y / ribs.b_r;
+        const double rho = std::hypot(ex, ey);
+        const double phi = std::atan2(ex, ey);
+        if (phi >= ribs.phi0 && phi <= ribs.phi1 && rho > 0.5) {
+          const double local = std::hypot(ribs.a_r * std::sin(phi), ribs.b_r * std::cos(phi));
+          const double radial = (rho - 1.0) * local;
+          for (int rib = 0; rib < in.ribs_per_side; ++rib) {
+            const double dz = z - ribs.Z(rib, phi);
+            if (radial * radial + dz * dz <= in.rib_radius * in.rib_radius) hu = PhantomHu::kBone;
+          }
+        }
+        // Sternum: a plate at the front between the rib ends.
+        if (std::abs(x) <= 0.02 && std::abs(y + ribs.b_r) <= 0.007 &&
+            z <= ribs.z_top + 0.01 && z >= ribs.Z(in.ribs_per_side - 1, ribs.phi1) - 0.01) {
+          hu = PhantomHu::kBone;
+        }
+        v.values[v.Index(i, j, k)] = hu;
+      }
+    }
+  }
+
+  // Truth: ribs and the intercostal spaces between them, on the skin.
+  for (int side : {+1, -1}) {
+    for (int rib = 0; rib < in.ribs_per_side; ++rib) {
+      PhantomTruth::Rib truth{side, rib, {}};
+      for (int s = 0; s <= 60; ++s) {
+        truth.centreline.push_back(ribs.Point(side, rib, ribs.phi0 + (ribs.phi1 - ribs.phi0) * s / 60.0));
+      }
+      out.truth.ribs.push_back(truth);
+    }
+  }
+  for (int side : {+1, -1}) {
+    for (int rib = 0; rib + 1 < in.ribs_per_side; ++rib) {
+      Curve space;
+      for (int s = 0; s <= 30; ++s) {  // from the side of the chest to the front
+        const double phi = 0.45 * M_PI + (ribs.phi1 - 0.45 * M_PI) * s / 30.0;
+        const double z = 0.5 * (ribs.Z(rib, phi) + ribs.Z(rib + 1, phi));
+        space.emplace_back(side * a * std::sin(phi), b * std::cos(phi), z);
+      }
+      out.truth.intercostal_spaces.push_back(space);
+      out.truth.intercostal_side.push_back(side);
+    }
+  }
+  // LAD: down the anterior interventricular groove, base to apex, on the epicardium.
+  for (int s = 0; s <= 24; ++s) {
+    const double t = -0.75 + 1.45 * s / 24.0;  // from superior (base) to inferior (apex)
+    const double u = -0.1;                      // slightly right of the heart's left-right centre
+    const double w = std::sqrt(std::max(0.0, 1.0 - t * t - u * u));
+    const Eigen::Vector3d surface = heart + Eigen::Vector3d(u * semi.x(), -w * semi.y(), -t * semi.z());
+    const Eigen::Vector3d normal =
+        Eigen::Vector3d(u / semi.x(), -w / semi.y(), -t / semi.z()).normalized();
+    out.truth.lad.push_back(surface + 0.0015 * normal);
+    out.truth.lad_normals.push_back(normal);
+  }
+  // LIMA: inside the anterior chest wall, 3 cm left of the midline, top to bottom.
+  for (int s = 0; s <= 20; ++s) {
+    const double z = ribs.z_top + 0.01 - (6.5 * spacing) * s / 20.0;
+    out.truth.lima.emplace_back(0.03, -b_p - 0.002, z);
+  }
+  StampTube(out.truth.lad, 0.0016, PhantomHu::kArtery, &v);
+  StampTube(out.truth.lima, 0.0015, PhantomHu::kArtery, &v);
+  return out;
+}
+
+namespace {
+
+nlohmann::json CurveMarkup(const std::string& name, const std::vector<Curve>& curves,
+                           const std::string& type) {
+  nlohmann::json markups = nlohmann::json::array();
+  for (std::size_t c = 0; c < curves.size(); ++c) {
+    nlohmann::json points = nlohmann::json::array();
+    for (std::size_t i = 0; i < curves[c].size(); ++i) {
+      const Eigen::Vector3d mm = curves[c][i] * 1e3;
+      points.push_back({{"id", std::to_string(i + 1)},
+                        {"label", name + "-" + std::to_string(c + 1) + "-" + std::to_string(i + 1)},
+                        {"position", {mm.x(), mm.y(), mm.z()}}});
+    }
+    markups.push_back({{"type", type},
+                       {"name", curves.size() == 1 ? name : name + "-" + std::to_string(c + 1)},
+                       {"coordinateSystem", "LPS"},
+                       {"coordinateUnits", "mm"},
+                       {"controlPoints", points}});
+  }
+  return {{"@schema",
+           "https://raw.githubusercontent.com/slicer/slicer/main/Modules/Loadable/Markups/"
+           "Resources/Schema/markups-schema-v1.0.3.json#"},
+          {"markups", markups}};
+}
+
+}  // namespace
+
+void WritePhantomCase(const Phantom& phantom, const std::string& dir, bool ras) {
+  std::error_code ec;
+  std::filesystem::create_directories(std::filesystem::path(dir) / "markups", ec);
+  TROCAR_THROW_UNLESS(!ec, dir << ": cannot create the case folder: " << ec.message());
+  WriteNrrd(phantom.ct, JoinPath(dir, "ct.nrrd"), ras);
+  const PhantomTruth& t = phantom.truth;
+  WriteFileAtomically(JoinPath(dir, "markups/LAD.mrk.json"), CurveMarkup("LAD", {t.lad}, "Curve").dump(2));
+  WriteFileAtomically(JoinPath(dir, "markups/LIMA.mrk.json"), CurveMarkup("LIMA", {t.lima}, "Curve").dump(2));
+  std::vector<Curve> left;
+  for (std::size_t s = 0; s < t.intercostal_spaces.size(); ++s) {
+    if (t.intercostal_side[s] > 0) left.push_back(t.intercostal_spaces[s]);
+  }
+  WriteFileAtomically(JoinPath(dir, "markups/intercostal_left.mrk.json"),
+                      CurveMarkup("ICS-L", left, "Curve").dump(2));
+  nlohmann::json truth;
+  for (const auto& rib : t.ribs) {
+    nlohmann::json points = nlohmann::json::array();
+    for (const auto& p : rib.centreline) points.push_back({p.x(), p.y(), p.z()});
+    truth["ribs"].push_back({{"side", rib.side > 0 ? "left" : "right"}, {"index", rib.index}, {"centreline_m", points}});
+  }
+  truth["heart_centre_m"] = {t.heart_centre.x(), t.heart_centre.y(), t.heart_centre.z()};
+  truth["heart_semi_axes_m"] = {t.heart_semi_axes.x(), t.heart_semi_axes.y(), t.heart_semi_axes.z()};
+  WriteFileAtomically(JoinPath(dir, "truth.json"), truth.dump(1));
+  const PhantomParameters& p = phantom.parameters;
+  std::ostringstream yaml;
+  yaml << "# Generated by trocar phantom (seed " << p.seed << "); the CT is in Hounsfield units.\n"
+       << "name: phantom-seed-" << p.seed << "\n"
+       << "ct: ct.nrrd\n"
+       << "units: hounsfield\n"
+       << "targets:\n  - {name: LAD, markups: markups/LAD.mrk.json}\n"
+       << "  - {name: LIMA, markups: markups/LIMA.mrk.json}\n"
+       << "port_candidates: markups/intercostal_left.mrk.json\n"
+       << "phantom: {seed: " << p.seed << ", body_width: " << p.body_width << ", body_depth: "
+       << p.body_depth << ", length: " << p.length << ", ribs_per_side: " << p.ribs_per_side
+       << ", rib_spacing: " << p.rib_spacing << ", heart_scale: " << p.heart_scale
+       << ", voxel_size: " << p.voxel_size << "}\n";
+  WriteFileAtomically(JoinPath(dir, "patient.yaml"), yaml.str());
+}
+
+}  // namespace trocar::patient

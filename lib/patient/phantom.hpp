@@ -1,0 +1,72 @@
+#pragma once
+/// @file
+/// A procedural thorax phantom: a CT volume in Hounsfield units and its ground truth, so that
+/// batches can generate patient populations and tests can check segmentation against known
+/// anatomy. Patient frame LPS, metres: x toward the left, y posterior, z superior.
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "patient/volume.hpp"
+
+namespace trocar::patient {
+
+struct PhantomParameters {
+  unsigned seed = 1;              ///< jitters the anatomy within the ranges below, reproducibly
+  double body_width = 0.34;       ///< m, left-right, at the skin
+  double body_depth = 0.24;       ///< m, anterior-posterior, at the skin
+  double length = 0.34;           ///< m, superior-inferior extent of the volume
+  double fat_thickness = 0.012;   ///< m, subcutaneous fat
+  double wall_thickness = 0.010;  ///< m, chest-wall muscle outside the ribs
+  int ribs_per_side = 9;
+  double rib_spacing = 0.028;     ///< m, between rib centres at the back
+  double rib_radius = 0.0055;     ///< m, rib cross-section
+  double rib_drop = 0.05;         ///< m, how much lower a rib's front end is than its back
+  double heart_scale = 1.0;       ///< scales the heart's semi-axes (0.065, 0.055, 0.07) m
+  Eigen::Vector3d heart_offset = Eigen::Vector3d::Zero();  ///< m, added to the heart centre
+  double voxel_size = 0.002;      ///< m
+};
+
+/// A polyline in the patient frame (m).
+using Curve = std::vector<Eigen::Vector3d>;
+
+struct PhantomTruth {
+  struct Rib {
+    int side;   ///< +1 left, −1 right
+    int index;  ///< 0 = the highest
+    Curve centreline;
+  };
+  std::vector<Rib> ribs;
+  /// Port candidate curves: the middle of each intercostal space on the skin, left side first.
+  std::vector<Curve> intercostal_spaces;
+  std::vector<int> intercostal_side;  ///< +1 left, −1 right, per space
+  Curve lad;   ///< left anterior descending artery on the heart's anterior surface, base to apex
+  Curve lima;  ///< left internal mammary (thoracic) artery inside the chest wall, top to bottom
+  Eigen::Vector3d heart_centre = Eigen::Vector3d::Zero();
+  Eigen::Vector3d heart_semi_axes = Eigen::Vector3d::Zero();
+  /// LAD surface normals (outward from the heart), one per LAD point.
+  std::vector<Eigen::Vector3d> lad_normals;
+};
+
+struct Phantom {
+  Volume ct;
+  PhantomTruth truth;
+  PhantomParameters parameters;
+};
+
+/// Tissue values (HU) used by the phantom.
+struct PhantomHu {
+  static constexpr float kAir = -1000, kLung = -820, kFat = -100, kMuscle = 45, kBlood = 280,
+                         kMyocardium = 90, kArtery = 380, kBone = 750, kVertebra = 600;
+};
+
+/// @throws trocar::Error for parameters out of their sensible ranges (named).
+Phantom GeneratePhantom(const PhantomParameters& parameters);
+
+/// Writes `dir/ct.nrrd` (LPS; RAS when `ras`), `dir/markups/*.mrk.json` (3D Slicer curves: LAD,
+/// LIMA, intercostal spaces), `dir/truth.json` (ribs) and `dir/patient.yaml`, each atomically.
+void WritePhantomCase(const Phantom& phantom, const std::string& dir, bool ras = false);
+
+}  // namespace trocar::patient
