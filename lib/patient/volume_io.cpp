@@ -433,20 +433,20 @@ Volume LoadMetaImage(const std::string& path) {
     TROCAR_THROW_UNLESS(static_cast<bool>(in >> v.size.x() >> v.size.y() >> v.size.z()),
                         path << ": field 'DimSize': expected three integers");
   }
-  Eigen::Vector3d spacing(1, 1, 1);
-  const std::string spacing_key = fields.count("ElementSpacing") ? "ElementSpacing" : "ElementSize";
-  if (fields.count(spacing_key)) {
-    std::istringstream in(fields[spacing_key]);
-    TROCAR_THROW_UNLESS(static_cast<bool>(in >> spacing.x() >> spacing.y() >> spacing.z()),
-                        path << ": field '" << spacing_key << "': expected three numbers");
-  }
-  Eigen::Vector3d origin_mm = Eigen::Vector3d::Zero();
-  for (const char* key : {"Offset", "Origin", "Position"}) {
-    if (!fields.count(key)) continue;
-    std::istringstream in(fields[key]);
-    TROCAR_THROW_UNLESS(static_cast<bool>(in >> origin_mm.x() >> origin_mm.y() >> origin_mm.z()),
-                        path << ": field '" << key << "': expected three numbers");
-  }
+  // Three numbers from the first of `keys` present, or `fallback`.
+  auto triple = [&](std::initializer_list<const char*> keys, const Eigen::Vector3d& fallback) {
+    for (const char* key : keys) {
+      if (!fields.count(key)) continue;
+      std::istringstream in(fields[key]);
+      Eigen::Vector3d v;
+      TROCAR_THROW_UNLESS(static_cast<bool>(in >> v.x() >> v.y() >> v.z()),
+                          path << ": field '" << key << "': expected three numbers");
+      return v;
+    }
+    return fallback;
+  };
+  const Eigen::Vector3d spacing = triple({"ElementSpacing", "ElementSize"}, Eigen::Vector3d::Ones());
+  const Eigen::Vector3d origin_mm = triple({"Offset", "Origin", "Position"}, Eigen::Vector3d::Zero());
   Eigen::Matrix3d directions = Eigen::Matrix3d::Identity();
   for (const char* key : {"TransformMatrix", "Rotation", "Orientation"}) {
     if (!fields.count(key)) continue;
