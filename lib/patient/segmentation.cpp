@@ -1,0 +1,232 @@
+#include "patient/segmentation.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "common/error.hpp"
+
+namespace trocar::patient {
+
+long Mask::count() const {
+  long n = 0;
+  for (std::uint8_t v : inside) n += v != 0;
+  return n;
+}
+
+namespace {
+
+Mask Threshold(const Volume& v, double threshold) {
+  Mask m;
+  m.size = v.size;
+  m.inside.resize(v.values.size());
+  for (std::size_t i = 0; i < v.values.size(); ++i) m.inside[i] = v.values[i] > threshold;
+  return m;
+}
+
+// The index axis that runs most nearly along the patient's z (superior).
+int AxialAxis(const Volume& v) {
+  int best = 2;
+  double best_z = -1.0;
+  for (int a = 0; a < 3; ++a) {
+    const double z = std::abs(v.index_to_P.col(a).normalized().z());
+    if (z > best_z) {
+      best_z = z;
+      best = a;
+    }
+  }
+  return best;
+}
+
+// Fills, slice by slice across the axial axis, every region the outside cannot reach.
+void FillHolesPerSlice(const Volume& v, Mask* mask) {
+  const int axis = AxialAxis(v);
+  const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
+  const int nu = v.size[u], nw = v.size[w];
+  std::vector<std::uint8_t> outside;
+  std::vector<std::pair<int, int>> stack;
+  for (int s = 0; s < v.size[axis]; ++s) {
+    auto at = [&](int a, int b) {
+      Eigen::Vector3i ijk;
+      ijk[axis] = s;
+      ijk[u] = a;
+      ijk[w] = b;
+      return v.Index(ijk.x(), ijk.y(), ijk.z());
+    };
+    outside.assign(static_cast<std::size_t>(nu) * nw, 0);
+    stack.clear();
+    auto seed = [&](int a, int b) {
+      if (!mask->inside[at(a, b)] && !outside[a + static_cast<std::size_t>(nu) * b]) {
+        outside[a + static_cast<std::size_t>(nu) * b] = 1;
+        stack.emplace_back(a, b);
+      }
+    };
+    for (int a = 0; a < nu; ++a) {
+      seed(a, 0);
+      seed(a, nw - 1);
+    }
+    for (int b = 0; b < nw; ++b) {
+      seed(0, b);
+      seed(nu - 1, b);
+    }
+    while (!stack.empty()) {
+      const auto [a, b] = stack.back();
+      stack.pop_back();
+      if (a > 0) seed(a - 1, b);
+      if (a + 1 < nu) seed(a + 1, b);
+      if (b > 0) seed(a, b - 1);
+      if (b + 1 < nw) seed(a, b + 1);
+    }
+    for (int b = 0; b < nw; ++b) {
+      for (int a = 0; a < nu; ++a) {
+        if (!outside[a + static_cast<std::size_t>(nu) * b]) mask->inside[at(a, b)] = 1;
+      }
+    }
+  }
+}
+
+}  // namespace
+
+std::vector<Component> ConnectedComponents(const Volume& grid, const Mask& mask,
+                                           std::vector<int>* labels) {
+  TROCAR_THROW_UNLESS(mask.size == grid.size, "connected components: mask and grid sizes differ");
+  const int nx = grid.size.x(), ny = grid.size.y(), nz = grid.size.z();
+  labels->assign(mask.inside.size(), 0);
+  std::vector<Component> components;
+  std::vector<long> stack;
+  const double voxel_volume = std::abs(grid.index_to_P.determinant());
+  for (long start = 0; start < static_cast<long>(mask.inside.size()); ++start) {
+    if (!mask.inside[start] || (*labels)[start] != 0) continue;
+    Component c;
+    c.label = static_cast<int>(components.size()) + 1;
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3i lo(nx, ny, nz), hi(-1, -1, -1);
+    (*labels)[start] = c.label;
+    stack.assign(1, start);
+    while (!stack.empty()) {
+      const long index = stack.back();
+      stack.pop_back();
+      const int i = static_cast<int>(index % nx);
+      const int j = static_cast<int>((index / nx) % ny);
+      const int k = static_cast<int>(index / (static_cast<long>(nx) * ny));
+      ++c.voxels;
+      sum += Eigen::Vector3d(i, j, k);
+      lo = lo.cwiseMin(Eigen::Vector3i(i, j, k));
+      hi = hi.cwiseMax(Eigen::Vector3i(i, j, k));
+      for (int dk = -1; dk <= 1; ++dk) {
+        const int kk = k + dk;
+        if (kk < 0 || kk >= nz) continue;
+        for (int dj = -1; dj <= 1; ++dj) {
+          const int jj = j + dj;
+          if (jj < 0 || jj >= ny) continue;
+          for (int di = -1; di <= 1; ++di) {
+            const int ii = i + di;
+            if (ii < 0 || ii >= nx) continue;
+            const long n = grid.Index(ii, jj, kk);
+            if (mask.inside[n] && (*labels)[n] == 0) {
+              (*labels)[n] = c.label;
+              stack.push_back(n);
+            }
+          }
+        }
+      }
+    }
+    const Eigen::Vector3d mean = sum / static_cast<double>(c.voxels);
+    c.centroid_P = grid.PatientPoint(mean.x(), mean.y(), mean.z());
+    c.volume = static_cast<double>(c.voxels) * voxel_volume;
+    c.min_P = Eigen::Vector3d::Constant(HUGE_VAL);
+    c.max_P = Eigen::Vector3d::Constant(-HUGE_VAL);
+    for (int corner = 0; corner < 8; ++corner) {
+      const Eigen::Vector3d p = grid.PatientPoint(corner & 1 ? hi.x() : lo.x(), corner & 2 ? hi.y() : lo.y(),
+                                                  corner & 4 ? hi.z() : lo.z());
+      c.min_P = c.min_P.cwiseMin(p);
+      c.max_P = c.max_P.cwiseMax(p);
+    }
+    components.push_back(c);
+  }
+  // Largest first, labels rewritten to match.
+  std::vector<int> order(components.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int a, int b) { return components[a].voxels > components[b].voxels; });
+  std::vector<int> relabel(components.size() + 1, 0);
+  std::vector<Component> sorted;
+  for (std::size_t rank = 0; rank < order.size(); ++rank) {
+    Component c = components[order[rank]];
+    relabel[c.label] = static_cast<int>(rank) + 1;
+    c.label = static_cast<int>(rank) + 1;
+    sorted.push_back(c);
+  }
+  for (int& label : *labels) label = relabel[label];
+  return sorted;
+}
+
+Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
+  Segmentation s;
+  s.body_threshold = ct.hounsfield ? o.body_hu : o.raw_body;
+  s.bone_threshold = ct.hounsfield ? o.bone_hu : o.raw_bone;
+  const std::string units = ct.hounsfield ? " HU" : " (raw)";
+
+  // Body: the largest component above the body threshold, holes filled.
+  std::vector<int> labels;
+  Mask above = Threshold(ct, s.body_threshold);
+  const auto body_parts = ConnectedComponents(ct, above, &labels);
+  TROCAR_THROW_UNLESS(!body_parts.empty(), ct.source << ": no voxel above the body threshold "
+                                                     << s.body_threshold << units
+                                                     << ": empty segmentation");
+  s.body.size = ct.size;
+  s.body.inside.resize(labels.size());
+  for (std::size_t i = 0; i < labels.size(); ++i) s.body.inside[i] = labels[i] == 1;
+  FillHolesPerSlice(ct, &s.body);
+
+  // Bone: above the bone threshold and inside the body (so the table is left out).
+  s.bone = Threshold(ct, s.bone_threshold);
+  for (std::size_t i = 0; i < s.bone.inside.size(); ++i) s.bone.inside[i] &= s.body.inside[i];
+  const auto bone_parts = ConnectedComponents(ct, s.bone, &s.bones.labels);
+  TROCAR_THROW_UNLESS(!bone_parts.empty(), ct.source << ": no bone above " << s.bone_threshold
+                                                     << units << " inside the body: empty segmentation");
+  // Where is the body? Its centre and half width across x (left-right), y (front-back).
+  const auto& body = body_parts.front();
+  const Eigen::Vector3d centre = 0.5 * (body.min_P + body.max_P);
+  const Eigen::Vector3d half = 0.5 * (body.max_P - body.min_P);
+  for (const Component& c : bone_parts) {
+    if (c.volume < o.min_bone_volume) continue;
+    const double lateral = (c.centroid_P.x() - centre.x()) / half.x();
+    const bool straddles_midline = c.min_P.x() < centre.x() && c.max_P.x() > centre.x();
+    if (straddles_midline || std::abs(lateral) < 0.12) {
+      (c.centroid_P.y() > centre.y() ? s.bones.spine : s.bones.sternum).push_back(c);
+    } else {
+      (lateral > 0 ? s.bones.ribs_left : s.bones.ribs_right).push_back(c);
+    }
+  }
+  auto by_height = [](const Component& a, const Component& b) { return a.centroid_P.z() > b.centroid_P.z(); };
+  std::sort(s.bones.ribs_left.begin(), s.bones.ribs_left.end(), by_height);
+  std::sort(s.bones.ribs_right.begin(), s.bones.ribs_right.end(), by_height);
+  return s;
+}
+
+Mask ResampleMask(const Volume& mask_volume, const Volume& grid, double threshold) {
+  Mask m;
+  m.size = grid.size;
+  m.inside.assign(static_cast<std::size_t>(grid.voxel_count()), 0);
+  const Eigen::Matrix3d to_index = mask_volume.index_to_P.inverse();
+  long hits = 0;
+  for (int k = 0; k < grid.size.z(); ++k) {
+    for (int j = 0; j < grid.size.y(); ++j) {
+      for (int i = 0; i < grid.size.x(); ++i) {
+        const Eigen::Vector3d ijk = to_index * (grid.PatientPoint(i, j, k) - mask_volume.origin_P);
+        const Eigen::Vector3i n(static_cast<int>(std::lround(ijk.x())), static_cast<int>(std::lround(ijk.y())),
+                                static_cast<int>(std::lround(ijk.z())));
+        if ((n.array() < 0).any() || (n.array() >= mask_volume.size.array()).any()) continue;
+        if (mask_volume.at(n.x(), n.y(), n.z()) > threshold) {
+          m.inside[grid.Index(i, j, k)] = 1;
+          ++hits;
+        }
+      }
+    }
+  }
+  TROCAR_THROW_UNLESS(hits > 0, mask_volume.source << ": the mask does not overlap " << grid.source
+                                                   << " (no voxel above " << threshold << " lands on it)");
+  return m;
+}
+
+}  // namespace trocar::patient

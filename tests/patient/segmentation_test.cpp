@@ -1,0 +1,132 @@
+#include "patient/segmentation.hpp"
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+#include "patient/phantom.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+using patient::Component;
+
+double DistanceToCurve(const Eigen::Vector3d& p, const patient::Curve& curve) {
+  double best = HUGE_VAL;
+  for (std::size_t s = 0; s + 1 < curve.size(); ++s) {
+    const Eigen::Vector3d a = curve[s], ab = curve[s + 1] - curve[s];
+    const double t = std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0);
+    best = std::min(best, (a + t * ab - p).norm());
+  }
+  return best;
+}
+
+TEST(Segmentation, FindsThePhantomsRibsWhereTheyWereMade) {
+  for (unsigned seed : {1u, 2u}) {
+    SCOPED_TRACE(seed);
+    patient::PhantomParameters p;
+    p.seed = seed;
+    p.voxel_size = 0.0025;
+    const patient::Phantom ph = patient::GeneratePhantom(p);
+    const auto seg = patient::Segment(ph.ct);
+    ASSERT_EQ(seg.bones.ribs_left.size(), 9u);
+    ASSERT_EQ(seg.bones.ribs_right.size(), 9u);
+    EXPECT_EQ(seg.bones.sternum.size(), 1u);
+    EXPECT_EQ(seg.bones.spine.size(), 1u);
+    const double h = p.voxel_size;
+    for (int side : {+1, -1}) {
+      const auto& found = side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
+      for (int r = 0; r < 9; ++r) {
+        const auto& truth = ph.truth.ribs[(side > 0 ? 0 : 9) + r].centreline;
+        // Every segmented voxel of rib r lies on the generated rib: within its radius plus two
+        // voxels of the true centreline (the surfaces agree to two voxels).
+        double worst = 0.0;
+        for (long n = 0; n < static_cast<long>(seg.bones.labels.size()); ++n) {
+          if (seg.bones.labels[n] != found[r].label) continue;
+          const int i = int(n % ph.ct.size.x()), j = int((n / ph.ct.size.x()) % ph.ct.size.y());
+          const int k = int(n / (long(ph.ct.size.x()) * ph.ct.size.y()));
+          worst = std::max(worst, DistanceToCurve(ph.ct.PatientPoint(i, j, k), truth));
+        }
+        EXPECT_LT(worst, p.rib_radius + 2 * h) << "side " << side << " rib " << r;
+        // And it is about as big as the generated rib (a tube of that radius and length).
+        double length = 0;
+        for (std::size_t s = 0; s + 1 < truth.size(); ++s) length += (truth[s + 1] - truth[s]).norm();
+        const double tube = M_PI * p.rib_radius * p.rib_radius * length;
+        EXPECT_NEAR(found[r].volume / tube, 1.0, 0.25) << "side " << side << " rib " << r;
+      }
+    }
+    // The body holds the lungs (holes filled) and the heart, not the air around.
+    auto inside_body = [&](const Eigen::Vector3d& point) {
+      const Eigen::Vector3d ijk = ph.ct.IndexOf(point);
+      return seg.body.inside[ph.ct.Index(int(std::lround(ijk.x())), int(std::lround(ijk.y())), int(std::lround(ijk.z())))] != 0;
+    };
+    EXPECT_TRUE(inside_body(ph.truth.heart_centre));
+    EXPECT_TRUE(inside_body(Eigen::Vector3d(-0.09, 0.02, ph.truth.heart_centre.z())));  // lung
+    EXPECT_FALSE(inside_body(ph.ct.PatientPoint(1, 1, 1)));
+  }
+}
+
+TEST(Segmentation, Lidc2ChestRibCageSkinAndBone) {
+  const std::string path = test::SharedDataPath("ct/lidc2/ct.nhdr");
+  TROCAR_REQUIRE_SHARED_FILE(path);
+  const patient::Volume ct = patient::LoadVolume(path);
+  const auto seg = patient::Segment(ct);
+  // Skin: the body spans an adult chest (about 0.3-0.4 m wide, 0.2-0.3 m deep).
+  std::vector<int> labels;
+  const auto body = patient::ConnectedComponents(ct, seg.body, &labels).front();
+  const Eigen::Vector3d extent = body.max_P - body.min_P;
+  EXPECT_GT(extent.x(), 0.28);
+  EXPECT_LT(extent.x(), 0.40);
+  EXPECT_GT(extent.y(), 0.18);
+  EXPECT_LT(extent.y(), 0.32);
+  // Bone: a rib cage as wide as most of the chest, of adult volume, with ribs on both sides.
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(HUGE_VAL), hi = -lo;
+  double bone_volume = 0;
+  for (const auto* list : {&seg.bones.ribs_left, &seg.bones.ribs_right, &seg.bones.spine, &seg.bones.sternum}) {
+    for (const Component& c : *list) {
+      lo = lo.cwiseMin(c.min_P);
+      hi = hi.cwiseMax(c.max_P);
+      bone_volume += c.volume;
+    }
+  }
+  EXPECT_GT(hi.x() - lo.x(), 0.75 * extent.x());
+  EXPECT_GT(bone_volume, 0.1e-3);  // windowed 8-bit data keeps mostly the cortical shell
+  EXPECT_LT(bone_volume, 3.0e-3);
+  EXPECT_GE(seg.bones.ribs_left.size(), 3u);
+  EXPECT_GE(seg.bones.ribs_right.size(), 3u);
+}
+
+TEST(Segmentation, HeartMaskResampledOntoTheCtHasAnAdultHeartsVolume) {
+  const std::string ct_path = test::SharedDataPath("ct/totalseg-pulmonary/ct_cropped.nii.gz");
+  const std::string mask_path = test::SharedDataPath("ct/totalseg-pulmonary/heart.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(mask_path);
+  const patient::Volume ct = patient::LoadVolume(ct_path);
+  const patient::Mask heart = patient::ResampleMask(patient::LoadVolume(mask_path), ct);
+  const double ml = heart.count() * std::abs(ct.index_to_P.determinant()) * 1e6;
+  EXPECT_GT(ml, 300.0);
+  EXPECT_LT(ml, 1500.0);
+  // A mask somewhere else entirely does not overlap.
+  patient::Volume far = patient::LoadVolume(mask_path);
+  far.origin_P += Eigen::Vector3d(5, 0, 0);
+  EXPECT_THROW(patient::ResampleMask(far, ct), Error);
+}
+
+TEST(Segmentation, EmptyResultsAreErrorsNotEmptyModels) {
+  patient::Volume air;
+  air.size = Eigen::Vector3i(8, 8, 8);
+  air.values.assign(512, -1000.0f);
+  air.hounsfield = true;
+  air.source = "air.nrrd";
+  try {
+    patient::Segment(air);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()), "air.nrrd: no voxel above the body threshold -400 HU: empty segmentation");
+  }
+  patient::Volume soft = air;
+  soft.values.assign(512, 40.0f);
+  EXPECT_THROW(patient::Segment(soft), Error);  // a body but no bone
+}
+
+}  // namespace
+}  // namespace trocar
