@@ -1,0 +1,39 @@
+#pragma once
+/// @file
+/// Intercostal spaces found automatically from the segmented ribs: for each pair of neighbouring
+/// ribs on a side, the middle of the gap between them, taken at a run of angles about the body
+/// axis and carried out to the skin, gives a port candidate curve.
+
+#include <vector>
+
+#include "patient/phantom.hpp"
+#include "patient/segmentation.hpp"
+
+namespace trocar::patient {
+
+struct IntercostalOptions {
+  /// Angles about the body axis, from the back (0) to the front (π), where ports may go.
+  double from_angle = 0.45 * M_PI;
+  double to_angle = 0.85 * M_PI;
+  double bin = 2.0 * M_PI / 180.0;  ///< angular sampling (rad)
+  /// Shortest gap between rib edges that counts as a space (m).
+  double min_gap = 0.004;
+  /// Fewest angular samples for a curve to be kept.
+  int min_points = 5;
+  bool left = true;
+  bool right = false;
+};
+
+struct IntercostalSpace {
+  int side = +1;       ///< +1 left, −1 right
+  int upper_rib = 0;   ///< index of the rib above (in the side's top-to-bottom order)
+  Curve skin;          ///< on the skin, from the side of the chest toward the front
+  Curve depth;         ///< the same points at the ribs' depth (the gap itself)
+  std::vector<double> gap;  ///< width of the gap at each point (m)
+};
+
+/// @throws trocar::Error naming the volume when a side asked for has fewer than two ribs.
+std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segmentation& seg,
+                                                    const IntercostalOptions& options = {});
+
+}  // namespace trocar::patient
