@@ -21,14 +21,27 @@ double DistanceToCurve(const Eigen::Vector3d& p, const patient::Curve& curve) {
   return best;
 }
 
+// A phantom at 2.5 mm and its segmentation.
+struct SegmentedPhantom {
+  explicit SegmentedPhantom(unsigned seed)
+      : ph(patient::GeneratePhantom([seed] {
+          patient::PhantomParameters p;
+          p.seed = seed;
+          p.voxel_size = 0.0025;
+          return p;
+        }())),
+        seg(patient::Segment(ph.ct)) {}
+  patient::Phantom ph;
+  patient::Segmentation seg;
+};
+
 TEST(Segmentation, FindsThePhantomsRibsWhereTheyWereMade) {
   for (unsigned seed : {1u, 2u}) {
     SCOPED_TRACE(seed);
-    patient::PhantomParameters p;
-    p.seed = seed;
-    p.voxel_size = 0.0025;
-    const patient::Phantom ph = patient::GeneratePhantom(p);
-    const auto seg = patient::Segment(ph.ct);
+    const SegmentedPhantom case_(seed);
+    const patient::Phantom& ph = case_.ph;
+    const patient::PhantomParameters& p = ph.parameters;
+    const auto& seg = case_.seg;
     ASSERT_EQ(seg.bones.ribs_left.size(), 9u);
     ASSERT_EQ(seg.bones.ribs_right.size(), 9u);
     EXPECT_EQ(seg.bones.sternum.size(), 1u);
@@ -139,11 +152,10 @@ namespace {
 TEST(IntercostalSpaces, FoundFromThePhantomsRibsLieBetweenTheRightRibs) {
   for (unsigned seed : {1u, 3u}) {
     SCOPED_TRACE(seed);
-    patient::PhantomParameters p;
-    p.seed = seed;
-    p.voxel_size = 0.0025;
-    const patient::Phantom ph = patient::GeneratePhantom(p);
-    const auto seg = patient::Segment(ph.ct);
+    const SegmentedPhantom case_(seed);
+    const patient::Phantom& ph = case_.ph;
+    const patient::PhantomParameters& p = ph.parameters;
+    const auto& seg = case_.seg;
     patient::IntercostalOptions options;
     options.right = true;
     const auto spaces = patient::FindIntercostalSpaces(ph.ct, seg, options);
