@@ -10,11 +10,9 @@ namespace trocar::patient {
 std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segmentation& seg,
                                                     const IntercostalOptions& o) {
   TROCAR_THROW_UNLESS(o.bin > 0 && o.to_angle > o.from_angle, "intercostal spaces: bad angle range");
-  // The body axis: the centre of the body mask's bounding box across the slices.
-  std::vector<int> body_labels;
-  const auto body = ConnectedComponents(ct, seg.body, &body_labels);
-  TROCAR_THROW_UNLESS(!body.empty(), ct.source << ": empty body mask");
-  const Eigen::Vector2d axis = 0.5 * (body.front().min_P + body.front().max_P).head<2>();
+  // The body axis: the centre of the body's bounding box across the slices.
+  TROCAR_THROW_UNLESS(seg.body_max_P.x() > seg.body_min_P.x(), ct.source << ": empty body mask");
+  const Eigen::Vector2d axis = 0.5 * (seg.body_min_P + seg.body_max_P).head<2>();
   const int bins = static_cast<int>(std::ceil((o.to_angle - o.from_angle) / o.bin));
 
   std::vector<IntercostalSpace> spaces;

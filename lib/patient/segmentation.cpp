@@ -173,6 +173,8 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
   TROCAR_THROW_UNLESS(!body_parts.empty(), ct.source << ": no voxel above the body threshold "
                                                      << s.body_threshold << units
                                                      << ": empty segmentation");
+  s.body_min_P = body_parts.front().min_P;  // filling holes inside does not move the bounds
+  s.body_max_P = body_parts.front().max_P;
   s.body.size = ct.size;
   s.body.inside.resize(labels.size());
   for (std::size_t i = 0; i < labels.size(); ++i) s.body.inside[i] = labels[i] == 1;
@@ -185,9 +187,8 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
   TROCAR_THROW_UNLESS(!bone_parts.empty(), ct.source << ": no bone above " << s.bone_threshold
                                                      << units << " inside the body: empty segmentation");
   // Where is the body? Its centre and half width across x (left-right), y (front-back).
-  const auto& body = body_parts.front();
-  const Eigen::Vector3d centre = 0.5 * (body.min_P + body.max_P);
-  const Eigen::Vector3d half = 0.5 * (body.max_P - body.min_P);
+  const Eigen::Vector3d centre = 0.5 * (s.body_min_P + s.body_max_P);
+  const Eigen::Vector3d half = 0.5 * (s.body_max_P - s.body_min_P);
   for (const Component& c : bone_parts) {
     if (c.volume < o.min_bone_volume) continue;
     const double lateral = (c.centroid_P.x() - centre.x()) / half.x();

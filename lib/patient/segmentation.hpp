@@ -51,6 +51,8 @@ struct BoneParts {
 
 struct Segmentation {
   Mask body;  ///< the patient, holes (lungs, airways) filled
+  Eigen::Vector3d body_min_P = Eigen::Vector3d::Zero();  ///< the body's bounding box (m)
+  Eigen::Vector3d body_max_P = Eigen::Vector3d::Zero();
   Mask bone;
   BoneParts bones;
   double body_threshold = 0.0, bone_threshold = 0.0;  ///< as used, in the volume's units

@@ -85,9 +85,7 @@ TEST(Segmentation, Lidc2ChestRibCageSkinAndBone) {
   const patient::Volume ct = patient::LoadVolume(path);
   const auto seg = patient::Segment(ct);
   // Skin: the body spans an adult chest (about 0.3-0.4 m wide, 0.2-0.3 m deep).
-  std::vector<int> labels;
-  const auto body = patient::ConnectedComponents(ct, seg.body, &labels).front();
-  const Eigen::Vector3d extent = body.max_P - body.min_P;
+  const Eigen::Vector3d extent = seg.body_max_P - seg.body_min_P;
   EXPECT_GT(extent.x(), 0.28);
   EXPECT_LT(extent.x(), 0.40);
   EXPECT_GT(extent.y(), 0.18);
