@@ -36,11 +36,6 @@ void CollectNode(const aiScene* scene, const aiNode* node, const aiMatrix4x4& pa
   }
 }
 
-double TriangleArea(const TriangleMesh& mesh, const Eigen::Vector3i& t) {
-  const Eigen::Vector3d& a = mesh.vertices[t[0]];
-  return 0.5 * (mesh.vertices[t[1]] - a).cross(mesh.vertices[t[2]] - a).norm();
-}
-
 }  // namespace
 
 std::shared_ptr<const TriangleMesh> LoadMesh(const std::string& path,
@@ -73,22 +68,6 @@ std::shared_ptr<const TriangleMesh> LoadMesh(const std::string& path,
   TROCAR_THROW_UNLESS(!mesh->triangles.empty(),
                       path << ": every triangle of the mesh has zero area");
   return mesh;
-}
-
-void ValidateMesh(const TriangleMesh& mesh, const std::string& name) {
-  TROCAR_THROW_UNLESS(!mesh.triangles.empty(), name << ": mesh is empty (no triangles)");
-  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
-    TROCAR_THROW_UNLESS(mesh.vertices[i].allFinite(),
-                        name << ": vertex " << i << " is not finite");
-  }
-  const int n = static_cast<int>(mesh.vertices.size());
-  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
-    const Eigen::Vector3i& t = mesh.triangles[i];
-    TROCAR_THROW_UNLESS((t.array() >= 0).all() && (t.array() < n).all(),
-                        name << ": triangle " << i << " indexes a vertex outside 0.." << n - 1);
-    TROCAR_THROW_UNLESS(TriangleArea(mesh, t) > 0.0,
-                        name << ": triangle " << i << " has zero area");
-  }
 }
 
 }  // namespace trocar::robot

@@ -1,6 +1,7 @@
 #pragma once
 /// @file
-/// Triangle meshes for visual and collision geometry, loaded through assimp.
+/// Robot meshes for visual and collision geometry, loaded through assimp (the mesh type itself is
+/// common/mesh.hpp).
 
 #include <memory>
 #include <string>
@@ -8,15 +9,12 @@
 
 #include <Eigen/Geometry>
 
+#include "common/mesh.hpp"
+
 namespace trocar::robot {
 
-/// An indexed triangle mesh in metres, in the frame of the file (after `scale`).
-struct TriangleMesh {
-  std::vector<Eigen::Vector3d> vertices;
-  std::vector<Eigen::Vector3i> triangles;
-  std::string source;                 ///< file it came from
-  int degenerate_triangles_removed = 0;  ///< zero-area triangles dropped at load (counted, reported)
-};
+using trocar::TriangleMesh;
+using trocar::ValidateMesh;
 
 /// Loads STL, OBJ, DAE, PLY (anything assimp reads), merging all sub-meshes, scaled per axis.
 /// Zero-area triangles are removed and counted in `degenerate_triangles_removed`.
@@ -24,9 +22,5 @@ struct TriangleMesh {
 ///         or has non-finite vertices.
 std::shared_ptr<const TriangleMesh> LoadMesh(const std::string& path,
                                              const Eigen::Vector3d& scale = Eigen::Vector3d::Ones());
-
-/// Checks a mesh made in code: finite vertices, indices in range, at least one triangle of
-/// non-zero area. @throws trocar::Error whose message starts with `name`.
-void ValidateMesh(const TriangleMesh& mesh, const std::string& name);
 
 }  // namespace trocar::robot
