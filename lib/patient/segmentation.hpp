@@ -68,4 +68,39 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& options = {});
 /// not overlap the grid at all.
 Mask ResampleMask(const Volume& mask_volume, const Volume& grid, double threshold = 0.5);
 
+/// Squared Euclidean distance (m²) from every voxel's centre to the nearest voxel inside `mask`
+/// (0 inside), exact, in linear time (Felzenszwalb and Huttenlocher's lower envelope per axis,
+/// with each axis' spacing; index axes are taken as orthogonal).
+std::vector<float> SquaredDistanceToMask(const Volume& grid, const Mask& mask);
+
+struct HeartOptions {
+  /// Contrast-filled blood: above these (and below the bone threshold). HU, or raw for windowed
+  /// volumes (8-bit contrast CT: blood 100-150, myocardium 40-80, fat near 0).
+  double blood_hu = 150.0, raw_blood = 100.0;
+  /// Brightest blood (HU; strong pulmonary-angiography contrast reaches 600). For raw volumes the
+  /// bone threshold.
+  double blood_max_hu = 700.0;
+  /// Soft tissue the heart wall may grow into around the blood pool.
+  double soft_hu = -30.0, raw_soft = 30.0;
+  /// Opening radius separating the cardiac chambers from the great vessels (m).
+  double opening_radius = 0.008;
+  /// Other chamber blobs joined to the largest: at least this share of its volume, centroid
+  /// within this distance of its centroid (m).
+  double min_chamber_fraction = 0.05;
+  double chamber_reach = 0.07;
+  /// Blobs whose bounding box is this many times longer than wide are vessels, not chambers.
+  double max_chamber_elongation = 3.0;
+  /// Myocardium grown around the blood pool (m).
+  double wall_thickness = 0.008;
+};
+
+/// The heart in a contrast CT without a mask: contrast-filled blood inside the body; an opening
+/// by a ball of `opening_radius` separates the chambers from the vessels; the largest chamber
+/// blob in the chest and the sizeable blobs around it are grown back within the blood, then by the
+/// wall thickness into soft tissue.
+/// @throws trocar::Error naming the volume when no blood pool is found (not a contrast CT: give
+///         the heart as a mask file instead).
+Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg,
+                              const HeartOptions& options = {});
+
 }  // namespace trocar::patient

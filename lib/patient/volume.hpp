@@ -19,7 +19,8 @@ struct Volume {
   Eigen::Vector3d origin_P = Eigen::Vector3d::Zero();  ///< m, centre of voxel (0, 0, 0)
   std::vector<float> values;   ///< i fastest, then j, then k
   bool hounsfield = false;     ///< values are Hounsfield units (else raw, e.g. 8-bit windowed)
-  std::string source;          ///< file it came from
+  std::string source;          ///< file (or DICOM folder) it came from
+  std::vector<std::string> files;  ///< every file read (header, detached data, DICOM slices)
 
   long voxel_count() const { return static_cast<long>(size.x()) * size.y() * size.z(); }
   long Index(int i, int j, int k) const {

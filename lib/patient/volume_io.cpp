@@ -288,6 +288,7 @@ Volume LoadNrrd(const std::string& path) {
     TROCAR_THROW_UNLESS(IsRegularFile(data_name), path << ": field 'data file': '" << name
                                                        << "' not found (looked for " << data_name << ")");
     data = ReadTextFile(data_name);
+    v.files.push_back(data_name);
   } else {
     TROCAR_THROW_UNLESS(data_start != std::string::npos,
                         path << ": no attached data and no 'data file' field");
@@ -487,6 +488,7 @@ Volume LoadMetaImage(const std::string& path) {
     TROCAR_THROW_UNLESS(IsRegularFile(data_name), path << ": field 'ElementDataFile': '" << file
                                                        << "' not found (looked for " << data_name << ")");
     data = ReadTextFile(data_name);
+    v.files.push_back(data_name);
   }
   if (fields.count("CompressedData") && Lower(fields["CompressedData"]) == "true") {
     data = Inflate(data, data_name);
@@ -556,11 +558,19 @@ SliceImage RenderSlice(const Volume& v, int axis, int index, double level, doubl
 Volume LoadVolume(const std::string& path) {
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": CT volume not found");
   const std::string name = Lower(path);
-  if (EndsWith(name, ".nrrd") || EndsWith(name, ".nhdr")) return LoadNrrd(path);
-  if (EndsWith(name, ".nii") || EndsWith(name, ".nii.gz")) return LoadNifti(path);
-  if (EndsWith(name, ".mha") || EndsWith(name, ".mhd")) return LoadMetaImage(path);
-  TROCAR_THROW(path << ": unknown volume format (expected .nrrd, .nhdr, .nii, .nii.gz, .mha or "
+  Volume v;
+  if (EndsWith(name, ".nrrd") || EndsWith(name, ".nhdr")) {
+    v = LoadNrrd(path);
+  } else if (EndsWith(name, ".nii") || EndsWith(name, ".nii.gz")) {
+    v = LoadNifti(path);
+  } else if (EndsWith(name, ".mha") || EndsWith(name, ".mhd")) {
+    v = LoadMetaImage(path);
+  } else {
+    TROCAR_THROW(path << ": unknown volume format (expected .nrrd, .nhdr, .nii, .nii.gz, .mha or "
                        ".mhd)");
+  }
+  v.files.insert(v.files.begin(), path);
+  return v;
 }
 
 void WriteNrrd(const Volume& volume, const std::string& path, bool ras) {

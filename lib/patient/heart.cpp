@@ -1,0 +1,176 @@
+// The heart from a contrast CT, and the distance transform it stands on.
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "common/error.hpp"
+#include "patient/segmentation.hpp"
+
+namespace trocar::patient {
+namespace {
+
+// 1-D squared distance transform of f (0 at sites, +inf elsewhere) with sample spacing h,
+// Felzenszwalb & Huttenlocher (2012). d[q] = min_p (f[p] + h²(q - p)²).
+void Transform1D(const float* f, int n, double h, float* d, std::vector<int>& v,
+                 std::vector<double>& z) {
+  const double h2 = h * h;
+  const double inf = std::numeric_limits<double>::infinity();
+  int k = -1;
+  for (int q = 0; q < n; ++q) {
+    if (!std::isfinite(f[q])) continue;
+    if (k < 0) {
+      k = 0;
+      v[0] = q;
+      z[0] = -inf;
+      z[1] = inf;
+      continue;
+    }
+    double s;
+    while (true) {
+      const int p = v[k];
+      s = ((f[q] + h2 * q * q) - (f[p] + h2 * p * p)) / (2.0 * h2 * (q - p));
+      if (s <= z[k] && k > 0) {
+        --k;
+      } else {
+        break;
+      }
+    }
+    if (s <= z[k]) {  // k == 0 and the new parabola dominates everywhere
+      v[0] = q;
+      z[0] = -inf;
+      z[1] = inf;
+      continue;
+    }
+    ++k;
+    v[k] = q;
+    z[k] = s;
+    z[k + 1] = inf;
+  }
+  if (k < 0) {
+    std::fill(d, d + n, std::numeric_limits<float>::infinity());
+    return;
+  }
+  int j = 0;
+  for (int q = 0; q < n; ++q) {
+    while (z[j + 1] < q) ++j;
+    const int p = v[j];
+    d[q] = static_cast<float>(h2 * (q - p) * (q - p) + f[p]);
+  }
+}
+
+}  // namespace
+
+std::vector<float> SquaredDistanceToMask(const Volume& grid, const Mask& mask) {
+  TROCAR_THROW_UNLESS(mask.size == grid.size, "distance transform: mask size "
+                                                  << mask.size.transpose() << " is not the grid's "
+                                                  << grid.size.transpose());
+  const Eigen::Vector3d h = grid.spacing();
+  std::vector<float> d(mask.inside.size());
+  for (std::size_t n = 0; n < d.size(); ++n) {
+    d[n] = mask.inside[n] ? 0.f : std::numeric_limits<float>::infinity();
+  }
+  const int nmax = grid.size.maxCoeff();
+  std::vector<float> line(nmax), out(nmax);
+  std::vector<int> v(nmax);
+  std::vector<double> z(nmax + 1);
+  const Eigen::Vector3i& s = grid.size;
+  const long stride[3] = {1, s.x(), static_cast<long>(s.x()) * s.y()};
+  for (int axis = 0; axis < 3; ++axis) {
+    const int a = axis == 0 ? 1 : 0, b = axis == 2 ? 1 : 2;
+    for (int ib = 0; ib < s[b]; ++ib) {
+      for (int ia = 0; ia < s[a]; ++ia) {
+        const long base = ia * stride[a] + ib * stride[b];
+        for (int q = 0; q < s[axis]; ++q) line[q] = d[base + q * stride[axis]];
+        Transform1D(line.data(), s[axis], h[axis], out.data(), v, z);
+        for (int q = 0; q < s[axis]; ++q) d[base + q * stride[axis]] = out[q];
+      }
+    }
+  }
+  return d;
+}
+
+Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg, const HeartOptions& o) {
+  const double blood = ct.hounsfield ? o.blood_hu : o.raw_blood;
+  const double soft = ct.hounsfield ? o.soft_hu : o.raw_soft;
+  const double bone = seg.bone_threshold;
+  // Strong contrast (pulmonary CT angiography) can be brighter than the bone threshold, and the
+  // bone segmentation then holds blood too (in a heart-centred crop even sorted as "spine"):
+  // exclude only the ribs. The spine stays out by where it lies (the back of the chest).
+  std::vector<std::uint8_t> skeletal(seg.bones.labels.empty() ? 0 : 1 + *std::max_element(
+                                         seg.bones.labels.begin(), seg.bones.labels.end()), 0);
+  for (const auto* list : {&seg.bones.ribs_left, &seg.bones.ribs_right}) {
+    for (const Component& c : *list) skeletal[c.label] = 1;
+  }
+  auto is_skeleton = [&](std::size_t n) {
+    return !seg.bones.labels.empty() && seg.bones.labels[n] > 0 && skeletal[seg.bones.labels[n]];
+  };
+  const double blood_max = ct.hounsfield ? o.blood_max_hu : bone;
+  Mask pool;
+  pool.size = ct.size;
+  pool.inside.assign(ct.values.size(), 0);
+  for (std::size_t n = 0; n < ct.values.size(); ++n) {
+    pool.inside[n] = seg.body.inside[n] && ct.values[n] > blood && ct.values[n] <= blood_max &&
+                     !is_skeleton(n);
+  }
+  // Opening: the blood voxels deeper than the radius inside the pool...
+  Mask not_pool = pool;
+  for (auto& x : not_pool.inside) x = !x;
+  const std::vector<float> depth2 = SquaredDistanceToMask(ct, not_pool);
+  const float r2 = static_cast<float>(o.opening_radius * o.opening_radius);
+  Mask core;
+  core.size = ct.size;
+  core.inside.assign(ct.values.size(), 0);
+  for (std::size_t n = 0; n < depth2.size(); ++n) core.inside[n] = depth2[n] > r2;
+  std::vector<int> labels;
+  const auto blobs = ConnectedComponents(ct, core, &labels);
+  // ...whose largest blob in the chest (between the body's sides, in front of its back third)
+  // is the chambers.
+  const Eigen::Vector3d centre = 0.5 * (seg.body_min_P + seg.body_max_P);
+  const Eigen::Vector3d extent = seg.body_max_P - seg.body_min_P;
+  const Component* first = nullptr;
+  for (const auto& blob : blobs) {
+    const Eigen::Vector3d c = blob.centroid_P;
+    if (std::abs(c.x() - centre.x()) < 0.3 * extent.x() &&
+        c.y() < seg.body_min_P.y() + 0.7 * extent.y()) {
+      first = &blob;
+      break;  // largest first
+    }
+  }
+  TROCAR_THROW_UNLESS(first != nullptr,
+                      ct.source << ": heart: no contrast-filled blood pool "
+                                << (ct.hounsfield ? "above " : "above raw ") << blood
+                                << " and thicker than " << 2 * o.opening_radius * 1e3
+                                << " mm in the chest; not a contrast CT? give the heart as a "
+                                   "mask file (patient.yaml heart.mask)");
+  // The other chambers: blobs of some size around the first (septa and valves separate them).
+  std::vector<std::uint8_t> keep(blobs.size() + 1, 0);
+  for (const auto& blob : blobs) {
+    // Vessels are long and thin; chambers are round: skip elongated blobs (the aorta's).
+    const Eigen::Vector3d size = blob.max_P - blob.min_P;
+    const bool tube = size.maxCoeff() > o.max_chamber_elongation * size.minCoeff();
+    keep[blob.label] = blob.label == first->label ||
+                       (!tube && blob.volume >= o.min_chamber_fraction * first->volume &&
+                        (blob.centroid_P - first->centroid_P).norm() <= o.chamber_reach);
+  }
+  Mask chambers;
+  chambers.size = ct.size;
+  chambers.inside.assign(ct.values.size(), 0);
+  for (std::size_t n = 0; n < labels.size(); ++n) chambers.inside[n] = labels[n] > 0 && keep[labels[n]];
+  // Grow back within the pool (the closing half of the opening), then the wall into soft tissue.
+  const std::vector<float> from_core2 = SquaredDistanceToMask(ct, chambers);
+  Mask heart_blood = chambers;
+  for (std::size_t n = 0; n < from_core2.size(); ++n) {
+    heart_blood.inside[n] = pool.inside[n] && from_core2[n] <= r2 * 1.0001f;
+  }
+  const std::vector<float> from_blood2 = SquaredDistanceToMask(ct, heart_blood);
+  const float w2 = static_cast<float>(o.wall_thickness * o.wall_thickness);
+  Mask heart = heart_blood;
+  for (std::size_t n = 0; n < from_blood2.size(); ++n) {
+    heart.inside[n] = heart_blood.inside[n] ||
+                      (from_blood2[n] <= w2 && seg.body.inside[n] && !is_skeleton(n) &&
+                       ct.values[n] > soft && ct.values[n] <= blood_max);
+  }
+  return heart;
+}
+
+}  // namespace trocar::patient
