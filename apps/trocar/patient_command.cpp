@@ -1,11 +1,13 @@
 // trocar phantom: generate a thorax phantom case.
 #include <filesystem>
+#include <iomanip>
 #include <iostream>
 #include <memory>
 
 #include "apps/trocar/commands.hpp"
 #include "common/file_util.hpp"
 #include "common/plot.hpp"
+#include "patient/patient_model.hpp"
 #include "patient/phantom.hpp"
 
 namespace trocar::apps {
@@ -53,9 +55,65 @@ void RunPhantom(const PhantomOptions& o) {
   }
 }
 
+struct ImportCommandOptions {
+  std::string case_dir;
+  bool rebuild = false;
+  bool no_cache = false;
+};
+
+void RunImport(const ImportCommandOptions& o) {
+  patient::ImportOptions options;
+  options.use_cache = !o.rebuild && !o.no_cache;
+  options.write_cache = !o.no_cache;
+  const patient::PatientModel m = patient::ImportPatient(o.case_dir, options);
+  std::cout << std::fixed << std::setprecision(1);
+  std::cout << "patient " << m.name << (m.from_cache ? " (from cache)" : "") << "\n"
+            << "  CT: " << m.ct_source << "\n";
+  const Eigen::Vector3d extent = (m.body_max_P - m.body_min_P) * 1e3;
+  std::cout << "  body: " << extent.x() << " x " << extent.y() << " x " << extent.z()
+            << " mm (left-right, front-back, head-foot)\n";
+  std::cout << "  structures (" << m.triangle_count() << " triangles):\n";
+  for (const auto& s : m.structures) {
+    std::cout << "    " << std::left << std::setw(8) << s.name << std::right << std::setw(8)
+              << s.mesh.triangles.size() << " triangles (from " << s.contoured_triangles
+              << "), " << s.volume * 1e6 << " ml\n";
+  }
+  std::cout << "  targets:\n";
+  for (const auto& t : m.targets) {
+    double length = 0.0;
+    for (std::size_t i = 1; i < t.points.size(); ++i) length += (t.points[i] - t.points[i - 1]).norm();
+    std::cout << "    " << t.name << ": " << t.points.size() << " points, " << length * 1e3
+              << " mm long, normals from " << t.normals_from << "\n";
+  }
+  std::cout << "  port candidates: " << m.port_candidates.size();
+  if (!m.port_candidates.empty()) std::cout << " (" << m.port_candidates.front().source << ")";
+  std::cout << "\n";
+  for (const auto& c : m.port_candidates) std::cout << "    " << c.name << ": " << c.skin.size() << " points\n";
+  std::cout << "  pose: left side up " << m.left_side_up * 180.0 / M_PI << " deg, table top at "
+            << m.table.height * 1e3 << " mm\n";
+  std::cout << std::setprecision(3) << "  timings (s):";
+  double total = 0.0;
+  for (const auto& [stage, seconds] : m.timings) {
+    std::cout << " " << stage << " " << seconds << ";";
+    total += seconds;
+  }
+  std::cout << " total " << total << "\n";
+  if (!o.no_cache) std::cout << "  cache: " << JoinPath(m.case_dir, "cache") << "\n";
+}
+
 }  // namespace
 
 void AddPatientCommands(CLI::App* app) {
+  {
+    auto o = std::make_shared<ImportCommandOptions>();
+    CLI::App* cmd = app->add_subcommand(
+        "import", "Build (or load from its cache) the patient model of a case folder and summarise it");
+    cmd->add_option("case", o->case_dir, "case folder holding patient.yaml (e.g. patients/phantom-default)")
+        ->required();
+    cmd->add_flag("--rebuild", o->rebuild, "ignore the cache and rebuild it");
+    cmd->add_flag("--no-cache", o->no_cache, "neither read nor write the cache");
+    cmd->callback([o]() { RunImport(*o); });
+  }
   auto o = std::make_shared<PhantomOptions>();
   CLI::App* cmd = app->add_subcommand(
       "phantom", "Generate a thorax phantom case: CT in HU, 3D Slicer markups, truth, patient.yaml");

@@ -52,12 +52,66 @@ std::vector<Markup> LoadMarkups(const std::string& path) {
       TROCAR_THROW_UNLESS(p.allFinite(), p_where << ".position: not finite");
       markup.points.push_back(to_lps.asDiagonal() * p * scale);
       markup.labels.push_back(point.value("label", markup.name + "-" + std::to_string(i + 1)));
+      if (point.contains("orientation")) {
+        const auto& o = point["orientation"];
+        TROCAR_THROW_UNLESS(o.is_array() && o.size() == 9,
+                            p_where << ".orientation: expected 9 numbers (a 3x3 matrix)");
+        Eigen::Vector3d z;
+        for (int r = 0; r < 3; ++r) {
+          TROCAR_THROW_UNLESS(o[3 * r + 2].is_number(), p_where << ".orientation: expected numbers");
+          z[r] = o[3 * r + 2].get<double>();
+        }
+        z = to_lps.asDiagonal() * z;
+        TROCAR_THROW_UNLESS(z.allFinite() && z.norm() > 1e-9,
+                            p_where << ".orientation: the normal (z column) is zero or not finite");
+        TROCAR_THROW_UNLESS(markup.normals.size() == i,
+                            p_where << ".orientation: given for some control points only");
+        markup.normals.push_back(z.normalized());
+      }
     }
     TROCAR_THROW_UNLESS(!markup.points.empty(), where << " ('" << markup.name << "'): no control points");
+    TROCAR_THROW_UNLESS(markup.normals.empty() || markup.normals.size() == markup.points.size(),
+                        where << ": orientation given for some control points only");
     out.push_back(std::move(markup));
   }
   TROCAR_THROW_UNLESS(!out.empty(), path << ": field 'markups' is empty");
   return out;
+}
+
+void WriteMarkups(const std::vector<Markup>& markups, const std::string& path) {
+  nlohmann::json list = nlohmann::json::array();
+  for (const Markup& m : markups) {
+    TROCAR_THROW_UNLESS(m.normals.empty() || m.normals.size() == m.points.size(),
+                        path << ": markup '" << m.name << "' has " << m.normals.size()
+                             << " normals for " << m.points.size() << " points");
+    nlohmann::json points = nlohmann::json::array();
+    for (std::size_t i = 0; i < m.points.size(); ++i) {
+      const Eigen::Vector3d mm = m.points[i] * 1e3;
+      TROCAR_THROW_UNLESS(mm.allFinite(), path << ": markup '" << m.name << "' point " << i << " is not finite");
+      nlohmann::json point = {{"id", std::to_string(i + 1)},
+                              {"label", i < m.labels.size() ? m.labels[i] : m.name + "-" + std::to_string(i + 1)},
+                              {"position", {mm.x(), mm.y(), mm.z()}},
+                              {"positionStatus", "defined"}};
+      if (!m.normals.empty()) {
+        // An orthonormal frame whose z column is the normal (row-major, as Slicer stores it).
+        const Eigen::Vector3d z = m.normals[i].normalized();
+        const Eigen::Vector3d x = z.unitOrthogonal(), y = z.cross(x);
+        point["orientation"] = {x.x(), y.x(), z.x(), x.y(), y.y(), z.y(), x.z(), y.z(), z.z()};
+      }
+      points.push_back(point);
+    }
+    list.push_back({{"type", m.type.empty() ? "Fiducial" : m.type},
+                    {"name", m.name},
+                    {"coordinateSystem", "LPS"},
+                    {"coordinateUnits", "mm"},
+                    {"controlPoints", points}});
+  }
+  const nlohmann::json doc = {
+      {"@schema",
+       "https://raw.githubusercontent.com/slicer/slicer/main/Modules/Loadable/Markups/Resources/"
+       "Schema/markups-schema-v1.0.3.json#"},
+      {"markups", list}};
+  WriteFileAtomically(path, doc.dump(2));
 }
 
 }  // namespace trocar::patient

@@ -67,6 +67,8 @@ Phantom GeneratePhantom(const PhantomParameters& parameters);
 
 /// Writes `dir/ct.nrrd` (LPS; RAS when `ras`), `dir/markups/*.mrk.json` (3D Slicer curves: LAD,
 /// LIMA, intercostal spaces), `dir/truth.json` (ribs) and `dir/patient.yaml`, each atomically.
-void WritePhantomCase(const Phantom& phantom, const std::string& dir, bool ras = false);
+/// `write_patient_yaml` false keeps an existing case file (a bundled case generated on first use).
+void WritePhantomCase(const Phantom& phantom, const std::string& dir, bool ras = false,
+                      bool write_patient_yaml = true);
 
 }  // namespace trocar::patient

@@ -84,6 +84,67 @@ void FillHolesPerSlice(const Volume& v, Mask* mask) {
   }
 }
 
+// Fills each axial slice's convex hull of the mask (for windowed volumes whose body outline is
+// broken where fat was clipped to the value of air; axial body sections are nearly convex).
+void FillConvexPerSlice(const Volume& v, Mask* mask) {
+  const int axis = AxialAxis(v);
+  const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
+  std::vector<Eigen::Vector2d> points, hull;
+  for (int s = 0; s < v.size[axis]; ++s) {
+    auto at = [&](int a, int b) {
+      Eigen::Vector3i ijk;
+      ijk[axis] = s;
+      ijk[u] = a;
+      ijk[w] = b;
+      return v.Index(ijk.x(), ijk.y(), ijk.z());
+    };
+    points.clear();
+    for (int b = 0; b < v.size[w]; ++b) {
+      int first = -1, last = -1;
+      for (int a = 0; a < v.size[u]; ++a) {
+        if (mask->inside[at(a, b)]) {
+          if (first < 0) first = a;
+          last = a;
+        }
+      }
+      if (first >= 0) {
+        points.emplace_back(first, b);
+        points.emplace_back(last, b);
+      }
+    }
+    if (points.size() < 6) continue;
+    // Andrew's monotone chain (points already sorted by b, then a within a row pair).
+    std::sort(points.begin(), points.end(), [](const auto& p, const auto& q) {
+      return p.x() < q.x() || (p.x() == q.x() && p.y() < q.y());
+    });
+    auto cross = [](const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+      return (a - o).x() * (b - o).y() - (a - o).y() * (b - o).x();
+    };
+    hull.assign(2 * points.size(), Eigen::Vector2d::Zero());
+    std::size_t k = 0;
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      while (k >= 2 && cross(hull[k - 2], hull[k - 1], points[i]) <= 0) --k;
+      hull[k++] = points[i];
+    }
+    for (std::size_t i = points.size() - 1, t = k + 1; i-- > 0;) {
+      while (k >= t && cross(hull[k - 2], hull[k - 1], points[i]) <= 0) --k;
+      hull[k++] = points[i];
+    }
+    hull.resize(k - 1);
+    if (hull.size() < 3) continue;
+    for (int b = 0; b < v.size[w]; ++b) {
+      for (int a = 0; a < v.size[u]; ++a) {
+        const Eigen::Vector2d p(a, b);
+        bool inside = true;
+        for (std::size_t e = 0; e < hull.size() && inside; ++e) {
+          inside = cross(hull[e], hull[(e + 1) % hull.size()], p) >= -1e-9;
+        }
+        if (inside) mask->inside[at(a, b)] = 1;
+      }
+    }
+  }
+}
+
 }  // namespace
 
 std::vector<Component> ConnectedComponents(const Volume& grid, const Mask& mask,
@@ -169,6 +230,16 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
   // Body: the largest component above the body threshold, holes filled.
   std::vector<int> labels;
   Mask above = Threshold(ct, s.body_threshold);
+  const double closing = ct.hounsfield ? o.body_closing : o.raw_body_closing;
+  if (closing > 0.0) {
+    // Closing by a ball: bridges the gaps where windowing clipped fat to the value of air.
+    const float r2 = static_cast<float>(closing * closing);
+    const std::vector<float> to_body = SquaredDistanceToMask(ct, above);
+    Mask outside_dilated = above;
+    for (std::size_t i = 0; i < to_body.size(); ++i) outside_dilated.inside[i] = to_body[i] > r2;
+    const std::vector<float> to_outside = SquaredDistanceToMask(ct, outside_dilated);
+    for (std::size_t i = 0; i < to_outside.size(); ++i) above.inside[i] = to_outside[i] > r2;
+  }
   const auto body_parts = ConnectedComponents(ct, above, &labels);
   TROCAR_THROW_UNLESS(!body_parts.empty(), ct.source << ": no voxel above the body threshold "
                                                      << s.body_threshold << units
@@ -178,7 +249,11 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
   s.body.size = ct.size;
   s.body.inside.resize(labels.size());
   for (std::size_t i = 0; i < labels.size(); ++i) s.body.inside[i] = labels[i] == 1;
-  FillHolesPerSlice(ct, &s.body);
+  if (ct.hounsfield ? o.body_convex_fill : o.raw_body_convex_fill) {
+    FillConvexPerSlice(ct, &s.body);
+  } else {
+    FillHolesPerSlice(ct, &s.body);
+  }
 
   // Bone: above the bone threshold and inside the body (so the table is left out).
   s.bone = Threshold(ct, s.bone_threshold);

@@ -39,6 +39,14 @@ struct SegmentationOptions {
   double bone_hu = 450.0;  // above contrast-filled blood (250-400 HU)
   double raw_body = 40.0;
   double raw_bone = 160.0;  // 8-bit windowed CT: cortical bone is 160-255
+  /// Closing radius (m) applied to the body before filling: windowed volumes clip fat to the
+  /// value of air, which breaks the body's outline; a closing bridges those gaps.
+  double body_closing = 0.0;
+  double raw_body_closing = 0.006;
+  /// Fill each axial slice's convex hull instead of its holes (windowed volumes, whose outline
+  /// stays broken).
+  bool body_convex_fill = false;
+  bool raw_body_convex_fill = true;
   /// Bone components smaller than this are noise (m³).
   double min_bone_volume = 0.3e-6;
 };

@@ -193,6 +193,26 @@ TEST(TrocarPhantom, WritesACaseAPersonCanOpen) {
   EXPECT_NE(bad.output.find("phantom: body_width = 3 is outside"), std::string::npos) << bad.output;
 }
 
+TEST(TrocarImport, BuildsThenLoadsThePhantomCaseFromItsCache) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_import";
+  std::filesystem::remove_all(dir);
+  ASSERT_EQ(Trocar("phantom --out " + dir + " --seed 2 --voxel 0.004").exit_code, 0);
+  const CommandRun cold = Trocar("import " + dir);
+  ASSERT_EQ(cold.exit_code, 0) << cold.output;
+  for (const char* line : {"patient phantom-seed-2\n", "    heart ", "    ribs ", "LAD: 25 points",
+                           "normals from file", "port candidates: 8 (markups:", "left side up 25.0 deg",
+                           "timings (s): load CT"}) {
+    EXPECT_NE(cold.output.find(line), std::string::npos) << line << "\n" << cold.output;
+  }
+  EXPECT_EQ(cold.output.find("(from cache)"), std::string::npos);
+  const CommandRun warm = Trocar("import " + dir);
+  EXPECT_NE(warm.output.find("patient phantom-seed-2 (from cache)"), std::string::npos) << warm.output;
+  EXPECT_NE(warm.output.find("load cache"), std::string::npos) << warm.output;
+  const CommandRun missing = Trocar("import " + dir + "/nowhere");
+  EXPECT_EQ(missing.exit_code, 1);
+  EXPECT_NE(missing.output.find("nowhere: no patient.yaml"), std::string::npos) << missing.output;
+}
+
 TEST(TrocarRobotInfo, MissingFileIsNamed) {
   const CommandRun run = Trocar("robot info /no/such/robot.urdf");
   EXPECT_EQ(run.exit_code, 1);

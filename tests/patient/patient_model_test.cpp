@@ -1,0 +1,214 @@
+#include "patient/patient_model.hpp"
+
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "patient/markups.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A coarse phantom case in a fresh folder (4 mm voxels keep the test fast).
+std::string MakeCase(const std::string& name, const std::string& extra_yaml = "") {
+  const std::string dir = testing::TempDir() + "/trocar-" + name;
+  fs::remove_all(dir);
+  patient::PhantomParameters p;
+  p.voxel_size = 0.004;
+  patient::WritePhantomCase(patient::GeneratePhantom(p), dir);
+  std::ofstream(JoinPath(dir, "patient.yaml"))
+      << "name: " << name << "\nct: ct.nrrd\nunits: hounsfield\npose: {left_side_up: 25 deg}\n"
+      << "targets:\n  - {name: LAD, markups: markups/LAD.mrk.json, surface: heart}\n"
+      << "  - {name: LIMA, markups: markups/LIMA.mrk.json, surface: skin, facing: inward}\n"
+      << "surfaces: {skin: 6000, ribs: 8000, heart: 3000}\n"
+      << extra_yaml;
+  return dir;
+}
+
+TEST(PatientModel, PhantomCaseBuildsClosedSurfacesTargetsPortsAndPose) {
+  const std::string dir = MakeCase("model");
+  const patient::PatientModel m = patient::ImportPatient(dir);
+  EXPECT_FALSE(m.from_cache);
+  for (const char* name : {"skin", "ribs", "sternum", "spine", "heart"}) {
+    const patient::Structure* s = m.Find(name);
+    ASSERT_NE(s, nullptr) << name;
+    EXPECT_NO_THROW(ValidateMesh(s->mesh, name));
+    EXPECT_EQ(CountEdges(s->mesh).boundary, 0) << name;
+    EXPECT_GT(MeshSignedVolume(s->mesh), 0.0) << name;
+  }
+  EXPECT_LE(m.Find("skin")->mesh.triangles.size(), 6000u);
+  EXPECT_LE(m.Find("ribs")->mesh.triangles.size(), 8000u);
+  EXPECT_LE(m.Find("heart")->mesh.triangles.size(), 3000u);
+  // The heart's surface encloses about the heart it came from.
+  EXPECT_NEAR(MeshSignedVolume(m.Find("heart")->mesh) / m.Find("heart")->volume, 1.0, 0.1);
+  // LAD normals come from the file and point out of the heart; LIMA's from the skin, inward
+  // (posterior, +y in LPS).
+  ASSERT_EQ(m.targets.size(), 2u);
+  EXPECT_EQ(m.targets[0].normals_from, "file");
+  const Eigen::Vector3d heart_centre = 0.5 * ([&] {
+    Eigen::Vector3d lo, hi;
+    MeshBounds(m.Find("heart")->mesh, &lo, &hi);
+    return Eigen::Vector3d(lo + hi);
+  }());
+  for (std::size_t i = 0; i < m.targets[0].points.size(); ++i) {
+    EXPECT_GT(m.targets[0].normals[i].dot(m.targets[0].points[i] - heart_centre), 0.0);
+    // ...and agree with the heart surface found here (within 35 deg).
+    const Eigen::Vector3d n = patient::NearestSurfaceNormal(m.Find("heart")->mesh, m.targets[0].points[i]);
+    EXPECT_GT(n.dot(m.targets[0].normals[i]), std::cos(35 * M_PI / 180)) << i;
+  }
+  EXPECT_EQ(m.targets[1].normals_from, "surface:skin (inward)");
+  // (The volume's flat end caps are part of the closed skin: a point near them may take the cap's
+  // normal, so most points, not all.)
+  int posterior = 0;
+  for (const auto& n : m.targets[1].normals) posterior += n.y() > 0.7;
+  EXPECT_GE(posterior, 0.85 * m.targets[1].normals.size());
+  // No annotated candidates: the intercostal spaces found on the left.
+  ASSERT_EQ(m.port_candidates.size(), 8u);
+  EXPECT_EQ(m.port_candidates[0].source, "intercostal");
+  // On the table: lowest skin point on the top, the left side raised 25 deg.
+  double lowest = HUGE_VAL;
+  for (const auto& v : m.Find("skin")->mesh.vertices) lowest = std::min(lowest, (m.X_WP * v).z());
+  EXPECT_NEAR(lowest, m.table.height, 1e-9);
+  const Eigen::Vector3d left_W = m.X_WP.linear() * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR(std::asin(left_W.z()), 25 * M_PI / 180, 1e-9);
+  EXPECT_NEAR((m.X_WP.linear() * Eigen::Vector3d::UnitZ() - Eigen::Vector3d::UnitX()).norm(), 0.0, 1e-12);
+  // The cache holds STL and markups that Slicer opens.
+  EXPECT_TRUE(IsRegularFile(JoinPath(dir, "cache/heart.stl")));
+  EXPECT_EQ(patient::LoadMarkups(JoinPath(dir, "cache/port_candidates.mrk.json")).size(), 8u);
+}
+
+TEST(PatientModel, CacheIsReusedAndInvalidatedWhenAnInputChanges) {
+  const std::string dir = MakeCase("cache");
+  const patient::PatientModel cold = patient::ImportPatient(dir);
+  const patient::PatientModel warm = patient::ImportPatient(dir);
+  EXPECT_TRUE(warm.from_cache);
+  ASSERT_EQ(warm.structures.size(), cold.structures.size());
+  for (std::size_t s = 0; s < cold.structures.size(); ++s) {
+    EXPECT_EQ(warm.structures[s].mesh.vertices, cold.structures[s].mesh.vertices);
+    EXPECT_EQ(warm.structures[s].mesh.triangles, cold.structures[s].mesh.triangles);
+  }
+  EXPECT_EQ(warm.targets[0].normals, cold.targets[0].normals);
+  EXPECT_TRUE(warm.X_WP.isApprox(cold.X_WP, 0.0));
+  // An annotation changes: rebuilt.
+  std::ofstream(JoinPath(dir, "markups/LIMA.mrk.json"), std::ios::app) << "\n";
+  EXPECT_FALSE(patient::ImportPatient(dir).from_cache);
+  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  // A damaged cache is rebuilt, never half read.
+  const std::string bin = JoinPath(dir, "cache/model.bin");
+  const std::string bytes = ReadTextFile(bin);
+  for (std::size_t cut : {bytes.size() / 2, bytes.size() - 3, std::size_t(20)}) {
+    std::ofstream(bin, std::ios::binary | std::ios::trunc) << bytes.substr(0, cut);
+    const patient::PatientModel again = patient::ImportPatient(dir);
+    EXPECT_FALSE(again.from_cache);
+    EXPECT_EQ(again.triangle_count(), cold.triangle_count());
+  }
+}
+
+TEST(PatientModel, SerialisationRejectsOtherKeysAndGarbage) {
+  patient::PatientModel m;
+  m.name = "x";
+  patient::Structure s;
+  s.name = "skin";
+  s.mesh.vertices = {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0)};
+  s.mesh.triangles = {Eigen::Vector3i(0, 1, 2)};
+  m.structures.push_back(s);
+  const std::string bytes = patient::SerializeModel(m, 42);
+  patient::PatientModel back;
+  EXPECT_TRUE(patient::DeserializeModel(bytes, 42, &back));
+  EXPECT_EQ(back.structures[0].mesh.vertices, s.mesh.vertices);
+  EXPECT_FALSE(patient::DeserializeModel(bytes, 43, &back));
+  std::string bad = bytes;
+  bad[bad.size() / 2] ^= 0x7f;  // may or may not be caught structurally; must not crash
+  patient::DeserializeModel(bad, 42, &back);
+  std::string huge = bytes;
+  std::memset(&huge[16], 0xff, 8);  // a string length of 2^64-1
+  EXPECT_FALSE(patient::DeserializeModel(huge, 42, &back));
+}
+
+void ExpectImportError(const std::string& dir, const std::string& needle) {
+  try {
+    patient::ImportPatient(dir, {false, false});
+    ADD_FAILURE() << "no error for " << needle;
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+  }
+}
+
+TEST(PatientModel, BadCaseFilesNameTheFileAndField) {
+  ExpectImportError(testing::TempDir() + "/no-such-case", "no patient.yaml");
+  ExpectImportError(MakeCase("bad1", "colour: red\n"), "colour");
+  ExpectImportError(MakeCase("bad2", "heart: {mask: nowhere.nii.gz}\n"), "heart.mask: file");
+  const std::string d3 = MakeCase("bad3");
+  std::ofstream(JoinPath(d3, "patient.yaml"), std::ios::app) << "intercostal: {left: maybe}\n";
+  ExpectImportError(d3, "intercostal.left");
+  const std::string d4 = MakeCase("bad4");
+  {
+    std::string y = ReadTextFile(JoinPath(d4, "patient.yaml"));
+    y.replace(y.find("25 deg"), 6, "60 deg");
+    std::ofstream(JoinPath(d4, "patient.yaml")) << y;
+  }
+  ExpectImportError(d4, "pose.left_side_up");
+  const std::string d5 = MakeCase("bad5");
+  {
+    std::string y = ReadTextFile(JoinPath(d5, "patient.yaml"));
+    y.replace(y.find("surface: heart"), 14, "surface: liver");
+    std::ofstream(JoinPath(d5, "patient.yaml")) << y;
+  }
+  ExpectImportError(d5, "surface 'liver'");
+  const std::string d6 = MakeCase("bad6");
+  std::ofstream(JoinPath(d6, "ct.nrrd"), std::ios::trunc) << "NRRD0004\ntype: float\n";
+  ExpectImportError(d6, "ct.nrrd");
+  const std::string d7 = MakeCase("bad7");
+  std::ofstream(JoinPath(d7, "markups/LAD.mrk.json"), std::ios::trunc)
+      << R"({"markups": [{"coordinateSystem": "XYZ", "controlPoints": []}]})";
+  ExpectImportError(d7, "coordinateSystem");
+}
+
+TEST(PatientModel, BundledDefaultCaseFileIsValid) {
+  // The bundled case generates its phantom on first use; here into a copy, so the source tree
+  // stays clean.
+  const std::string dir = testing::TempDir() + "/trocar-default-copy";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  fs::copy_file(test::SourcePath("patients/phantom-default/patient.yaml"), JoinPath(dir, "patient.yaml"));
+  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  EXPECT_TRUE(IsRegularFile(JoinPath(dir, "ct.nrrd")));
+  EXPECT_EQ(m.targets.size(), 2u);
+  EXPECT_EQ(m.port_candidates.size(), 8u);
+  EXPECT_EQ(m.name, "phantom-default");
+}
+
+TEST(PatientModel, Lidc2CaseHasSkinRibsHeartTargetsOnTheTable) {
+  TROCAR_REQUIRE_SHARED_FILE(test::SharedDataPath("ct/lidc2/ct.nhdr"));
+  const patient::PatientModel m =
+      patient::ImportPatient(test::SourcePath("patients/lidc2"), {false, false});
+  for (const char* name : {"skin", "ribs", "heart"}) {
+    ASSERT_NE(m.Find(name), nullptr) << name;
+    // Closed but for the odd edge quadric decimation opens on real data.
+    const EdgeCounts edges = CountEdges(m.Find(name)->mesh);
+    EXPECT_LE(edges.boundary, edges.total / 1000) << name;
+  }
+  // An adult chest on the table, the heart inside it, the targets on or near the heart.
+  const double skin_l = m.Find("skin")->volume * 1e3;
+  EXPECT_GT(skin_l, 8.0);
+  EXPECT_LT(skin_l, 30.0);
+  Eigen::Vector3d lo, hi;
+  MeshBounds(m.Find("heart")->mesh, &lo, &hi);
+  EXPECT_TRUE(((lo - m.body_min_P).array() > 0).all() && ((m.body_max_P - hi).array() > 0).all());
+  ASSERT_EQ(m.targets.size(), 2u);
+  for (const auto& p : m.targets[0].points) {
+    double nearest = HUGE_VAL;
+    for (const auto& v : m.Find("heart")->mesh.vertices) nearest = std::min(nearest, (v - p).norm());
+    EXPECT_LT(nearest, 0.006);  // the LAD lies on the heart's surface
+  }
+  EXPECT_GE(m.port_candidates.size(), 1u);
+}
+
+}  // namespace
+}  // namespace trocar
