@@ -98,7 +98,11 @@ void RunImport(const ImportCommandOptions& o) {
     total += seconds;
   }
   std::cout << " total " << total << "\n";
-  if (!o.no_cache) std::cout << "  cache: " << JoinPath(m.case_dir, "cache") << "\n";
+  if (!m.cache_error.empty()) {
+    std::cout << "  cache: not written: " << m.cache_error << "\n";
+  } else if (!o.no_cache) {
+    std::cout << "  cache: " << JoinPath(m.case_dir, "cache") << "\n";
+  }
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 #include "patient/patient_model.hpp"
 
 #include <chrono>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
@@ -205,7 +206,7 @@ bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel*
       if ((t.array() < 0).any() || (t.array() >= int(s.mesh.vertices.size())).any()) r.ok = false;
     }
   }
-  m.targets.resize(r.Count(40));
+  m.targets.resize(r.Count(32));
   for (auto& t : m.targets) {
     t.name = r.Str();
     t.normals_from = r.Str();
@@ -294,11 +295,19 @@ CaseSpec ReadCase(const std::string& case_dir) {
                                 "rib_spacing", "heart_scale", "voxel_size"});
     c.has_phantom = true;
     PhantomParameters& p = c.phantom;
-    p.seed = static_cast<unsigned>(y.NumberOr(ph, "seed", "phantom", p.seed));
+    // Whole numbers in range before the casts (a cast of a negative or huge double is undefined).
+    auto whole = [&](const char* key, double fallback, double lo, double hi) {
+      const double n = y.NumberOr(ph, key, "phantom", fallback);
+      TROCAR_THROW_UNLESS(n == std::floor(n) && n >= lo && n <= hi,
+                          y.Where(ph[key], std::string("phantom.") + key)
+                              << ": " << n << " (expected a whole number in " << lo << ".." << hi << ")");
+      return n;
+    };
+    p.seed = static_cast<unsigned>(whole("seed", p.seed, 0, 4294967295.0));
     p.body_width = y.NumberOr(ph, "body_width", "phantom", p.body_width);
     p.body_depth = y.NumberOr(ph, "body_depth", "phantom", p.body_depth);
     p.length = y.NumberOr(ph, "length", "phantom", p.length);
-    p.ribs_per_side = static_cast<int>(y.NumberOr(ph, "ribs_per_side", "phantom", p.ribs_per_side));
+    p.ribs_per_side = static_cast<int>(whole("ribs_per_side", p.ribs_per_side, 2, 12));
     p.rib_spacing = y.NumberOr(ph, "rib_spacing", "phantom", p.rib_spacing);
     p.heart_scale = y.NumberOr(ph, "heart_scale", "phantom", p.heart_scale);
     p.voxel_size = y.NumberOr(ph, "voxel_size", "phantom", p.voxel_size);
@@ -315,6 +324,8 @@ CaseSpec ReadCase(const std::string& case_dir) {
     // In the CT's own units: set both the HU and the raw fields, whichever the CT turns out to be.
     if (t["body"]) c.seg.body_hu = c.seg.raw_body = y.Number(t["body"], "thresholds.body");
     if (t["bone"]) c.seg.bone_hu = c.seg.raw_bone = y.Number(t["bone"], "thresholds.bone");
+    TROCAR_THROW_UNLESS(c.seg.body_hu < c.seg.bone_hu && c.seg.raw_body < c.seg.raw_bone,
+                        y.Where(t, "thresholds") << ": the body threshold must be below the bone threshold");
   }
   if (root["heart"]) {
     const YAML::Node h = root["heart"];
@@ -419,7 +430,11 @@ CaseSpec ReadCase(const std::string& case_dir) {
     budget("spine", &c.budgets.spine);
     budget("heart", &c.budgets.heart);
     if (s["smoothing"]) {
-      c.surface.smoothing_iterations = static_cast<int>(y.Number(s["smoothing"], "surfaces.smoothing"));
+      const double n = y.Number(s["smoothing"], "surfaces.smoothing");
+      TROCAR_THROW_UNLESS(n == std::floor(n) && n >= 0 && n <= 500,
+                          y.Where(s["smoothing"], "surfaces.smoothing")
+                              << ": " << n << " (expected a whole number of iterations, 0..500)");
+      c.surface.smoothing_iterations = static_cast<int>(n);
     }
   }
   return c;
@@ -613,7 +628,14 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   });
   m.X_WP = PoseOnTable(m.Find("skin")->mesh, m.left_side_up, m.table);
   if (options.write_cache) {
-    stage("write cache", [&] { WriteCacheFiles(m, cache_dir, key); });
+    // A case folder one cannot write to (a read-only checkout) still gives its model.
+    stage("write cache", [&] {
+      try {
+        WriteCacheFiles(m, cache_dir, key);
+      } catch (const Error& e) {
+        m.cache_error = e.what();
+      }
+    });
   }
   m.timings = timings;
   return m;

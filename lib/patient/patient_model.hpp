@@ -62,6 +62,7 @@ struct PatientModel {
   /// Time per build stage (s), in order; on a cached load, a single "load cache" entry.
   std::vector<std::pair<std::string, double>> timings;
   bool from_cache = false;
+  std::string cache_error;  ///< why the cache could not be written (the model itself is whole)
 
   const Structure* Find(const std::string& name) const;
   long triangle_count() const;
@@ -81,7 +82,7 @@ struct ImportOptions {
 /// @throws trocar::Error naming the file and field for bad input.
 PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& options = {});
 
-/// Surface normal of `structure` nearest to `p_P` (area-weighted vertex normal, outward).
+/// Surface normal of `mesh` nearest to `p_P` (area-weighted vertex normal, outward).
 Eigen::Vector3d NearestSurfaceNormal(const TriangleMesh& mesh, const Eigen::Vector3d& p_P);
 
 /// X_WP for a patient whose skin is `skin` (P frame), raised on its left by `left_side_up`, its

@@ -37,6 +37,19 @@ int AxialAxis(const Volume& v) {
   return best;
 }
 
+// Voxel index of in-slice coordinates (a along axis u, b along axis w) on axial slice s.
+struct AxialSlice {
+  const Volume& v;
+  int axis, u, w, s;
+  long operator()(int a, int b) const {
+    Eigen::Vector3i ijk;
+    ijk[axis] = s;
+    ijk[u] = a;
+    ijk[w] = b;
+    return v.Index(ijk.x(), ijk.y(), ijk.z());
+  }
+};
+
 // Fills, slice by slice across the axial axis, every region the outside cannot reach.
 void FillHolesPerSlice(const Volume& v, Mask* mask) {
   const int axis = AxialAxis(v);
@@ -45,13 +58,7 @@ void FillHolesPerSlice(const Volume& v, Mask* mask) {
   std::vector<std::uint8_t> outside;
   std::vector<std::pair<int, int>> stack;
   for (int s = 0; s < v.size[axis]; ++s) {
-    auto at = [&](int a, int b) {
-      Eigen::Vector3i ijk;
-      ijk[axis] = s;
-      ijk[u] = a;
-      ijk[w] = b;
-      return v.Index(ijk.x(), ijk.y(), ijk.z());
-    };
+    const AxialSlice at{v, axis, u, w, s};
     outside.assign(static_cast<std::size_t>(nu) * nw, 0);
     stack.clear();
     auto seed = [&](int a, int b) {
@@ -91,13 +98,7 @@ void FillConvexPerSlice(const Volume& v, Mask* mask) {
   const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
   std::vector<Eigen::Vector2d> points, hull;
   for (int s = 0; s < v.size[axis]; ++s) {
-    auto at = [&](int a, int b) {
-      Eigen::Vector3i ijk;
-      ijk[axis] = s;
-      ijk[u] = a;
-      ijk[w] = b;
-      return v.Index(ijk.x(), ijk.y(), ijk.z());
-    };
+    const AxialSlice at{v, axis, u, w, s};
     points.clear();
     for (int b = 0; b < v.size[w]; ++b) {
       int first = -1, last = -1;

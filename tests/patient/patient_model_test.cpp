@@ -110,6 +110,15 @@ TEST(PatientModel, CacheIsReusedAndInvalidatedWhenAnInputChanges) {
   }
 }
 
+TEST(PatientModel, AnUnwritableCacheStillGivesTheModelAndSaysWhy) {
+  const std::string dir = MakeCase("unwritable");
+  std::ofstream(JoinPath(dir, "cache")) << "a file where the cache folder would go";
+  const patient::PatientModel m = patient::ImportPatient(dir);
+  EXPECT_GT(m.triangle_count(), 0);
+  EXPECT_NE(m.cache_error.find("cache"), std::string::npos) << m.cache_error;
+  EXPECT_EQ(ReadTextFile(JoinPath(dir, "cache")), "a file where the cache folder would go");
+}
+
 TEST(PatientModel, SerialisationRejectsOtherKeysAndGarbage) {
   patient::PatientModel m;
   m.name = "x";
@@ -164,6 +173,17 @@ TEST(PatientModel, BadCaseFilesNameTheFileAndField) {
   const std::string d6 = MakeCase("bad6");
   std::ofstream(JoinPath(d6, "ct.nrrd"), std::ios::trunc) << "NRRD0004\ntype: float\n";
   ExpectImportError(d6, "ct.nrrd");
+  ExpectImportError(MakeCase("bad8", "thresholds: {body: 500, bone: 450}\n"), "thresholds: the body threshold");
+  const std::string d9 = MakeCase("bad9");
+  {
+    std::string y = ReadTextFile(JoinPath(d9, "patient.yaml"));
+    y.replace(y.find("heart: 3000}"), 12, "heart: 3000, smoothing: -3}");
+    std::ofstream(JoinPath(d9, "patient.yaml")) << y;
+  }
+  ExpectImportError(d9, "surfaces.smoothing");
+  const std::string d10 = MakeCase("bad10", "phantom: {seed: -1}\n");
+  fs::remove(JoinPath(d10, "ct.nrrd"));
+  ExpectImportError(d10, "phantom.seed");
   const std::string d7 = MakeCase("bad7");
   std::ofstream(JoinPath(d7, "markups/LAD.mrk.json"), std::ios::trunc)
       << R"({"markups": [{"coordinateSystem": "XYZ", "controlPoints": []}]})";
