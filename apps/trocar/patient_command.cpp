@@ -17,6 +17,7 @@ struct PhantomOptions {
   std::string out;
   patient::PhantomParameters p;
   bool ras = false;
+  bool dicom = false;
 };
 
 // Axial slice at the heart and a coronal slice through it, side by side, soft-tissue window.
@@ -41,7 +42,10 @@ void WritePreview(const patient::Phantom& ph, const std::string& path) {
 
 void RunPhantom(const PhantomOptions& o) {
   const patient::Phantom ph = patient::GeneratePhantom(o.p);
-  patient::WritePhantomCase(ph, o.out, o.ras);
+  const patient::CtFormat format = o.dicom ? patient::CtFormat::kDicom
+                                  : o.ras  ? patient::CtFormat::kNrrdRas
+                                           : patient::CtFormat::kNrrdLps;
+  patient::WritePhantomCase(ph, o.out, format);
   WritePreview(ph, JoinPath(o.out, "preview.png"));
   const Eigen::Vector3d spacing = ph.ct.spacing() * 1e3;
   std::cout << "phantom (seed " << o.p.seed << "): " << ph.ct.size.x() << " x " << ph.ct.size.y()
@@ -49,7 +53,8 @@ void RunPhantom(const PhantomOptions& o) {
             << ph.truth.ribs.size() << " ribs, " << ph.truth.intercostal_spaces.size()
             << " intercostal spaces, LAD " << ph.truth.lad.size() << " points, LIMA "
             << ph.truth.lima.size() << " points\n";
-  for (const char* file : {"ct.nrrd", "patient.yaml", "truth.json", "markups/LAD.mrk.json",
+  std::cout << "  " << JoinPath(o.out, o.dicom ? "ct/ (DICOM series, " + std::to_string(ph.ct.size.z()) + " slices)" : "ct.nrrd") << "\n";
+  for (const char* file : {"patient.yaml", "truth.json", "markups/LAD.mrk.json",
                            "markups/LIMA.mrk.json", "markups/intercostal_left.mrk.json", "preview.png"}) {
     std::cout << "  " << JoinPath(o.out, file) << "\n";
   }
@@ -132,6 +137,8 @@ void AddPatientCommands(CLI::App* app) {
   cmd->add_option("--heart-scale", o->p.heart_scale, "heart size factor")->capture_default_str();
   cmd->add_option("--voxel", o->p.voxel_size, "voxel size (m)")->capture_default_str();
   cmd->add_flag("--ras", o->ras, "write the CT with a RAS header (default LPS)");
+  cmd->add_flag("--dicom", o->dicom, "write the CT as a DICOM series folder ct/ instead of ct.nrrd")
+      ->excludes("--ras");
   cmd->callback([o]() { RunPhantom(*o); });
 }
 

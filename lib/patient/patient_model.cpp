@@ -517,7 +517,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   CaseSpec c = ReadCase(case_dir);
   if (c.has_phantom && !std::filesystem::exists(c.ct)) {
     stage("generate phantom", [&] {
-      WritePhantomCase(GeneratePhantom(c.phantom), case_dir, false, /*write_patient_yaml=*/false);
+      WritePhantomCase(GeneratePhantom(c.phantom), case_dir, CtFormat::kNrrdLps, /*write_patient_yaml=*/false);
     });
   }
   // The key needs the CT's files (a detached data file too): read the header cheaply by loading.

@@ -65,10 +65,18 @@ struct PhantomHu {
 /// @throws trocar::Error for parameters out of their sensible ranges (named).
 Phantom GeneratePhantom(const PhantomParameters& parameters);
 
-/// Writes `dir/ct.nrrd` (LPS; RAS when `ras`), `dir/markups/*.mrk.json` (3D Slicer curves: LAD,
-/// LIMA, intercostal spaces), `dir/truth.json` (ribs) and `dir/patient.yaml`, each atomically.
-/// `write_patient_yaml` false keeps an existing case file (a bundled case generated on first use).
-void WritePhantomCase(const Phantom& phantom, const std::string& dir, bool ras = false,
-                      bool write_patient_yaml = true);
+/// How a phantom case stores its CT.
+enum class CtFormat {
+  kNrrdLps,  ///< dir/ct.nrrd with an LPS header
+  kNrrdRas,  ///< dir/ct.nrrd with a RAS header
+  kDicom,    ///< dir/ct/ as a DICOM CT series, one file per axial slice
+};
+
+/// Writes the CT (`ct.nrrd` or the DICOM folder `ct/`, see CtFormat), `dir/markups/*.mrk.json`
+/// (3D Slicer curves: LAD, LIMA, intercostal spaces), `dir/truth.json` (ribs) and
+/// `dir/patient.yaml`, each atomically. `write_patient_yaml` false keeps an existing case file
+/// (a bundled case generated on first use).
+void WritePhantomCase(const Phantom& phantom, const std::string& dir,
+                      CtFormat format = CtFormat::kNrrdLps, bool write_patient_yaml = true);
 
 }  // namespace trocar::patient

@@ -48,10 +48,33 @@ struct SliceImage {
 SliceImage RenderSlice(const Volume& volume, int axis, int index, double level, double width);
 
 /// Reads a CT volume by its extension: .nrrd/.nhdr (raw or gzip, attached or detached data),
-/// .nii/.nii.gz (NIfTI-1, sform or qform), .mha/.mhd (MetaImage, raw or zlib).
+/// .nii/.nii.gz (NIfTI-1, sform or qform), .mha/.mhd (MetaImage, raw or zlib); a folder or a
+/// .dcm file is read as a DICOM series (LoadDicomSeries).
 /// @throws trocar::Error naming the file and the header field or what is wrong with the data:
 ///         unknown type, wrong sizes, truncated or garbled data, missing data file, NaN values.
 Volume LoadVolume(const std::string& path);
+
+/// Reads a DICOM series: `path` is a folder holding one series, or one file of the series to
+/// pick (its folder may hold others). Classic single-frame slices in implicit or explicit VR
+/// little endian; slices are sorted along the orientation's normal and must be evenly spaced
+/// (a gantry tilt gives an oblique third axis, kept); rescale slope and intercept are applied
+/// per slice (Hounsfield units for CT). Non-DICOM files in the folder are skipped.
+/// @throws trocar::Error naming the file and the element: compressed transfer syntaxes (by
+///         name), multi-frame images, mixed sizes or orientations, duplicate or missing slices,
+///         truncated files, several series in the folder (listed).
+Volume LoadDicomSeries(const std::string& path);
+
+struct DicomWriteOptions {
+  bool implicit_vr = false;  ///< implicit VR little endian (else explicit)
+  std::string patient_name = "TROCAR^PHANTOM";
+  std::string patient_id = "trocar";
+  std::string series_description = "trocar volume";
+};
+
+/// Writes a volume as a DICOM CT series (one 16-bit file per slice along k, values kept when
+/// they are integers in range, else rescaled) into `folder`, which must not exist or be empty;
+/// written beside it first, then renamed. UIDs derive from the content: same volume, same files.
+void WriteDicomSeries(const Volume& volume, const std::string& folder, const DicomWriteOptions& options = {});
 
 /// Writes a volume as NRRD (gzip, attached header) in the LPS or RAS space, atomically.
 void WriteNrrd(const Volume& volume, const std::string& path, bool ras = false);

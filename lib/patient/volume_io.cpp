@@ -3,6 +3,7 @@
 #include <cstdint>
 #include <cstring>
 #include <iomanip>
+#include <filesystem>
 #include <map>
 #include <sstream>
 
@@ -556,8 +557,12 @@ SliceImage RenderSlice(const Volume& v, int axis, int index, double level, doubl
 }
 
 Volume LoadVolume(const std::string& path) {
-  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": CT volume not found");
+  std::error_code ec;
   const std::string name = Lower(path);
+  if (std::filesystem::is_directory(path, ec) || (EndsWith(name, ".dcm") && IsRegularFile(path))) {
+    return LoadDicomSeries(path);
+  }
+  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": CT volume not found");
   Volume v;
   if (EndsWith(name, ".nrrd") || EndsWith(name, ".nhdr")) {
     v = LoadNrrd(path);
@@ -566,8 +571,8 @@ Volume LoadVolume(const std::string& path) {
   } else if (EndsWith(name, ".mha") || EndsWith(name, ".mhd")) {
     v = LoadMetaImage(path);
   } else {
-    TROCAR_THROW(path << ": unknown volume format (expected .nrrd, .nhdr, .nii, .nii.gz, .mha or "
-                       ".mhd)");
+    TROCAR_THROW(path << ": unknown volume format (expected .nrrd, .nhdr, .nii, .nii.gz, .mha, "
+                       ".mhd, or a DICOM folder or .dcm file)");
   }
   v.files.insert(v.files.begin(), path);
   return v;

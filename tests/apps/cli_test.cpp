@@ -213,6 +213,28 @@ TEST(TrocarImport, BuildsThenLoadsThePhantomCaseFromItsCache) {
   EXPECT_NE(missing.output.find("nowhere: no patient.yaml"), std::string::npos) << missing.output;
 }
 
+TEST(TrocarImport, ADicomSeriesCaseImportsAndAnyChangedSliceRebuilds) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_import_dicom";
+  std::filesystem::remove_all(dir);
+  const CommandRun phantom = Trocar("phantom --out " + dir + " --seed 2 --voxel 0.004 --dicom");
+  ASSERT_EQ(phantom.exit_code, 0) << phantom.output;
+  EXPECT_NE(phantom.output.find("/ct/ (DICOM series, "), std::string::npos) << phantom.output;
+  const CommandRun cold = Trocar("import " + dir);
+  ASSERT_EQ(cold.exit_code, 0) << cold.output;
+  for (const char* line : {"patient phantom-seed-2\n", "    heart ", "LAD: 25 points", "port candidates: 8"}) {
+    EXPECT_NE(cold.output.find(line), std::string::npos) << line << "\n" << cold.output;
+  }
+  EXPECT_NE(Trocar("import " + dir).output.find("(from cache)"), std::string::npos);
+  // One voxel of one slice changes: the model is rebuilt.
+  const std::string slice = dir + "/ct/slice_0010.dcm";
+  std::string bytes = ReadTextFile(slice);
+  bytes[bytes.size() - 100] = static_cast<char>(bytes[bytes.size() - 100] ^ 1);
+  WriteFileAtomically(slice, bytes);
+  const CommandRun changed = Trocar("import " + dir);
+  ASSERT_EQ(changed.exit_code, 0) << changed.output;
+  EXPECT_EQ(changed.output.find("(from cache)"), std::string::npos) << changed.output;
+}
+
 TEST(TrocarRobotInfo, MissingFileIsNamed) {
   const CommandRun run = Trocar("robot info /no/such/robot.urdf");
   EXPECT_EQ(run.exit_code, 1);

@@ -77,8 +77,8 @@ TEST(Phantom, WrittenWithLpsOrRasHeadersImportsToTheSameGeometry) {
   const Phantom ph = patient::GeneratePhantom(Coarse(4));
   const std::string lps = ::testing::TempDir() + "/trocar_phantom_lps";
   const std::string ras = ::testing::TempDir() + "/trocar_phantom_ras";
-  patient::WritePhantomCase(ph, lps, false);
-  patient::WritePhantomCase(ph, ras, true);
+  patient::WritePhantomCase(ph, lps, patient::CtFormat::kNrrdLps);
+  patient::WritePhantomCase(ph, ras, patient::CtFormat::kNrrdRas);
   const patient::Volume a = patient::LoadVolume(lps + "/ct.nrrd");
   const patient::Volume b = patient::LoadVolume(ras + "/ct.nrrd");
   EXPECT_TRUE(test::CompareMatrices(a.index_to_P, b.index_to_P, 1e-15));

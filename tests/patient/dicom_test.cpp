@@ -1,0 +1,306 @@
+#include <gtest/gtest.h>
+#include <vtkDICOMImageReader.h>
+#include <vtkImageData.h>
+#include <vtkNew.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <random>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "patient/phantom.hpp"
+#include "patient/volume.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+namespace fs = std::filesystem;
+using patient::LoadVolume;
+using patient::Volume;
+
+// A fresh, empty scratch folder.
+std::string Scratch(const std::string& name) {
+  const std::string dir = ::testing::TempDir() + "/trocar_dicom_" + name;
+  fs::remove_all(dir);
+  fs::remove_all(dir + ".partial");
+  return dir;
+}
+
+// A small volume with integer values, rotated in-plane axes and a tilted third axis (a gantry
+// tilt), seeded.
+Volume RandomVolume(unsigned seed, bool integral = true) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  Volume v;
+  v.size = Eigen::Vector3i(7 + seed % 5, 5 + seed % 4, 4 + seed % 3);
+  const Eigen::Matrix3d R =
+      Eigen::Quaterniond(u(rng), u(rng), u(rng), u(rng)).normalized().toRotationMatrix();
+  const Eigen::Vector3d spacing(0.0007 + 0.0005 * std::abs(u(rng)),
+                                0.0007 + 0.0005 * std::abs(u(rng)),
+                                0.001 + 0.002 * std::abs(u(rng)));
+  v.index_to_P = R * spacing.asDiagonal();
+  v.index_to_P.col(2) += 0.2 * u(rng) * v.index_to_P.col(1);  // tilt
+  v.origin_P = Eigen::Vector3d(u(rng), u(rng), u(rng)) * 0.3;
+  v.values.resize(v.voxel_count());
+  for (auto& x : v.values) {
+    x = static_cast<float>(std::round(1500 * u(rng)));
+    if (!integral) x += 0.37f * static_cast<float>(u(rng));
+  }
+  v.hounsfield = true;
+  return v;
+}
+
+void ExpectSameGeometry(const Volume& a, const Volume& b) {
+  EXPECT_EQ(a.size, b.size);
+  // DICOM decimal strings carry 16 characters: geometry to well under a micrometre.
+  EXPECT_TRUE(test::CompareMatrices(a.index_to_P, b.index_to_P, 1e-9)) << a.index_to_P << "\n"
+                                                                       << b.index_to_P;
+  EXPECT_TRUE(test::CompareMatrices(a.origin_P, b.origin_P, 1e-9));
+}
+
+std::vector<std::string> SliceFiles(const std::string& dir) {
+  std::vector<std::string> files;
+  for (const auto& e : fs::directory_iterator(dir)) files.push_back(e.path().string());
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
+std::string LoadError(const std::string& path) {
+  try {
+    LoadVolume(path);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+TEST(DicomSeries, RoundTripsExplicitAndImplicitVrOverRandomGeometries) {
+  for (unsigned seed = 0; seed < 12; ++seed) {
+    SCOPED_TRACE(seed);
+    const Volume v = RandomVolume(seed);
+    patient::DicomWriteOptions options;
+    options.implicit_vr = seed % 2 == 1;
+    const std::string dir = Scratch("roundtrip");
+    patient::WriteDicomSeries(v, dir, options);
+    EXPECT_EQ(SliceFiles(dir).size(), static_cast<std::size_t>(v.size.z()));
+    EXPECT_FALSE(fs::exists(dir + ".partial"));
+    const Volume r = LoadVolume(dir);
+    ExpectSameGeometry(v, r);
+    EXPECT_EQ(r.values, v.values);
+    EXPECT_TRUE(r.hounsfield);
+    EXPECT_EQ(r.files.size(), static_cast<std::size_t>(v.size.z()));
+  }
+}
+
+TEST(DicomSeries, NonIntegerValuesAreRescaledWithinHalfAStep) {
+  const Volume v = RandomVolume(3, /*integral=*/false);
+  const std::string dir = Scratch("rescaled");
+  patient::WriteDicomSeries(v, dir);
+  const Volume r = LoadVolume(dir);
+  ExpectSameGeometry(v, r);
+  const auto [lo, hi] = std::minmax_element(v.values.begin(), v.values.end());
+  const double step = (*hi - *lo) / 65000.0;
+  for (std::size_t n = 0; n < v.values.size(); ++n)
+    EXPECT_NEAR(r.values[n], v.values[n], 0.51 * step + 1e-4);
+}
+
+TEST(DicomSeries, SliceOrderComesFromPositionsNotFileNames) {
+  const Volume v = RandomVolume(5);
+  const std::string dir = Scratch("shuffled");
+  patient::WriteDicomSeries(v, dir);
+  // Rename the slices so that name order is reversed, and drop a README beside them.
+  const auto files = SliceFiles(dir);
+  for (std::size_t n = 0; n < files.size(); ++n) {
+    fs::rename(files[n], dir + "/IM" + std::to_string(100 - n));
+  }
+  WriteFileAtomically(dir + "/README.txt", "exported by hand\n");
+  const Volume r = LoadVolume(dir);
+  ExpectSameGeometry(v, r);
+  EXPECT_EQ(r.values, v.values);
+}
+
+TEST(DicomSeries, PhantomAsDicomImportsToTheNrrdGeometryAndValues) {
+  patient::PhantomParameters p;
+  p.seed = 6;
+  p.voxel_size = 0.004;
+  const patient::Phantom ph = patient::GeneratePhantom(p);
+  const std::string dir = Scratch("phantom_case");
+  patient::WritePhantomCase(ph, dir, patient::CtFormat::kDicom);
+  EXPECT_NE(ReadTextFile(dir + "/patient.yaml").find("ct: ct\n"), std::string::npos);
+  const Volume r = LoadVolume(dir + "/ct");
+  ExpectSameGeometry(ph.ct, r);
+  ASSERT_EQ(r.values.size(), ph.ct.values.size());
+  double worst = 0;
+  for (std::size_t n = 0; n < r.values.size(); ++n)
+    worst = std::max(worst, double(std::abs(r.values[n] - ph.ct.values[n])));
+  EXPECT_LT(worst, 0.05);  // HU survive the 16-bit encoding
+  EXPECT_TRUE(r.hounsfield);
+  // One file of the series names the series too.
+  const Volume by_file = LoadVolume(SliceFiles(dir + "/ct")[3]);
+  EXPECT_EQ(by_file.values, r.values);
+}
+
+// The real chest, written as a series and read back: same grid, same values, still raw 8-bit.
+TEST(DicomSeries, Lidc2ChestRoundTrips) {
+  const std::string path = test::SharedDataPath("ct/lidc2/ct.nhdr");
+  TROCAR_REQUIRE_SHARED_FILE(path);
+  const Volume v = LoadVolume(path);
+  const std::string dir = Scratch("lidc2");
+  patient::WriteDicomSeries(v, dir, {});
+  const Volume r = LoadVolume(dir);
+  ExpectSameGeometry(v, r);
+  EXPECT_EQ(r.values, v.values);
+  EXPECT_FALSE(r.hounsfield);
+  EXPECT_EQ(r.files.size(), 133u);
+  fs::remove_all(dir);
+}
+
+TEST(DicomSeries, AFolderWithTwoSeriesIsListedAndAFileChoosesOne) {
+  const Volume a = RandomVolume(1), b = RandomVolume(2);
+  const std::string dir = Scratch("two"), other = Scratch("other");
+  patient::WriteDicomSeries(a, dir);
+  patient::WriteDicomSeries(b, other);
+  for (const auto& f : SliceFiles(other))
+    fs::rename(f, dir + "/b_" + fs::path(f).filename().string());
+  const std::string message = LoadError(dir);
+  EXPECT_NE(message.find("holds 2 series"), std::string::npos) << message;
+  EXPECT_NE(message.find("give one of a series' files"), std::string::npos) << message;
+  const Volume chosen = LoadVolume(dir + "/b_slice_0001.dcm");
+  EXPECT_EQ(chosen.values, b.values);
+  const Volume first = LoadVolume(dir + "/slice_0002.dcm");
+  EXPECT_EQ(first.values, a.values);
+}
+
+TEST(DicomSeries, BadSeriesAreClearErrorsNamingTheFile) {
+  const Volume v = RandomVolume(7);
+  ASSERT_GE(v.size.z(), 5);
+  auto fresh = [&](const std::string& name) {
+    const std::string dir = Scratch(name);
+    patient::WriteDicomSeries(v, dir);
+    return dir;
+  };
+  {  // A missing slice in the middle.
+    const std::string dir = fresh("missing");
+    fs::remove(dir + "/slice_0003.dcm");
+    const std::string m = LoadError(dir);
+    EXPECT_NE(m.find("slice_0004.dcm"), std::string::npos) << m;
+    EXPECT_NE(m.find("missing slice or uneven spacing"), std::string::npos) << m;
+  }
+  {  // The same slice twice.
+    const std::string dir = fresh("duplicate");
+    fs::copy_file(dir + "/slice_0002.dcm", dir + "/slice_0002_copy.dcm");
+    const std::string m = LoadError(dir);
+    EXPECT_NE(m.find("same position"), std::string::npos) << m;
+  }
+  {  // A truncated slice.
+    const std::string dir = fresh("truncated");
+    const std::string bytes = ReadTextFile(dir + "/slice_0002.dcm");
+    WriteFileAtomically(dir + "/slice_0002.dcm", bytes.substr(0, bytes.size() / 2));
+    const std::string m = LoadError(dir);
+    EXPECT_NE(m.find("slice_0002.dcm"), std::string::npos) << m;
+    EXPECT_NE(m.find("truncated"), std::string::npos) << m;
+  }
+  {  // A compressed transfer syntax (RLE has a UID of the same length as explicit VR LE).
+    const std::string dir = fresh("compressed");
+    std::string bytes = ReadTextFile(dir + "/slice_0001.dcm");
+    const std::string from("1.2.840.10008.1.2.1\0", 20), to("1.2.840.10008.1.2.5\0", 20);
+    const auto at = bytes.find(from);
+    ASSERT_NE(at, std::string::npos);
+    bytes.replace(at, from.size(), to);
+    WriteFileAtomically(dir + "/slice_0001.dcm", bytes);
+    const std::string m = LoadError(dir);
+    EXPECT_NE(m.find("slice_0001.dcm: transfer syntax 1.2.840.10008.1.2.5 (RLE Lossless)"),
+              std::string::npos)
+        << m;
+  }
+  {  // Only one slice.
+    const std::string dir = fresh("single");
+    for (const auto& f : SliceFiles(dir)) {
+      if (f.find("slice_0001") == std::string::npos) fs::remove(f);
+    }
+    EXPECT_NE(LoadError(dir).find("at least two"), std::string::npos);
+  }
+  {  // No DICOM at all.
+    const std::string dir = Scratch("empty");
+    fs::create_directories(dir);
+    WriteFileAtomically(dir + "/notes.txt", "nothing here\n");
+    const std::string m = LoadError(dir);
+    EXPECT_NE(m.find("no DICOM image slices among its 1 files"), std::string::npos) << m;
+  }
+  // The writer refuses to mix a new series into an existing one.
+  const std::string dir = fresh("occupied");
+  try {
+    patient::WriteDicomSeries(v, dir);
+    ADD_FAILURE() << "wrote into a non-empty folder";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("not an empty folder"), std::string::npos) << e.what();
+  }
+}
+
+// An independent reader (VTK's DICOMParser) sees the same grid and the same stored values.
+TEST(DicomSeries, VtksReaderReadsWhatTrocarWrites) {
+  Volume v = RandomVolume(4);
+  // VTK's reader keeps no directions, and takes pixel spacing's first value (DICOM's row
+  // spacing, along j) for x: equal in-plane spacing sidesteps that known quirk.
+  v.index_to_P = Eigen::Vector3d(0.0008, 0.0008, 0.0025).asDiagonal();
+  const std::string dir = Scratch("vtk");
+  patient::WriteDicomSeries(v, dir);
+  vtkNew<vtkDICOMImageReader> reader;
+  reader->SetDirectoryName(dir.c_str());
+  reader->Update();
+  vtkImageData* image = reader->GetOutput();
+  int dims[3];
+  image->GetDimensions(dims);
+  EXPECT_EQ(Eigen::Vector3i(dims[0], dims[1], dims[2]), v.size);
+  double spacing[3];
+  image->GetSpacing(spacing);
+  EXPECT_NEAR(spacing[0], 0.8, 1e-6);
+  EXPECT_NEAR(spacing[1], 0.8, 1e-6);
+  EXPECT_NEAR(spacing[2], 2.5, 1e-6);
+  EXPECT_NEAR(reader->GetImagePositionPatient()[0], v.origin_P.x() * 1e3, 1e-6);
+  // vtkDICOMImageReader puts the first row at the bottom (y flipped) and, keeping its grid
+  // right-handed, the slices in reverse order.
+  long mismatches = 0;
+  for (int k = 0; k < v.size.z(); ++k) {
+    for (int j = 0; j < v.size.y(); ++j) {
+      for (int i = 0; i < v.size.x(); ++i) {
+        const double vtk =
+            image->GetScalarComponentAsDouble(i, v.size.y() - 1 - j, v.size.z() - 1 - k, 0);
+        mismatches += vtk != v.at(i, j, k);
+      }
+    }
+  }
+  EXPECT_EQ(mismatches, 0);
+}
+
+// Random byte corruption of one slice: an error or a volume, never a crash or a hang.
+TEST(DicomSeries, CorruptedBytesGiveErrorsNotCrashes) {
+  const Volume v = RandomVolume(9);
+  const std::string clean = Scratch("fuzz_clean");
+  patient::WriteDicomSeries(v, clean);
+  const std::string original = ReadTextFile(clean + "/slice_0002.dcm");
+  const std::size_t header =
+      original.size() - 2 * static_cast<std::size_t>(v.size.x()) * v.size.y();
+  std::mt19937 rng(11);
+  int errors = 0;
+  for (int trial = 0; trial < 300; ++trial) {
+    std::string bytes = original;
+    std::uniform_int_distribution<std::size_t> where(128, header + 8);
+    const int flips = 1 + trial % 4;
+    for (int f = 0; f < flips; ++f) bytes[where(rng)] = static_cast<char>(rng() & 0xFF);
+    WriteFileAtomically(clean + "/slice_0002.dcm", bytes);
+    try {
+      const Volume r = LoadVolume(clean);
+      EXPECT_EQ(static_cast<long>(r.values.size()), r.voxel_count());
+    } catch (const Error& e) {
+      ++errors;
+      EXPECT_FALSE(std::string(e.what()).empty());
+    }
+  }
+  EXPECT_GT(errors, 30);  // most header damage is noticed
+}
+
+}  // namespace
+}  // namespace trocar
