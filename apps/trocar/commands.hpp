@@ -18,4 +18,8 @@ void AddTuneCommand(CLI::App* app);
 /// `trocar phantom --out DIR --seed N ...`.
 void AddPatientCommands(CLI::App* app);
 
+/// `trocar check [--patient DIR] [--port F=x,y,z] [--base x y deg] [--q ...]`: collisions and
+/// clearances of a robot configuration at a patient.
+void AddCheckCommand(CLI::App* app);
+
 }  // namespace trocar::apps

@@ -13,6 +13,7 @@ int main(int argc, char** argv) {
   trocar::apps::AddTeleopCommand(&app);
   trocar::apps::AddTuneCommand(&app);
   trocar::apps::AddPatientCommands(&app);
+  trocar::apps::AddCheckCommand(&app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

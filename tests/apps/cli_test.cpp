@@ -235,6 +235,29 @@ TEST(TrocarImport, ADicomSeriesCaseImportsAndAnyChangedSliceRebuilds) {
   EXPECT_EQ(changed.output.find("(from cache)"), std::string::npos) << changed.output;
 }
 
+TEST(TrocarCheck, PlacesTheCartAtAPatientAndListsCollisionsAndClearances) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_check";
+  std::filesystem::remove_all(dir);
+  ASSERT_EQ(Trocar("phantom --out " + dir + " --seed 2 --voxel 0.004").exit_code, 0);
+  const CommandRun run = Trocar("check --patient " + dir);
+  EXPECT_TRUE(run.exit_code == 0 || run.exit_code == 3) << run.output;  // free, or in collision
+  for (const char* line : {"robot davinci_classic_cart: 51 collision bodies", "3 arms, 3 ports (radius 15 mm)",
+                           "port psm1_rcm at", "instruments aimed at LAD", "clearances (m):", "arm-table"}) {
+    EXPECT_NE(run.output.find(line), std::string::npos) << line << "\n" << run.output;
+  }
+  EXPECT_NE(run.output.find(run.exit_code == 3 ? "IN COLLISION" : "collision-free"), std::string::npos) << run.output;
+  // A robot alone, at its neutral configuration.
+  const CommandRun alone = Trocar("check --robot " + test::SourcePath("robots/davinci-classic/psm.yaml"));
+  EXPECT_EQ(alone.exit_code, 0) << alone.output;
+  EXPECT_NE(alone.output.find("collision-free"), std::string::npos) << alone.output;
+  const CommandRun bad = Trocar("check --patient " + dir + " --port psm1_rcm=0.1,0.2");
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.output.find("--port psm1_rcm: expected x,y,z"), std::string::npos) << bad.output;
+  const CommandRun bad_q = Trocar("check --q 1 2");
+  EXPECT_EQ(bad_q.exit_code, 1);
+  EXPECT_NE(bad_q.output.find("has 18 active joints, got 2 values"), std::string::npos) << bad_q.output;
+}
+
 TEST(TrocarRobotInfo, MissingFileIsNamed) {
   const CommandRun run = Trocar("robot info /no/such/robot.urdf");
   EXPECT_EQ(run.exit_code, 1);

@@ -1,0 +1,214 @@
+#pragma once
+/// @file
+/// Collision checking between the robot's arms, the patient and the table (FCL, kept private).
+///
+/// Model/state split (design.md): a CollisionWorld holds the immutable shared geometry — one BVH
+/// per patient structure and per robot mesh, primitives for capsules and boxes — and the rules
+/// (allowed pairs, ports). A CollisionChecker, one per thread, owns its FCL objects and their
+/// poses and answers the queries. Checkers share the world's geometry and never modify it.
+///
+/// Ports: an instrument's shaft passes through the skin at its own port by design. A robot link
+/// below an arm's insertion joint is an *instrument* link of that arm's port (the RCM frame);
+/// its contacts with the skin within `port_radius` of the port are not collisions, contacts
+/// anywhere else are. Distances between instrument links and the skin are not reported (they
+/// are zero by design at the port); instrument links against bones and organs are.
+
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "common/mesh.hpp"
+#include "robot/robot_model.hpp"
+#include "robot/robot_state.hpp"
+
+namespace trocar::patient {
+struct PatientModel;
+struct Table;
+}
+
+namespace trocar::collision {
+
+/// Bounding volumes of the meshes' hierarchies. FCL 0.7 transforms (copies) a mesh on every
+/// query for AABB, RSS and kIOS trees; OBB and OBBRSS are queried in place. Distance queries
+/// need OBBRSS (FCL has no OBB distance traversal).
+enum class BvhKind { kObbRss, kObb };
+const char* ToString(BvhKind kind);
+
+/// What a collision or clearance is between.
+enum class PairClass {
+  kArmArm,             ///< robot links of two different arms (or an arm and the cart)
+  kArmPatient,         ///< a robot link (not an instrument) and a patient structure
+  kInstrumentPatient,  ///< an instrument link and a patient structure (ribs, heart; skin away from the port)
+  kArmTable,           ///< a robot link and the table (or another fixed obstacle)
+  kSelf,               ///< two links of the same arm that are not allowed to touch
+  kPatientTable,       ///< never queried: fixed bodies do not move relative to each other
+};
+const char* ToString(PairClass cls);
+/// Bit for a PairClass in a class mask.
+constexpr unsigned Bit(PairClass cls) { return 1u << static_cast<unsigned>(cls); }
+constexpr unsigned kAllMovingPairs = Bit(PairClass::kArmArm) | Bit(PairClass::kArmPatient) |
+                                     Bit(PairClass::kInstrumentPatient) | Bit(PairClass::kArmTable) |
+                                     Bit(PairClass::kSelf);
+
+/// One collision object: a shape of a robot link, a patient structure, the table.
+struct Body {
+  enum class Kind { kRobot, kPatient, kFixed };
+  std::string name;   ///< "psm1_yaw_link", "psm1_insertion_link#1" (second shape), "skin", "table"
+  Kind kind = Kind::kFixed;
+  int link = -1;      ///< robot link index (robot bodies)
+  int arm = -1;       ///< robot: index into CollisionWorld::arms(); -1 for the robot's base link
+  int port = -1;      ///< robot: the port its link passes through (an instrument link), else -1
+  bool skin = false;  ///< the patient's skin (where ports are)
+  long triangles = 0; ///< mesh bodies
+};
+
+/// An arm: a subtree hanging from the robot's base link (a da Vinci cart has psm1, psm2, ecm).
+struct Arm {
+  std::string name;
+  int root_link = -1;
+};
+
+/// A port: the remote centre of motion of an arm, and the links passing through it.
+struct Port {
+  std::string frame;       ///< the robot frame at the port, e.g. "psm1_rcm"
+  int arm = -1;
+  std::vector<int> links;  ///< instrument links (below the arm's insertion joint)
+};
+
+struct WorldOptions {
+  BvhKind bvh = BvhKind::kObbRss;
+  /// Contacts between an instrument and the skin within this distance of its port are allowed.
+  double port_radius = 0.015;  ///< m
+  /// Ports: robot frames at the RCMs; empty: every frame whose name ends in "rcm" whose link has
+  /// a prismatic (insertion) joint below it.
+  std::vector<std::string> port_frames;
+  bool add_table = true;
+  /// Self-collision pairs allowed automatically: links joined by a joint, and pairs in contact in
+  /// at least `always_fraction` of `acm_samples` seeded random configurations (every movable
+  /// joint within its limits), as MoveIt's setup assistant does.
+  int acm_samples = 300;
+  double always_fraction = 0.98;
+  unsigned acm_seed = 1;
+};
+
+/// A pair that may touch, by body name ("psm1_jaw_1_link", "heart", "table") or by a robot
+/// link's name, which covers all of its shapes.
+struct AllowedPair {
+  std::string a, b;
+};
+
+class CollisionWorld {
+ public:
+  /// Builds a world from a patient (its structures in P, placed at X_WP, and its table), a robot
+  /// (its links' collision shapes; may be null) and extra allowed pairs.
+  /// @throws trocar::Error naming the mesh for degenerate meshes (empty, NaN vertices, zero-area
+  ///         triangles, bad indices) and the link for bad shapes; unknown port frames or
+  ///         allowed-pair names.
+  static std::shared_ptr<const CollisionWorld> Build(const patient::PatientModel* patient,
+                                                     std::shared_ptr<const robot::RobotModel> robot,
+                                                     const WorldOptions& options = {},
+                                                     const std::vector<AllowedPair>& allowed = {});
+
+  /// A world from meshes and primitives alone (tests, scenes): fixed bodies in W.
+  struct FixedMesh {
+    std::string name;
+    TriangleMesh mesh;
+    Eigen::Isometry3d X_WM = Eigen::Isometry3d::Identity();
+    bool skin = false;
+    bool patient = true;
+  };
+  static std::shared_ptr<const CollisionWorld> Build(const std::vector<FixedMesh>& meshes,
+                                                     std::shared_ptr<const robot::RobotModel> robot,
+                                                     const WorldOptions& options = {},
+                                                     const std::vector<AllowedPair>& allowed = {});
+
+  ~CollisionWorld();
+  CollisionWorld(const CollisionWorld&) = delete;
+  CollisionWorld& operator=(const CollisionWorld&) = delete;
+
+  const std::vector<Body>& bodies() const;
+  const std::vector<Arm>& arms() const;
+  const std::vector<Port>& ports() const;
+  const robot::RobotModel* robot() const;
+  const WorldOptions& options() const;
+  /// Whether a pair of bodies is never checked (allowed to touch).
+  bool Allowed(int a, int b) const;
+  /// Number of robot body pairs allowed automatically (adjacent or always touching) and by the caller.
+  int auto_allowed_pairs() const;
+  PairClass Classify(int a, int b) const;
+  int FindBody(const std::string& name) const;
+  long triangle_count() const;
+
+  struct Impl;
+  const Impl& impl() const { return *impl_; }
+
+ private:
+  explicit CollisionWorld(std::unique_ptr<Impl> impl);
+  static std::shared_ptr<const CollisionWorld> BuildWith(const std::vector<FixedMesh>& meshes,
+                                                         const patient::Table* table,
+                                                         std::shared_ptr<const robot::RobotModel> robot,
+                                                         const WorldOptions& options,
+                                                         const std::vector<AllowedPair>& allowed);
+  std::unique_ptr<Impl> impl_;
+};
+
+/// A pair of bodies in contact.
+struct Contact {
+  int a = -1, b = -1;  ///< body indices
+  PairClass cls = PairClass::kArmArm;
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();  ///< a contact point
+  double depth = 0.0;                             ///< penetration depth (m), as FCL estimates it
+};
+
+struct CollisionReport {
+  bool collision = false;
+  std::vector<Contact> contacts;  ///< one per body pair, in body order
+  int port_contacts_allowed = 0;  ///< instrument–skin pairs touching only at their port
+};
+
+/// Minimum distance between two bodies with witness points.
+struct Clearance {
+  double distance = std::numeric_limits<double>::infinity();  ///< m; 0 when in contact
+  int a = -1, b = -1;
+  PairClass cls = PairClass::kArmArm;
+  Eigen::Vector3d p_W_a = Eigen::Vector3d::Zero(), p_W_b = Eigen::Vector3d::Zero();
+  bool valid() const { return a >= 0; }
+};
+
+/// Per-thread queries over a shared world. Not thread safe itself: give each thread its own.
+class CollisionChecker {
+ public:
+  explicit CollisionChecker(std::shared_ptr<const CollisionWorld> world);
+  ~CollisionChecker();
+  CollisionChecker(const CollisionChecker&) = delete;
+  CollisionChecker& operator=(const CollisionChecker&) = delete;
+
+  /// Places the robot's shapes from `state.X_WL` (after kinematics::ForwardKinematics); each
+  /// port follows its RCM frame.
+  void SetRobotState(const robot::RobotState& state);
+  /// Puts a port somewhere other than its RCM frame (until the next SetRobotState).
+  void SetPortPosition(int port, const Eigen::Vector3d& p_W);
+  const Eigen::Vector3d& port_position(int port) const;
+
+  /// Yes/no, stopping at the first collision among the classes in `mask`.
+  bool InCollision(unsigned mask = kAllMovingPairs);
+  /// Every colliding pair among the classes in `mask`.
+  CollisionReport Check(unsigned mask = kAllMovingPairs);
+  /// Minimum distance over the pairs of the classes in `mask`, with witness points (needs an
+  /// OBBRSS world). Pairs in contact give 0.
+  Clearance MinimumDistance(unsigned mask = kAllMovingPairs);
+  /// The minimum distance of each class present in the world (index: PairClass).
+  std::vector<Clearance> ClearanceByClass();
+
+  const CollisionWorld& world() const { return *world_; }
+
+ private:
+  struct State;
+  std::shared_ptr<const CollisionWorld> world_;
+  std::unique_ptr<State> state_;
+};
+
+}  // namespace trocar::collision

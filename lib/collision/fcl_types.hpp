@@ -1,0 +1,41 @@
+#pragma once
+// Private to lib/collision: the FCL side of CollisionWorld. Not installed, not included by any
+// public header.
+
+#include <memory>
+#include <mutex>
+#include <vector>
+
+#include <fcl/fcl.h>
+
+#include "collision/collision_world.hpp"
+
+namespace trocar::collision {
+
+struct CollisionWorld::Impl {
+  WorldOptions options;
+  std::shared_ptr<const robot::RobotModel> robot;
+  std::vector<Body> bodies;
+  /// Per body: its shared immutable geometry (bodies built from one mesh share one BVH).
+  std::vector<std::shared_ptr<fcl::CollisionGeometryd>> geometry;
+  /// Per body: robot bodies, the shape's pose in its link (X_LG); fixed bodies, its pose in W.
+  std::vector<Eigen::Isometry3d> X_pose;
+  std::vector<Arm> arms;
+  std::vector<Port> ports;
+  std::vector<int> port_frame;  ///< index into robot->frames()
+  std::vector<int> robot_bodies, fixed_bodies;
+  std::vector<char> allowed;  ///< bodies × bodies
+  std::vector<PairClass> classes;  ///< bodies × bodies
+  int auto_allowed = 0;
+  long triangles = 0;
+  /// FCL's CollisionObject constructor writes the geometry's local AABB (the same values every
+  /// time): checkers build their objects under this lock so that the shared geometry is never
+  /// written concurrently.
+  mutable std::mutex object_construction;
+
+  std::size_t n() const { return bodies.size(); }
+  bool Allowed(int a, int b) const { return allowed[static_cast<std::size_t>(a) * n() + b] != 0; }
+  PairClass Class(int a, int b) const { return classes[static_cast<std::size_t>(a) * n() + b]; }
+};
+
+}  // namespace trocar::collision

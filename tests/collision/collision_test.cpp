@@ -1,0 +1,401 @@
+#include "collision/collision_world.hpp"
+
+#include <filesystem>
+#include <random>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "patient/patient_model.hpp"
+#include "robot/load_robot.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+using collision::Bit;
+using collision::CollisionChecker;
+using collision::CollisionWorld;
+using collision::PairClass;
+
+// An axis-aligned box as a closed triangle mesh (12 triangles, outward).
+TriangleMesh BoxMesh(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+  TriangleMesh m;
+  for (int k = 0; k < 8; ++k) {
+    m.vertices.emplace_back(k & 1 ? hi.x() : lo.x(), k & 2 ? hi.y() : lo.y(), k & 4 ? hi.z() : lo.z());
+  }
+  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  for (const auto& f : faces) {
+    m.triangles.emplace_back(f[0], f[1], f[2]);
+    m.triangles.emplace_back(f[0], f[2], f[3]);
+  }
+  return m;
+}
+
+// An ellipsoid surface (UV sphere) with about 2·rings·segments triangles.
+TriangleMesh Ellipsoid(const Eigen::Vector3d& centre, const Eigen::Vector3d& semi, int rings, int segments) {
+  TriangleMesh m;
+  m.vertices.push_back(centre + Eigen::Vector3d(0, 0, semi.z()));
+  for (int r = 1; r < rings; ++r) {
+    const double phi = M_PI * r / rings;
+    for (int s = 0; s < segments; ++s) {
+      const double th = 2 * M_PI * s / segments;
+      m.vertices.push_back(centre + Eigen::Vector3d(semi.x() * std::sin(phi) * std::cos(th),
+                                                    semi.y() * std::sin(phi) * std::sin(th), semi.z() * std::cos(phi)));
+    }
+  }
+  m.vertices.push_back(centre - Eigen::Vector3d(0, 0, semi.z()));
+  const int last = static_cast<int>(m.vertices.size()) - 1;
+  auto at = [&](int r, int s) { return 1 + (r - 1) * segments + (s % segments); };
+  for (int s = 0; s < segments; ++s) m.triangles.emplace_back(0, at(1, s), at(1, s + 1));
+  for (int r = 1; r < rings - 1; ++r) {
+    for (int s = 0; s < segments; ++s) {
+      m.triangles.emplace_back(at(r, s), at(r + 1, s), at(r + 1, s + 1));
+      m.triangles.emplace_back(at(r, s), at(r + 1, s + 1), at(r, s + 1));
+    }
+  }
+  for (int s = 0; s < segments; ++s) m.triangles.emplace_back(last, at(rings - 1, s + 1), at(rings - 1, s));
+  return m;
+}
+
+std::shared_ptr<const robot::RobotModel> RobotFromYaml(const std::string& name, const std::string& yaml) {
+  const std::string path = ::testing::TempDir() + "/trocar_collision_" + name + ".yaml";
+  WriteFileAtomically(path, yaml);
+  return std::make_shared<const robot::RobotModel>(robot::LoadRobot(path));
+}
+
+// Two "probes" A and B, each a point moved by three prismatic joints (x, y, z) carrying one shape.
+std::shared_ptr<const robot::RobotModel> Probes(const std::string& shape_a, const std::string& shape_b) {
+  std::ostringstream y;
+  y << "name: probes\nlinks:\n  - name: base\n";
+  for (const char* p : {"a", "b"}) {
+    y << "  - name: " << p << "_x\n  - name: " << p << "_y\n  - name: " << p << "_tip\n    collision: ["
+      << (p[0] == 'a' ? shape_a : shape_b) << "]\n";
+  }
+  y << "joints:\n";
+  for (const char* p : {"a", "b"}) {
+    const std::string s(p);
+    y << "  - {name: " << s << "_px, type: prismatic, parent: base, child: " << s << "_x, axis: [1, 0, 0], limits: {lower: -2, upper: 2}}\n"
+      << "  - {name: " << s << "_py, type: prismatic, parent: " << s << "_x, child: " << s << "_y, axis: [0, 1, 0], limits: {lower: -2, upper: 2}}\n"
+      << "  - {name: " << s << "_pz, type: prismatic, parent: " << s << "_y, child: " << s << "_tip, axis: [0, 0, 1], limits: {lower: -2, upper: 2}}\n";
+  }
+  return RobotFromYaml("probes", y.str());
+}
+
+robot::RobotState PlaceProbes(const robot::RobotModel& model, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  robot::RobotState state(model);
+  Eigen::VectorXd q(6);
+  q << a, b;
+  EXPECT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok);
+  return state;
+}
+
+double PointBoxDistance(const Eigen::Vector3d& p, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+  return (p.cwiseMax(lo).cwiseMin(hi) - p).norm();
+}
+
+TEST(CollisionWorld, PrimitivesAndMeshesAtKnownDistances) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  const Eigen::Vector3d lo(-0.05, -0.04, -0.03), hi(0.05, 0.04, 0.03);
+  collision::CollisionWorld::FixedMesh box{"block", BoxMesh(lo, hi), Eigen::Isometry3d::Identity(), false, false};
+  struct Case {
+    std::string a, b;
+  };
+  // Capsules along z (the probes only translate), so every answer has a closed form.
+  const auto spheres = Probes("{shape: sphere, radius: 0.02}", "{shape: sphere, radius: 0.035}");
+  const auto capsules = Probes("{shape: capsule, radius: 0.01, length: 0.12}", "{shape: capsule, radius: 0.015, length: 0.08}");
+  const auto boxes = Probes("{shape: box, size: [0.04, 0.06, 0.02]}", "{shape: sphere, radius: 0.01}");
+  int checked = 0;
+  for (const auto& model : {spheres, capsules, boxes}) {
+    const auto world = CollisionWorld::Build({box}, model);
+    CollisionChecker checker(world);
+    const int block = world->FindBody("block");
+    for (int trial = 0; trial < 200; ++trial) {
+      const Eigen::Vector3d pa(u(rng), u(rng), u(rng)), pb(u(rng), u(rng), u(rng));
+      checker.SetRobotState(PlaceProbes(*model, pa, pb));
+      // Expected arm–arm and arm–block distances.
+      double arm_arm = 0, a_block = 0;
+      if (model == spheres) {
+        arm_arm = (pa - pb).norm() - 0.055;
+        a_block = PointBoxDistance(pa, lo, hi) - 0.02;
+      } else if (model == capsules) {
+        const Eigen::Vector2d lateral = (pa - pb).head<2>();
+        const double gap = std::max(0.0, std::abs(pa.z() - pb.z()) - 0.5 * (0.12 + 0.08));
+        arm_arm = std::hypot(lateral.norm(), gap) - 0.025;
+        // Capsule A vs the box: the segment's nearest point is where z is clamped into the box.
+        const double z = std::clamp(hi.z(), pa.z() - 0.06, pa.z() + 0.06);
+        const double zl = std::clamp(lo.z(), pa.z() - 0.06, pa.z() + 0.06);
+        a_block = std::min(PointBoxDistance({pa.x(), pa.y(), z}, lo, hi), PointBoxDistance({pa.x(), pa.y(), zl}, lo, hi)) - 0.01;
+        if (pa.z() - 0.06 <= hi.z() && pa.z() + 0.06 >= lo.z()) {
+          a_block = PointBoxDistance({pa.x(), pa.y(), std::clamp(pa.z(), lo.z(), hi.z())}, lo, hi) - 0.01;
+        }
+      } else {
+        const Eigen::Vector3d half(0.02, 0.03, 0.01);
+        arm_arm = PointBoxDistance(pb, pa - half, pa + half) - 0.01;
+        a_block = (((pa - half) - hi).cwiseMax(lo - (pa + half)).cwiseMax(0.0)).norm();
+      }
+      const auto aa = checker.MinimumDistance(Bit(PairClass::kArmArm));
+      const auto ab = checker.MinimumDistance(Bit(PairClass::kArmTable));
+      if (arm_arm > 1e-4) {
+        ++checked;
+        ASSERT_TRUE(aa.valid());
+        EXPECT_NEAR(aa.distance, arm_arm, 1e-6) << "trial " << trial << " " << pa.transpose() << " | " << pb.transpose();
+        EXPECT_NEAR((aa.p_W_a - aa.p_W_b).norm(), aa.distance, 1e-6);
+        EXPECT_FALSE(checker.InCollision(Bit(PairClass::kArmArm)));
+      } else if (arm_arm < -1e-4) {
+        EXPECT_EQ(aa.distance, 0.0);
+        EXPECT_TRUE(checker.InCollision(Bit(PairClass::kArmArm)));
+      }
+      // The block is A's or B's nearest fixed body; check A's alone when it is nearer.
+      if (a_block > 1e-4 && ab.valid() && ab.a == world->FindBody("a_tip")) {
+        ASSERT_EQ(ab.b, block);
+        EXPECT_NEAR(ab.distance, a_block, 1e-6) << "trial " << trial << " " << pa.transpose();
+      }
+    }
+  }
+  EXPECT_GT(checked, 300);
+}
+
+// A body (a box of "skin" with its top at z = 0), a rib under it, and an instrument whose shaft
+// pivots about an RCM at the port (0, 0, 0).
+struct PortScene {
+  std::shared_ptr<const robot::RobotModel> model;
+  std::shared_ptr<const CollisionWorld> world;
+};
+
+PortScene MakePortScene(double port_radius = 0.015) {
+  PortScene s;
+  s.model = RobotFromYaml("port", R"(name: instrument
+links:
+  - name: base
+  - name: slide
+  - name: holder
+    collision: [{shape: box, size: [0.05, 0.05, 0.05], xyz: [0, 0, 0.1]}]
+  - name: shaft
+    collision: [{shape: capsule, radius: 0.004, length: 0.2, xyz: [0, 0, -0.05]}]
+joints:
+  - {name: move_x, type: prismatic, parent: base, child: slide, axis: [1, 0, 0], limits: {lower: -1, upper: 1}}
+  - {name: tilt, type: revolute, parent: slide, child: holder, axis: [0, 1, 0], limits: {lower: -1.5, upper: 1.5}}
+  - {name: insertion, type: prismatic, parent: holder, child: shaft, axis: [0, 0, -1], limits: {lower: 0, upper: 0.1}}
+rcm: {link: holder}
+)");
+  collision::WorldOptions options;
+  options.port_radius = port_radius;
+  std::vector<CollisionWorld::FixedMesh> meshes = {
+      {"skin", BoxMesh({-0.2, -0.2, -0.3}, {0.2, 0.2, 0.0}), Eigen::Isometry3d::Identity(), true, true},
+      {"ribs", BoxMesh({0.02, -0.1, -0.05}, {0.04, 0.1, -0.03}), Eigen::Isometry3d::Identity(), false, true}};
+  s.world = CollisionWorld::Build(meshes, s.model, options);
+  return s;
+}
+
+robot::RobotState Pose(const robot::RobotModel& model, double x, double tilt, double insertion) {
+  robot::RobotState state(model);
+  EXPECT_TRUE(kinematics::ForwardKinematics(model, Eigen::Vector3d(x, tilt, insertion), &state).ok);
+  return state;
+}
+
+TEST(CollisionWorld, AShaftThroughItsPortIsFreeAndTheSameShaftHittingARibCollides) {
+  const PortScene s = MakePortScene();
+  ASSERT_EQ(s.world->ports().size(), 1u);
+  EXPECT_EQ(s.world->ports()[0].frame, "rcm");
+  const int shaft = s.world->FindBody("shaft"), ribs = s.world->FindBody("ribs"), skin = s.world->FindBody("skin");
+  EXPECT_EQ(s.world->bodies()[shaft].port, 0);
+  EXPECT_EQ(s.world->bodies()[s.world->FindBody("holder")].port, -1);
+  CollisionChecker checker(s.world);
+
+  // Straight down through the port, inserted: passes between the ribs.
+  checker.SetRobotState(Pose(*s.model, 0, 0, 0.05));
+  EXPECT_TRUE(checker.port_position(0).isZero(1e-12));
+  auto report = checker.Check();
+  EXPECT_FALSE(report.collision);
+  EXPECT_EQ(report.port_contacts_allowed, 1);
+  EXPECT_FALSE(checker.InCollision());
+  // The rib's clearance: 0.02 − 0.004 to the shaft's side.
+  const auto clear = checker.MinimumDistance(Bit(PairClass::kInstrumentPatient));
+  EXPECT_EQ(clear.b, ribs);
+  EXPECT_NEAR(clear.distance, 0.016, 1e-6);
+
+  // Tilted 40° about y: the shaft runs into the rib 3–5 cm deep.
+  checker.SetRobotState(Pose(*s.model, 0, -0.7, 0.05));
+  report = checker.Check();
+  ASSERT_TRUE(report.collision);
+  ASSERT_EQ(report.contacts.size(), 1u);
+  EXPECT_EQ(report.contacts[0].a, shaft);
+  EXPECT_EQ(report.contacts[0].b, ribs);
+  EXPECT_EQ(report.contacts[0].cls, PairClass::kInstrumentPatient);
+  EXPECT_TRUE(checker.InCollision(Bit(PairClass::kInstrumentPatient)));
+  EXPECT_FALSE(checker.InCollision(Bit(PairClass::kArmPatient)));
+
+  // The same shaft crossing the skin 5 cm from where its port is: a collision with the skin.
+  checker.SetRobotState(Pose(*s.model, 0, 0, 0.05));
+  checker.SetPortPosition(0, Eigen::Vector3d(0.05, 0, 0));
+  report = checker.Check();
+  ASSERT_TRUE(report.collision);
+  EXPECT_EQ(report.contacts[0].b, skin);
+  EXPECT_LT(report.contacts[0].p_W.head<2>().norm(), 0.01);
+  // A radius wide enough to cover it makes it free again.
+  const PortScene wide = MakePortScene(0.08);
+  CollisionChecker wide_checker(wide.world);
+  wide_checker.SetRobotState(Pose(*wide.model, 0, 0, 0.05));
+  wide_checker.SetPortPosition(0, Eigen::Vector3d(0.05, 0, 0));
+  EXPECT_FALSE(wide_checker.InCollision());
+
+  // A link that is not the instrument (the holder) touching the skin counts at the port too.
+  checker.SetRobotState(Pose(*s.model, 0, 1.5, 0.0));
+  report = checker.Check();
+  bool holder_hit = false;
+  for (const auto& c : report.contacts) holder_hit |= c.a == s.world->FindBody("holder") && c.cls == PairClass::kArmPatient;
+  EXPECT_TRUE(holder_hit);
+}
+
+TEST(CollisionWorld, DegenerateMeshesAreRejectedByName) {
+  auto message = [](TriangleMesh mesh) {
+    try {
+      CollisionWorld::Build({{"heart", std::move(mesh), Eigen::Isometry3d::Identity(), false, true}}, nullptr);
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("(accepted)");
+  };
+  EXPECT_NE(message(TriangleMesh{}).find("patient structure 'heart': mesh is empty"), std::string::npos);
+  TriangleMesh nan = BoxMesh(Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones());
+  nan.vertices[3].y() = std::nan("");
+  EXPECT_NE(message(nan).find("'heart': vertex 3 is not finite"), std::string::npos) << message(nan);
+  TriangleMesh flat = BoxMesh(Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones());
+  flat.triangles[5] = Eigen::Vector3i(1, 1, 2);
+  EXPECT_NE(message(flat).find("'heart': triangle 5 has zero area"), std::string::npos) << message(flat);
+  TriangleMesh bad_index = BoxMesh(Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones());
+  bad_index.triangles[0] = Eigen::Vector3i(0, 1, 99);
+  EXPECT_NE(message(bad_index).find("'heart': triangle 0 indexes a vertex"), std::string::npos);
+  // Robot shapes with no size are refused when the robot is loaded, naming file, line and field.
+  try {
+    Probes("{shape: sphere, radius: 0}", "{shape: sphere, radius: 0.01}");
+    ADD_FAILURE();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("collision[0].radius: 0 must be positive"), std::string::npos) << e.what();
+  }
+}
+
+// The da Vinci cart over a synthetic patient (an ellipsoid body with a heart), on the table.
+struct CartScene {
+  std::shared_ptr<const robot::RobotModel> cart;
+  patient::PatientModel patient;
+  std::shared_ptr<const CollisionWorld> world;
+};
+
+CartScene MakeCartScene() {
+  CartScene s;
+  s.cart = std::make_shared<const robot::RobotModel>(robot::LoadRobot(test::SourcePath("robots/davinci-classic/cart.yaml")));
+  s.patient.name = "ellipsoid";
+  s.patient.structures.push_back({"skin", Ellipsoid({0, 0, 0}, {0.17, 0.12, 0.3}, 60, 120), 0, 0});
+  s.patient.structures.push_back({"heart", Ellipsoid({0.03, -0.02, 0.02}, {0.06, 0.05, 0.07}, 30, 60), 0, 0});
+  // Patient frame P: LPS; supine on the table, head toward +x_W.
+  s.patient.X_WP = Eigen::Isometry3d::Identity();
+  s.patient.X_WP.linear() << 0, 0, 1, 1, 0, 0, 0, -1, 0;  // columns: x_P → y_W, y_P → −z_W, z_P → x_W
+  s.patient.X_WP.translation() = Eigen::Vector3d(0, 0, s.patient.table.height + 0.12);
+  s.world = CollisionWorld::Build(&s.patient, s.cart);
+  return s;
+}
+
+robot::RobotState RandomCartState(const robot::RobotModel& cart, std::mt19937& rng) {
+  robot::RobotState state(cart);
+  state.X_WB.translation() = Eigen::Vector3d(-1.45, 0, 0);  // past the table's foot, facing it
+  // Setup-joint columns raised so that the arms pass above the patient.
+  for (const char* column : {"psm1_suj_column", "psm2_suj_column", "ecm_suj_column"}) {
+    kinematics::SetHeldJoint(cart, column, 0.45, &state);
+  }
+  for (;;) {
+    Eigen::VectorXd q(cart.num_positions());
+    for (int i = 0; i < q.size(); ++i) {
+      const auto& lim = cart.joint(cart.active_joints()[i]).limits;
+      q[i] = std::uniform_real_distribution<double>(lim.lower, lim.upper)(rng);
+    }
+    if (kinematics::ForwardKinematics(cart, q, &state).ok) return state;
+  }
+}
+
+TEST(CollisionWorld, CartSelfPairsOfTheParallelogramsAreAllowedAndArmsStillCollide) {
+  const CartScene s = MakeCartScene();
+  const auto& w = *s.world;
+  EXPECT_EQ(w.arms().size(), 3u);
+  EXPECT_EQ(w.ports().size(), 3u);  // psm1, psm2, ecm
+  EXPECT_GT(w.auto_allowed_pairs(), 0);
+  // Links joined by a joint never collide.
+  const int bottom = w.FindBody("psm1_pitch_bottom_link"), back = w.FindBody("psm1_pitch_back_link");
+  ASSERT_GE(bottom, 0);
+  EXPECT_TRUE(w.Allowed(bottom, back));
+  // Links of different arms always count.
+  EXPECT_FALSE(w.Allowed(w.FindBody("psm1_yaw_link"), w.FindBody("psm2_yaw_link")));
+  EXPECT_EQ(w.Classify(w.FindBody("psm1_yaw_link"), w.FindBody("psm2_yaw_link")), PairClass::kArmArm);
+  EXPECT_EQ(w.Classify(w.FindBody("psm1_insertion_link#1"), w.FindBody("skin")), PairClass::kInstrumentPatient);
+  CollisionChecker checker(s.world);
+  std::mt19937 rng(5);
+  int arm_arm = 0, self = 0;
+  for (int i = 0; i < 300; ++i) {
+    checker.SetRobotState(RandomCartState(*s.cart, rng));
+    for (const auto& c : checker.Check().contacts) {
+      arm_arm += c.cls == PairClass::kArmArm;
+      self += c.cls == PairClass::kSelf;
+      EXPECT_FALSE(w.Allowed(c.a, c.b));
+    }
+  }
+  EXPECT_GT(arm_arm, 0);  // random arms do run into each other
+  EXPECT_EQ(self, 0);     // within an arm, only the setup joints could meet the arm: not at these settings
+}
+
+// The same seeded queries from two threads (each with its own checker over one world) give
+// exactly the answers of one thread.
+TEST(CollisionWorld, TwoThreadsAnswerExactlyAsOne) {
+  const CartScene s = MakeCartScene();
+  constexpr int kQueries = 10000;
+  struct Answer {
+    bool in_collision;
+    std::vector<std::pair<int, int>> pairs;
+    double distance;
+    int a, b;
+    bool operator==(const Answer& o) const {
+      return in_collision == o.in_collision && pairs == o.pairs && distance == o.distance && a == o.a && b == o.b;
+    }
+  };
+  auto run = [&](int begin, int end, std::vector<Answer>* out) {
+    CollisionChecker checker(s.world);
+    for (int i = begin; i < end; ++i) {
+      std::mt19937 rng(1000 + i);
+      checker.SetRobotState(RandomCartState(*s.cart, rng));
+      Answer a;
+      a.in_collision = checker.InCollision();
+      for (const auto& c : checker.Check().contacts) a.pairs.emplace_back(c.a, c.b);
+      // Mesh distances cost milliseconds (see the note on FCL's mesh–shape distance): every 50th.
+      a.distance = 0;
+      a.a = a.b = -1;
+      if (i % 50 == 0) {
+        const auto d = checker.MinimumDistance(Bit(PairClass::kArmPatient) | Bit(PairClass::kInstrumentPatient));
+        a.distance = d.distance;
+        a.a = d.a;
+        a.b = d.b;
+      }
+      (*out)[i] = a;
+    }
+  };
+  std::vector<Answer> one(kQueries), two(kQueries);
+  run(0, kQueries, &one);
+  std::thread t1(run, 0, kQueries / 2, &two), t2(run, kQueries / 2, kQueries, &two);
+  t1.join();
+  t2.join();
+  int collisions = 0, differences = 0;
+  for (int i = 0; i < kQueries; ++i) {
+    collisions += one[i].in_collision;
+    differences += !(one[i] == two[i]);
+    EXPECT_EQ(one[i].in_collision, !one[i].pairs.empty());
+  }
+  EXPECT_EQ(differences, 0);
+  EXPECT_GT(collisions, 200);
+  EXPECT_LT(collisions, kQueries - 200);
+}
+
+}  // namespace
+}  // namespace trocar
