@@ -80,7 +80,15 @@ PlacementResult PlaceCart(const robot::RobotModel& cart, const CartSetup& setup,
     if (axis.norm() > 1e-6) request.axis_W = axis.normalized();
     kinematics::SetupJointOptions options;
     options.seed = seed;
-    const auto solved = kinematics::SolveSetupJoints(cart, *state, request, options);
+    auto solved = kinematics::SolveSetupJoints(cart, *state, request, options);
+    if (!solved.solved() && request.axis_W && solved.position_error < options.position_tolerance) {
+      // The RCM reaches the port but the setup joints cannot also set the instrument's direction
+      // (the ECM has four): the port alone is what the setup joints must give.
+      auto position_only = request;
+      position_only.axis_W.reset();
+      const auto retry = kinematics::SolveSetupJoints(cart, *state, position_only, options);
+      if (retry.solved()) solved = retry;
+    }
     for (std::size_t i = 0; i < solved.joints.size(); ++i) {
       kinematics::SetHeldJoint(cart, solved.joints[i], solved.values[i], state);
     }
