@@ -1,5 +1,6 @@
 // trocar check: a robot configuration at a patient — collisions and clearances.
 #include <chrono>
+#include <cmath>
 #include <iomanip>
 #include <iostream>
 #include <memory>
@@ -99,11 +100,13 @@ int RunCheck(const CheckOptions& o) {
       }
       if (!found) setup.ports.push_back({frame, p_W});
     }
+    setup.insert_toward_aim = o.q.empty();  // joint values given: keep them as given
     collision::PlacementResult placed;
     if (o.base.empty()) {
       placed = collision::PlaceCartAutomatically(*cart, &setup, &state, o.seed);
     } else {
       TROCAR_THROW_UNLESS(o.base.size() == 3, "--base: expected x y heading_deg");
+      for (double v : o.base) TROCAR_THROW_UNLESS(std::isfinite(v), "--base: " << v << " is not a finite number");
       setup.X_WB = Eigen::Isometry3d::Identity();
       setup.X_WB.linear() = Eigen::AngleAxisd(o.base[2] * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
       setup.X_WB.translation() = Eigen::Vector3d(o.base[0], o.base[1], 0);
@@ -162,8 +165,8 @@ void AddCheckCommand(CLI::App* app) {
                   "FRAME=x,y,z: put an arm's RCM frame at a point of the patient frame (LPS, m); default: "
                   "spread over the port candidates");
   cmd->add_option("--base", o->base, "cart pose on the floor: x y (m) heading (deg); default: searched")->expected(3);
-  cmd->add_option("--q", o->q, "active joint values (m, rad; expressions like pi/6); default: neutral, "
-                               "insertion toward the target");
+  cmd->add_option("--q", o->q, "active joint values (m, rad; expressions like pi/6), kept as given; default: neutral "
+                               "with each instrument inserted toward the target");
   cmd->add_option("--port-radius", o->port_radius, "skin contact allowed around each port (m)")->capture_default_str();
   cmd->add_option("--bvh", o->bvh, "bounding volumes of the meshes: obbrss or obb")->capture_default_str();
   cmd->add_option("--seed", o->seed, "seed of the setup-joint solver")->capture_default_str();

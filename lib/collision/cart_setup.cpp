@@ -99,7 +99,7 @@ PlacementResult PlaceCart(const robot::RobotModel& cart, const CartSetup& setup,
     const int insertion = InsertionJoint(cart, frame->link);
     const std::string prefix = port.frame.substr(0, port.frame.size() - 3);
     const robot::Frame* tool = FindFrame(cart, prefix + "tool");
-    if (insertion >= 0 && tool && request.axis_W) {
+    if (setup.insert_toward_aim && insertion >= 0 && tool && request.axis_W) {
       kinematics::ForwardKinematics(cart, state->q, state);
       const Eigen::Vector3d p_rcm = kinematics::FramePose(*state, *frame).translation();
       const double depth = (kinematics::FramePose(*state, *tool).translation() - p_rcm).dot(*request.axis_W);

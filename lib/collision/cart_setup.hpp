@@ -28,6 +28,8 @@ struct CartSetup {
   Eigen::Isometry3d X_WB = Eigen::Isometry3d::Identity();  ///< cart on the floor
   std::vector<PortAssignment> ports;
   Eigen::Vector3d aim_W = Eigen::Vector3d::Zero();  ///< where the instruments point (the target)
+  /// Insert each instrument toward the aim (1 cm short); false keeps the state's insertion.
+  bool insert_toward_aim = true;
 };
 
 /// Default ports for a cart with frames psm1_rcm, ecm_rcm, psm2_rcm (those present): the middle
@@ -43,7 +45,8 @@ struct PlacementResult {
 };
 
 /// Solves the setup joints of each port's arm for `setup` (base pose, ports, aim) into `state`
-/// and sets each instrument's insertion toward the aim (stopping 1 cm short, within limits).
+/// and, when setup.insert_toward_aim, sets each instrument's insertion toward the aim (stopping
+/// 1 cm short, within limits).
 /// Other active joints keep their values in `state`.
 PlacementResult PlaceCart(const robot::RobotModel& cart, const CartSetup& setup, robot::RobotState* state,
                           unsigned seed = 1);

@@ -49,18 +49,28 @@ int PortPair(const CollisionWorld::Impl& w, int a, int b) {
   return -1;
 }
 
+// Orders a broadphase pair by body index and says whether it is to be tested: not an allowed
+// pair, and of a class in `mask`.
+bool Screen(const CollisionWorld::Impl& w, unsigned mask, fcl::CollisionObjectd** o1, fcl::CollisionObjectd** o2,
+            int* a, int* b, PairClass* cls) {
+  *a = BodyOf(*o1);
+  *b = BodyOf(*o2);
+  if (*a > *b) {
+    std::swap(*a, *b);
+    std::swap(*o1, *o2);
+  }
+  if (w.Allowed(*a, *b)) return false;
+  *cls = w.Class(*a, *b);
+  return (mask & Bit(*cls)) != 0;
+}
+
 bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw) {
   auto& d = *static_cast<QueryData*>(raw);
   if (d.done) return true;
-  int a = BodyOf(o1), b = BodyOf(o2);
-  if (a > b) {
-    std::swap(a, b);
-    std::swap(o1, o2);
-  }
+  int a = -1, b = -1;
+  PairClass cls{};
+  if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls)) return false;
   const CollisionWorld::Impl& w = *d.world;
-  if (w.Allowed(a, b)) return false;
-  const PairClass cls = w.Class(a, b);
-  if (!(d.mask & Bit(cls))) return false;
   const int port = PortPair(w, a, b);
   fcl::CollisionRequestd request(port >= 0 ? kPortContacts : 1, port >= 0 || d.want_contacts);
   fcl::CollisionResultd result;
@@ -105,15 +115,10 @@ struct DistanceData {
 
 bool DistancePair(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw, double& dist) {
   auto& d = *static_cast<DistanceData*>(raw);
-  int a = BodyOf(o1), b = BodyOf(o2);
-  if (a > b) {
-    std::swap(a, b);
-    std::swap(o1, o2);
-  }
+  int a = -1, b = -1;
+  PairClass cls{};
+  if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls)) return false;
   const CollisionWorld::Impl& w = *d.world;
-  if (w.Allowed(a, b)) return false;
-  const PairClass cls = w.Class(a, b);
-  if (!(d.mask & Bit(cls))) return false;
   if (PortPair(w, a, b) >= 0) return false;  // zero at the port by design
   // FCL's own GJK (GST_INDEP) with a tight tolerance: primitives to 1e-6 m and better.
   fcl::DistanceRequestd request(true, false, 0.0, 0.0, 1e-8, fcl::GST_INDEP);

@@ -9,6 +9,8 @@
 #include <map>
 #include <sstream>
 
+#include <unistd.h>
+
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "patient/volume.hpp"
@@ -616,11 +618,22 @@ void WriteDicomSeries(const Volume& volume, const std::string& folder,
   const Eigen::Vector3d row = c0.normalized(), column = c1.normalized();
   const std::string ts = options.implicit_vr ? kImplicitLittle : kExplicitLittle;
 
+  // Written into a fresh folder beside the target, then renamed: a failure leaves nothing behind
+  // and never touches an existing folder.
   const fs::path target(folder);
-  const fs::path temp = target.parent_path() / (target.filename().string() + ".partial");
-  fs::remove_all(temp, ec);
-  fs::create_directories(temp, ec);
-  TROCAR_THROW_UNLESS(!ec, temp.string() << ": cannot create: " << ec.message());
+  const fs::path temp = target.parent_path() / (target.filename().string() + ".partial-" + std::to_string(::getpid()));
+  if (!target.parent_path().empty()) fs::create_directories(target.parent_path(), ec);
+  TROCAR_THROW_UNLESS(fs::create_directory(temp, ec) && !ec,
+                      temp.string() << ": cannot create the folder to write the series in"
+                                    << (ec ? ": " + ec.message() : std::string(" (it exists)")));
+  struct RemoveUnlessKept {
+    fs::path path;
+    bool keep = false;
+    ~RemoveUnlessKept() {
+      std::error_code ignored;
+      if (!keep) fs::remove_all(path, ignored);
+    }
+  } cleanup{temp};
   const long per_slice = static_cast<long>(volume.size.x()) * volume.size.y();
   for (int k = 0; k < volume.size.z(); ++k) {
     const std::string instance_uid = series_uid + "." + std::to_string(k + 1);

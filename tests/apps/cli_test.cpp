@@ -253,6 +253,9 @@ TEST(TrocarCheck, PlacesTheCartAtAPatientAndListsCollisionsAndClearances) {
   const CommandRun bad = Trocar("check --patient " + dir + " --port psm1_rcm=0.1,0.2");
   EXPECT_EQ(bad.exit_code, 1);
   EXPECT_NE(bad.output.find("--port psm1_rcm: expected x,y,z"), std::string::npos) << bad.output;
+  const CommandRun bad_base = Trocar("check --patient " + dir + " --base 0 nan 90");
+  EXPECT_EQ(bad_base.exit_code, 1) << bad_base.output;
+  EXPECT_NE(bad_base.output.find("--base"), std::string::npos) << bad_base.output;
   const CommandRun bad_q = Trocar("check --q 1 2");
   EXPECT_EQ(bad_q.exit_code, 1);
   EXPECT_NE(bad_q.output.find("has 18 active joints, got 2 values"), std::string::npos) << bad_q.output;

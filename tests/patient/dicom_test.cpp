@@ -24,7 +24,6 @@ using patient::Volume;
 std::string Scratch(const std::string& name) {
   const std::string dir = ::testing::TempDir() + "/trocar_dicom_" + name;
   fs::remove_all(dir);
-  fs::remove_all(dir + ".partial");
   return dir;
 }
 
@@ -85,7 +84,9 @@ TEST(DicomSeries, RoundTripsExplicitAndImplicitVrOverRandomGeometries) {
     const std::string dir = Scratch("roundtrip");
     patient::WriteDicomSeries(v, dir, options);
     EXPECT_EQ(SliceFiles(dir).size(), static_cast<std::size_t>(v.size.z()));
-    EXPECT_FALSE(fs::exists(dir + ".partial"));
+    for (const auto& e : fs::directory_iterator(fs::path(dir).parent_path())) {
+      EXPECT_EQ(e.path().filename().string().find("trocar_dicom_roundtrip.partial"), std::string::npos);
+    }
     const Volume r = LoadVolume(dir);
     ExpectSameGeometry(v, r);
     EXPECT_EQ(r.values, v.values);
@@ -229,6 +230,16 @@ TEST(DicomSeries, BadSeriesAreClearErrorsNamingTheFile) {
     const std::string m = LoadError(dir);
     EXPECT_NE(m.find("no DICOM image slices among its 1 files"), std::string::npos) << m;
   }
+  // A folder that cannot be made (its parent is a file): an error, and nothing left behind.
+  const std::string blocker = Scratch("blocker");
+  WriteFileAtomically(blocker, "a file, not a folder\n");
+  try {
+    patient::WriteDicomSeries(v, blocker + "/series");
+    ADD_FAILURE() << "wrote under a file";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("cannot create the folder"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(ReadTextFile(blocker), "a file, not a folder\n");
   // The writer refuses to mix a new series into an existing one.
   const std::string dir = fresh("occupied");
   try {
