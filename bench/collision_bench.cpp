@@ -1,11 +1,18 @@
 // Collision benchmark (a small harness: per-configuration times, so median and p90 are exact):
-// the da Vinci cart placed at a patient's ports (the bundled phantom, about 10^5 triangles),
-// 2000 seeded configurations around the placement (arm joints anywhere within a third of their
-// range around it). Measured per configuration, after the link poses are known:
+// the da Vinci cart placed at a patient's ports (the bundled phantom, about 10^5 triangles) and
+// two sets of seeded configurations:
+//   around the placement  arm joints within a third of their range around the placed ones (the
+//                         plain default placement collides, so these all collide: early exits);
+//   free near the patient setup and arm joints anywhere in their limits, kept when nothing
+//                         collides and the robot is within 10 cm of the patient: every pair must
+//                         be screened, the cost a planner pays on a valid configuration.
+// Measured per configuration, after the link poses are known:
 //   whole-cart check  SetRobotState + InCollision (all pair classes, first hit stops)
 //   all pairs         SetRobotState + Check (every colliding pair with a contact point)
 //   arm-patient dist  SetRobotState + MinimumDistance(arm-patient, instrument-patient)
-// with OBBRSS and OBB trees side by side (distance needs OBBRSS).
+// with OBBRSS and OBB trees side by side (distance needs OBBRSS), and the peer: the same world
+// answered by FCL alone for every pair (WorldOptions::exact_mesh_queries = false), on the first
+// 50 configurations of each set (its mesh distances cost tens of milliseconds).
 //
 //   build/bench/collision_bench [patients/<case>] [configurations]
 #include <algorithm>
@@ -13,6 +20,7 @@
 #include <cstdio>
 #include <iostream>
 #include <random>
+#include <string>
 
 #include "collision/cart_setup.hpp"
 #include "collision/collision_world.hpp"
@@ -79,31 +87,95 @@ int main(int argc, char** argv) {
     }
     if (kinematics::ForwardKinematics(*cart, q, &s).ok) states.push_back(s);
   }
-  std::printf("%d configurations; times per configuration in microseconds\n\n", n);
-  std::printf("%-8s %-34s %10s %10s %10s %10s\n", "bvh", "query", "median", "p90", "mean", "hits");
-  for (auto kind : {collision::BvhKind::kObbRss, collision::BvhKind::kObb}) {
+  const unsigned robot_patient =
+      collision::Bit(collision::PairClass::kArmPatient) | collision::Bit(collision::PairClass::kInstrumentPatient);
+  // Collision-free configurations near the patient.
+  std::vector<robot::RobotState> free_states;
+  int attempts = 0;
+  {
+    const auto world = collision::CollisionWorld::Build(&patient, cart);
+    collision::CollisionChecker checker(world);
+    auto uniform = [&](const robot::JointLimits& lim) {
+      const double lo = std::isfinite(lim.lower) ? lim.lower : -M_PI;
+      const double hi = std::isfinite(lim.upper) ? lim.upper : M_PI;
+      return std::uniform_real_distribution<double>(lo, hi)(rng);
+    };
+    while (static_cast<int>(free_states.size()) < n && attempts < 400 * n) {
+      ++attempts;
+      robot::RobotState s = placed;
+      for (int j : cart->dof_joints()) {
+        if (cart->joint(j).drive == robot::JointDrive::kHeld) s.joint_values[cart->joint(j).dof_index] = uniform(cart->joint(j).limits);
+      }
+      Eigen::VectorXd q(cart->num_positions());
+      for (int i = 0; i < q.size(); ++i) q[i] = uniform(cart->joint(cart->active_joints()[i]).limits);
+      if (!kinematics::ForwardKinematics(*cart, q, &s).ok) continue;
+      checker.SetRobotState(s);
+      if (checker.InCollision()) continue;
+      if (checker.MinimumDistance(robot_patient).distance > 0.10) continue;
+      free_states.push_back(s);
+    }
+  }
+  std::printf("%d configurations around the placement; %zu collision-free near the patient (of %d tried)\n",
+              n, free_states.size(), attempts);
+  std::printf("times per configuration in microseconds\n\n");
+  std::printf("%-11s %-48s %10s %10s %10s %10s\n", "bvh", "query", "median", "p90", "mean", "hits");
+  struct Variant {
+    collision::BvhKind kind;
+    bool exact;
+  };
+  for (const Variant variant : {Variant{collision::BvhKind::kObbRss, true}, Variant{collision::BvhKind::kObb, true},
+                                Variant{collision::BvhKind::kObbRss, false}}) {
+    const auto kind = variant.kind;
     collision::WorldOptions options;
     options.bvh = kind;
+    options.exact_mesh_queries = variant.exact;
+    const std::string label = std::string(collision::ToString(kind)) + (variant.exact ? "" : " FCL");
+    const std::size_t count = variant.exact ? states.size() : std::min<std::size_t>(50, states.size());
+    const std::vector<robot::RobotState> around(states.begin(), states.begin() + count);
+    const std::vector<robot::RobotState> free_set(
+        free_states.begin(), free_states.begin() + std::min(count, free_states.size()));
     const auto t0 = Clock::now();
     const auto world = collision::CollisionWorld::Build(&patient, cart, options);
     const double build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
     collision::CollisionChecker checker(world);
-    int hits = 0;
-    const Stats cart_check = Time(states, checker, [&](collision::CollisionChecker& c) { hits += c.InCollision(); });
-    std::printf("%-8s %-34s %10.1f %10.1f %10.1f %10d\n", collision::ToString(kind), "whole-cart check (InCollision)",
-                cart_check.median, cart_check.p90, cart_check.mean, hits / 2);
-    hits = 0;
-    const Stats all = Time(states, checker, [&](collision::CollisionChecker& c) { hits += c.Check().collision; });
-    std::printf("%-8s %-34s %10.1f %10.1f %10.1f %10d\n", collision::ToString(kind), "all pairs (Check)", all.median,
-                all.p90, all.mean, hits / 2);
-    if (kind == collision::BvhKind::kObbRss) {
-      const unsigned mask = collision::Bit(collision::PairClass::kArmPatient) |
-                            collision::Bit(collision::PairClass::kInstrumentPatient);
-      const Stats dist = Time(states, checker, [&](collision::CollisionChecker& c) { c.MinimumDistance(mask); });
-      std::printf("%-8s %-34s %10.1f %10.1f %10.1f %10s\n", collision::ToString(kind), "arm-patient minimum distance",
-                  dist.median, dist.p90, dist.mean, "-");
+    auto row = [&](const char* query, const Stats& st, const std::string& hits) {
+      std::printf("%-11s %-48s %10.1f %10.1f %10.1f %10s\n", label.c_str(), query, st.median, st.p90,
+                  st.mean, hits.c_str());
+    };
+    if (!free_set.empty()) {
+      row("  of which SetRobotState (poses, boxes, tree)", Time(free_set, checker, [](collision::CollisionChecker&) {}),
+          "-");
+      row("  of which arm-arm and self pairs",
+          Time(free_set, checker, [&](collision::CollisionChecker& c) {
+            c.InCollision(collision::Bit(collision::PairClass::kArmArm) | collision::Bit(collision::PairClass::kSelf));
+          }),
+          "-");
+      int free_hits = 0;
+      row("whole-cart check, collision-free near patient",
+          Time(free_set, checker, [&](collision::CollisionChecker& c) { free_hits += c.InCollision(); }),
+          std::to_string(free_hits / 2));
+      if (kind == collision::BvhKind::kObbRss) {
+        row("arm-patient distance, collision-free near patient",
+            Time(free_set, checker, [&](collision::CollisionChecker& c) { c.MinimumDistance(robot_patient); }),
+            "-");
+        row("whole-cart distance, collision-free near patient",
+            Time(free_set, checker, [&](collision::CollisionChecker& c) { c.MinimumDistance(); }), "-");
+      }
     }
-    std::printf("%-8s %-34s %10.1f ms\n", collision::ToString(kind), "world build (BVHs, allowed pairs)", build_ms);
+    int hits = 0;
+    const Stats cart_check = Time(around, checker, [&](collision::CollisionChecker& c) { hits += c.InCollision(); });
+    row("whole-cart check, around the placement", cart_check, std::to_string(hits / 2));
+    hits = 0;
+    const Stats all = Time(around, checker, [&](collision::CollisionChecker& c) { hits += c.Check().collision; });
+    row("all pairs (Check), around the placement", all, std::to_string(hits / 2));
+    if (kind == collision::BvhKind::kObbRss) {
+      int zero = 0;
+      const Stats dist = Time(around, checker, [&](collision::CollisionChecker& c) {
+        zero += c.MinimumDistance(robot_patient).distance <= 0.0;
+      });
+      row("arm-patient distance, around the placement", dist, std::to_string(zero / 2) + " at 0");
+    }
+    std::printf("%-11s %-48s %10.1f ms\n", label.c_str(), "world build (BVHs, allowed pairs)", build_ms);
   }
   return 0;
 }

@@ -1,7 +1,9 @@
-// CollisionChecker: per-thread FCL objects over a shared CollisionWorld. Two broadphase trees
-// (dynamic AABB trees): the fixed bodies (patient, table), built once per checker, and the
-// robot's shapes, refitted after each SetRobotState. Narrowphase pairs are filtered by the
-// world's allowed pairs, the caller's class mask and the port rule.
+// CollisionChecker: per-thread FCL objects over a shared CollisionWorld. Robot shapes against each
+// other go through FCL's broadphase (a dynamic AABB tree refitted after each SetRobotState); robot
+// shapes against the fixed bodies (a handful of patient structures and the table) through a loop
+// over the pairs screened by their boxes, where capsules and spheres against meshes use our exact
+// TriangleBvh and everything else FCL. Pairs are filtered by the world's allowed pairs, the
+// caller's class mask and the port rule.
 #include <algorithm>
 #include <cmath>
 
@@ -19,15 +21,7 @@ int BodyOf(const fcl::CollisionObjectd* o) {
   return static_cast<int>(reinterpret_cast<std::intptr_t>(o->getUserData()));
 }
 
-}  // namespace
-
-struct CollisionChecker::State {
-  std::vector<std::unique_ptr<fcl::CollisionObjectd>> objects;  // per body
-  fcl::DynamicAABBTreeCollisionManagerd robot_tree, fixed_tree;
-  std::vector<Eigen::Vector3d> port_W;
-};
-
-namespace {
+using Convex = CollisionWorld::Impl::Convex;
 
 struct QueryData {
   const CollisionWorld::Impl* world = nullptr;
@@ -49,8 +43,14 @@ int PortPair(const CollisionWorld::Impl& w, int a, int b) {
   return -1;
 }
 
-// Orders a broadphase pair by body index and says whether it is to be tested: not an allowed
-// pair, and of a class in `mask`.
+// Whether a pair of bodies (a < b) is to be tested: not an allowed pair, and of a class in `mask`.
+bool ScreenPair(const CollisionWorld::Impl& w, unsigned mask, int a, int b, PairClass* cls) {
+  if (w.Allowed(a, b)) return false;
+  *cls = w.Class(a, b);
+  return (mask & Bit(*cls)) != 0;
+}
+
+// Orders a broadphase pair by body index and screens it (ScreenPair).
 bool Screen(const CollisionWorld::Impl& w, unsigned mask, fcl::CollisionObjectd** o1, fcl::CollisionObjectd** o2,
             int* a, int* b, PairClass* cls) {
   *a = BodyOf(*o1);
@@ -59,9 +59,7 @@ bool Screen(const CollisionWorld::Impl& w, unsigned mask, fcl::CollisionObjectd*
     std::swap(*a, *b);
     std::swap(*o1, *o2);
   }
-  if (w.Allowed(*a, *b)) return false;
-  *cls = w.Class(*a, *b);
-  return (mask & Bit(*cls)) != 0;
+  return ScreenPair(w, mask, *a, *b, cls);
 }
 
 bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw) {
@@ -71,8 +69,57 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
   PairClass cls{};
   if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls)) return false;
   const CollisionWorld::Impl& w = *d.world;
+  const Convex& A = w.convex[a];
+  const Convex& B = w.convex[b];
+  const bool swept_a = A.kind == Convex::Kind::kSweptSphere, swept_b = B.kind == Convex::Kind::kSweptSphere;
+  const bool box_a = A.kind == Convex::Kind::kBox, box_b = B.kind == Convex::Kind::kBox;
+  if (w.options.exact_mesh_queries && ((swept_a && (swept_b || box_b)) || (box_a && swept_b))) {
+    // Closed form: two capsules (or spheres) whose axes are nearer than their radii, or a capsule
+    // whose axis is nearer a box than its radius. c1 on a's axis or box, c2 on b's.
+    Eigen::Vector3d c1, c2;
+    double d2 = 0.0, reach = 0.0;
+    if (swept_a && swept_b) {
+      const Eigen::Isometry3d& X_WA = o1->getTransform();
+      const Eigen::Isometry3d& X_WB = o2->getTransform();
+      d2 = SegmentSegmentClosest(X_WA * A.a_G, X_WA * A.b_G, X_WB * B.a_G, X_WB * B.b_G, &c1, &c2);
+      reach = A.radius + B.radius;
+    } else {
+      const bool box_first = box_a;
+      const Convex& box = box_first ? A : B;
+      const Convex& cap = box_first ? B : A;
+      const Eigen::Isometry3d& X_WX = (box_first ? o1 : o2)->getTransform();
+      const Eigen::Isometry3d& X_WC = (box_first ? o2 : o1)->getTransform();
+      const Eigen::Isometry3d X_XC = X_WX.inverse() * X_WC;
+      const Eigen::Vector3d p = X_XC * cap.a_G, q = X_XC * cap.b_G;
+      double t = 0.0;
+      d2 = SegmentBoxDistanceSquared(p, q, -box.half, box.half, &t);
+      reach = cap.radius;
+      if (d2 > reach * reach) return false;
+      const Eigen::Vector3d on_axis = p + t * (q - p);
+      const Eigen::Vector3d on_box = on_axis.cwiseMax(-box.half).cwiseMin(box.half);
+      c1 = X_WX * (box_first ? on_box : on_axis);
+      c2 = X_WX * (box_first ? on_axis : on_box);
+    }
+    if (d2 > reach * reach) return false;
+    const double gap = std::sqrt(d2);
+    Contact contact;
+    contact.a = a;
+    contact.b = b;
+    contact.cls = cls;
+    // Midway between the two surfaces along the closest points.
+    const double r1 = swept_a ? A.radius : 0.0;
+    contact.p_W = gap > 0 ? Eigen::Vector3d(c1 + (r1 + 0.5 * (gap - reach)) / gap * (c2 - c1)) : Eigen::Vector3d(c1);
+    contact.depth = reach - gap;
+    d.report.collision = true;
+    d.report.contacts.push_back(contact);
+    if (d.stop_at_first) d.done = true;
+    return d.done;
+  }
   const int port = PortPair(w, a, b);
   fcl::CollisionRequestd request(port >= 0 ? kPortContacts : 1, port >= 0 || d.want_contacts);
+  // FCL's own GJK: with libccd (the default) FCL missed shallow capsule–mesh contacts that its
+  // distance query saw (tests/collision: ExactMeshQueriesAgreeWithFcl).
+  request.gjk_solver_type = fcl::GST_INDEP;
   fcl::CollisionResultd result;
   fcl::collide(o1, o2, request, result);
   if (!result.isCollision()) return false;
@@ -113,40 +160,101 @@ struct DistanceData {
   Clearance best;
 };
 
+// FCL's distance between two objects, 0 with a contact point for both witnesses when touching.
+double FclDistance(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, Eigen::Vector3d* p1, Eigen::Vector3d* p2) {
+  // FCL's own GJK (GST_INDEP) with a tight tolerance: primitives to 1e-6 m and better.
+  fcl::DistanceRequestd request(true, false, 0.0, 0.0, 1e-8, fcl::GST_INDEP);
+  fcl::DistanceResultd result;
+  // FCL 0.7 answers a shape against a mesh by the mesh–shape routine and returns its witness
+  // points in that order, not the caller's (fcl#427): ask mesh first and swap back ourselves.
+  if (o1->getObjectType() != fcl::OT_BVH && o2->getObjectType() == fcl::OT_BVH) {
+    fcl::distance(o2, o1, request, result);
+    *p1 = result.nearest_points[1];
+    *p2 = result.nearest_points[0];
+  } else {
+    fcl::distance(o1, o2, request, result);
+    *p1 = result.nearest_points[0];
+    *p2 = result.nearest_points[1];
+  }
+  if (result.min_distance > 0.0) return result.min_distance;
+  fcl::CollisionRequestd creq(1, true);
+  fcl::CollisionResultd cres;
+  fcl::collide(o1, o2, creq, cres);
+  if (cres.numContacts() > 0) *p1 = *p2 = cres.getContact(0).pos;
+  return 0.0;
+}
+
+void Keep(DistanceData& d, double distance, int a, int b, PairClass cls, const Eigen::Vector3d& p_a,
+          const Eigen::Vector3d& p_b) {
+  if (distance >= d.best.distance) return;
+  d.best.distance = distance;
+  d.best.a = a;
+  d.best.b = b;
+  d.best.cls = cls;
+  d.best.p_W_a = p_a;
+  d.best.p_W_b = p_b;
+}
+
 bool DistancePair(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw, double& dist) {
   auto& d = *static_cast<DistanceData*>(raw);
   int a = -1, b = -1;
   PairClass cls{};
   if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls)) return false;
-  const CollisionWorld::Impl& w = *d.world;
-  if (PortPair(w, a, b) >= 0) return false;  // zero at the port by design
-  // FCL's own GJK (GST_INDEP) with a tight tolerance: primitives to 1e-6 m and better.
-  fcl::DistanceRequestd request(true, false, 0.0, 0.0, 1e-8, fcl::GST_INDEP);
-  fcl::DistanceResultd result;
-  fcl::distance(o1, o2, request, result);
-  double distance = result.min_distance;
-  Eigen::Vector3d p_a = result.nearest_points[0], p_b = result.nearest_points[1];
-  if (distance <= 0.0) {
-    // In contact: distance 0, both witnesses at a contact point.
-    fcl::CollisionRequestd creq(1, true);
-    fcl::CollisionResultd cres;
-    fcl::collide(o1, o2, creq, cres);
-    distance = 0.0;
-    if (cres.numContacts() > 0) p_a = p_b = cres.getContact(0).pos;
-  }
-  if (distance < d.best.distance) {
-    d.best.distance = distance;
-    d.best.a = a;
-    d.best.b = b;
-    d.best.cls = cls;
-    d.best.p_W_a = p_a;
-    d.best.p_W_b = p_b;
-  }
+  if (PortPair(*d.world, a, b) >= 0) return false;  // zero at the port by design
+  Eigen::Vector3d p_a, p_b;
+  const double distance = FclDistance(o1, o2, &p_a, &p_b);
+  Keep(d, distance, a, b, cls, p_a, p_b);
   dist = d.best.distance;
   return dist <= 0.0;
 }
 
+double AabbDistance(const fcl::AABBd& x, const fcl::AABBd& y) {
+  const Eigen::Vector3d gap = (y.min_ - x.max_).cwiseMax(x.min_ - y.max_).cwiseMax(0.0);
+  return gap.norm();
+}
+
+// Whether a robot body against a fixed body goes through our TriangleBvh (and as what).
+Convex::Kind FastPath(const CollisionWorld::Impl& w, int r, int f) {
+  return w.mesh[f] && w.options.exact_mesh_queries ? w.convex[r].kind : Convex::Kind::kOther;
+}
+
+// A robot shape G in a fixed mesh's frame M: its pose, and a capsule's (or sphere's) axis.
+struct ShapeInMesh {
+  Eigen::Isometry3d X_MG = Eigen::Isometry3d::Identity();
+  Eigen::Vector3d a_M = Eigen::Vector3d::Zero(), b_M = Eigen::Vector3d::Zero();
+};
+ShapeInMesh InMesh(const CollisionWorld::Impl& w, const fcl::CollisionObjectd& robot_object, int r, int f) {
+  ShapeInMesh out;
+  out.X_MG = w.X_pose[f].inverse() * robot_object.getTransform();
+  out.a_M = out.X_MG * w.convex[r].a_G;
+  out.b_M = out.X_MG * w.convex[r].b_G;
+  return out;
+}
+
 }  // namespace
+
+struct CollisionChecker::State {
+  std::vector<std::unique_ptr<fcl::CollisionObjectd>> objects;  // per body
+  /// Robot bodies against each other: FCL's broadphase. Robot against fixed bodies (a few
+  /// structures): a loop over the pairs, capsules and spheres against meshes by TriangleBvh.
+  fcl::DynamicAABBTreeCollisionManagerd robot_tree;
+  const CollisionWorld::Impl* world = nullptr;
+  std::vector<Eigen::Vector3d> port_W;
+  struct Candidate {
+    double lower_bound;
+    int r, f;
+    ShapeInMesh shape;
+  };
+  // Reused by MinimumDistance (no allocation once warm).
+  std::vector<Candidate> others;
+  std::vector<MeshQuery> queries;
+  std::vector<std::pair<int, int>> query_pair;  // robot body, fixed body
+  TriangleBvh::Scratch scratch;
+
+  void CollideRobotFixed(QueryData& d);
+  void DistanceRobotFixed(DistanceData& d);
+};
+
 
 CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
     : world_(std::move(world)), state_(std::make_unique<State>()) {
@@ -160,18 +268,16 @@ CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
       state_->objects.push_back(std::move(object));
     }
   }
-  std::vector<fcl::CollisionObjectd*> fixed, robot;
+  state_->world = &w;
   for (int i : w.fixed_bodies) {
     state_->objects[i]->setTransform(w.X_pose[i]);
     state_->objects[i]->computeAABB();
-    fixed.push_back(state_->objects[i].get());
   }
-  if (!fixed.empty()) state_->fixed_tree.registerObjects(fixed);
-  state_->fixed_tree.setup();
   if (w.robot) {
     const robot::RobotState rest(*w.robot);
     robot::RobotState state = rest;
     if (!kinematics::ForwardKinematics(*w.robot, state.q, &state).ok) kinematics::ForwardKinematics(*w.robot, &state);
+    std::vector<fcl::CollisionObjectd*> robot;
     for (int i : w.robot_bodies) robot.push_back(state_->objects[i].get());
     SetRobotState(state);
     if (!robot.empty()) state_->robot_tree.registerObjects(robot);
@@ -181,6 +287,107 @@ CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
 }
 
 CollisionChecker::~CollisionChecker() = default;
+
+void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
+  const CollisionWorld::Impl& w = *world;
+  for (int r : w.robot_bodies) {
+    fcl::CollisionObjectd* o_r = objects[r].get();
+    for (int f : w.fixed_bodies) {
+      if (d.done) return;
+      PairClass cls{};
+      const int a = std::min(r, f), b = std::max(r, f);
+      if (!ScreenPair(w, d.mask, a, b, &cls)) continue;
+      fcl::CollisionObjectd* o_f = objects[f].get();
+      if (!o_r->getAABB().overlap(o_f->getAABB())) continue;
+      // Capsules, spheres and boxes against meshes by our hierarchy; the rest (the table, robot
+      // meshes) by FCL.
+      const Convex::Kind fast = FastPath(w, r, f);
+      if (fast == Convex::Kind::kOther) {
+        Narrowphase(o_r, o_f, &d);
+        continue;
+      }
+      const ShapeInMesh shape = InMesh(w, *o_r, r, f);
+      const int port = PortPair(w, a, b);
+      const Eigen::Vector3d centre_M = port >= 0 ? Eigen::Vector3d(w.X_pose[f].inverse() * port_W[port])
+                                                 : Eigen::Vector3d::Zero();
+      const double exclude = port >= 0 ? w.options.port_radius : -1.0;
+      const SweptSphereContact hit =
+          fast == Convex::Kind::kSweptSphere
+              ? w.mesh[f]->Touches(shape.a_M, shape.b_M, w.convex[r].radius, centre_M, exclude)
+              : w.mesh[f]->BoxTouches(shape.X_MG, w.convex[r].half, centre_M, exclude);
+      if (!hit.outside) {
+        if (hit.excluded) ++d.report.port_contacts_allowed;
+        continue;
+      }
+      Contact contact;
+      contact.a = a;
+      contact.b = b;
+      contact.cls = cls;
+      contact.p_W = w.X_pose[f] * hit.p_M;
+      contact.depth = hit.depth;
+      d.report.collision = true;
+      d.report.contacts.push_back(contact);
+      if (d.stop_at_first) d.done = true;
+    }
+  }
+}
+
+void CollisionChecker::State::DistanceRobotFixed(DistanceData& d) {
+  const CollisionWorld::Impl& w = *world;
+  // Capsules, spheres and boxes against meshes: one best-first search over all those pairs at
+  // once (TriangleBvh::ClosestOfAll). Other pairs (the table, robot meshes) by FCL afterwards,
+  // nearest boxes first, skipped when their boxes are no nearer than the best so far.
+  queries.clear();
+  query_pair.clear();
+  others.clear();
+  for (int r : w.robot_bodies) {
+    fcl::CollisionObjectd* o_r = objects[r].get();
+    for (int f : w.fixed_bodies) {
+      PairClass cls{};
+      const int a = std::min(r, f), b = std::max(r, f);
+      if (!ScreenPair(w, d.mask, a, b, &cls) || PortPair(w, a, b) >= 0) continue;
+      const Convex::Kind fast = FastPath(w, r, f);
+      if (fast == Convex::Kind::kOther) {
+        others.push_back({AabbDistance(o_r->getAABB(), objects[f]->getAABB()), r, f, {}});
+        continue;
+      }
+      const ShapeInMesh shape = InMesh(w, *o_r, r, f);
+      MeshQuery q;
+      q.mesh = w.mesh[f].get();
+      q.box = fast == Convex::Kind::kBox;
+      q.a_M = shape.a_M;
+      q.b_M = shape.b_M;
+      q.radius = w.convex[r].radius;
+      q.X_MB = shape.X_MG;
+      q.half = w.convex[r].half;
+      queries.push_back(q);
+      query_pair.emplace_back(r, f);
+    }
+  }
+  auto keep = [&](int r, int f, double distance, const Eigen::Vector3d& p_r, const Eigen::Vector3d& p_f) {
+    const int a = std::min(r, f), b = std::max(r, f);
+    if (r < f) {
+      Keep(d, distance, a, b, w.Class(a, b), p_r, p_f);
+    } else {
+      Keep(d, distance, a, b, w.Class(a, b), p_f, p_r);
+    }
+  };
+  const NearestQuery nearest = TriangleBvh::ClosestOfAll(queries, d.best.distance, &scratch);
+  if (nearest.query >= 0) {
+    const auto [r, f] = query_pair[nearest.query];
+    const Eigen::Isometry3d& X_WM = w.X_pose[f];
+    keep(r, f, nearest.distance, X_WM * nearest.p_M_query, X_WM * nearest.p_M_mesh);
+  }
+  std::sort(others.begin(), others.end(), [](const Candidate& x, const Candidate& y) {
+    return std::tie(x.lower_bound, x.r, x.f) < std::tie(y.lower_bound, y.r, y.f);
+  });
+  for (const Candidate& c : others) {
+    if (d.best.distance <= 0.0 || c.lower_bound >= d.best.distance) break;
+    Eigen::Vector3d p_r, p_f;
+    const double distance = FclDistance(objects[c.r].get(), objects[c.f].get(), &p_r, &p_f);
+    keep(c.r, c.f, distance, p_r, p_f);
+  }
+}
 
 void CollisionChecker::SetRobotState(const robot::RobotState& state) {
   const CollisionWorld::Impl& w = world_->impl();
@@ -219,7 +426,7 @@ bool CollisionChecker::InCollision(unsigned mask) {
   d.stop_at_first = true;
   if (state_->robot_tree.size() > 0) {
     state_->robot_tree.collide(&d, Narrowphase);
-    if (!d.done && state_->fixed_tree.size() > 0) state_->robot_tree.collide(&state_->fixed_tree, &d, Narrowphase);
+    if (!d.done) state_->CollideRobotFixed(d);
   }
   return d.report.collision;
 }
@@ -232,7 +439,7 @@ CollisionReport CollisionChecker::Check(unsigned mask) {
   d.want_contacts = true;
   if (state_->robot_tree.size() > 0) {
     state_->robot_tree.collide(&d, Narrowphase);
-    if (!d.done && state_->fixed_tree.size() > 0) state_->robot_tree.collide(&state_->fixed_tree, &d, Narrowphase);
+    state_->CollideRobotFixed(d);
   }
   std::sort(d.report.contacts.begin(), d.report.contacts.end(),
             [](const Contact& x, const Contact& y) { return std::tie(x.a, x.b) < std::tie(y.a, y.b); });
@@ -249,9 +456,7 @@ Clearance CollisionChecker::MinimumDistance(unsigned mask) {
   d.mask = mask;
   if (state_->robot_tree.size() == 0) return d.best;
   state_->robot_tree.distance(&d, DistancePair);
-  if (d.best.distance > 0.0 && state_->fixed_tree.size() > 0) {
-    state_->robot_tree.distance(&state_->fixed_tree, &d, DistancePair);
-  }
+  if (d.best.distance > 0.0) state_->DistanceRobotFixed(d);
   return d.best;
 }
 

@@ -164,6 +164,21 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
       b.port = port_of[l];
       const robot::Geometry& g = link.collisions[s];
       w.geometry.push_back(MakeShape(g, kind, "robot '" + model.name() + "' link '" + b.name + "'", meshes));
+      using Convex = CollisionWorld::Impl::Convex;
+      Convex convex;
+      if (g.shape == robot::Geometry::Shape::kCapsule || g.shape == robot::Geometry::Shape::kSphere) {
+        convex.kind = Convex::Kind::kSweptSphere;
+        convex.radius = g.size.x();
+        if (g.shape == robot::Geometry::Shape::kCapsule) {
+          convex.a_G = Eigen::Vector3d(0, 0, -0.5 * g.size.y());
+          convex.b_G = Eigen::Vector3d(0, 0, 0.5 * g.size.y());
+        }
+      } else if (g.shape == robot::Geometry::Shape::kBox) {
+        convex.kind = Convex::Kind::kBox;
+        convex.half = 0.5 * g.size;
+      }
+      w.convex.push_back(convex);
+      w.mesh.push_back(nullptr);
       if (g.shape == robot::Geometry::Shape::kMesh) b.triangles = static_cast<long>(g.mesh->triangles.size());
       w.X_pose.push_back(g.X_LG);
       w.robot_bodies.push_back(static_cast<int>(w.bodies.size()));
@@ -180,6 +195,8 @@ void AddFixedMesh(CollisionWorld::Impl& w, const std::string& name, const Triang
   b.skin = skin;
   b.triangles = static_cast<long>(mesh.triangles.size());
   w.geometry.push_back(MakeMeshGeometry(mesh, w.options.bvh, context));
+  w.convex.emplace_back();
+  w.mesh.push_back(w.options.exact_mesh_queries ? std::make_shared<const TriangleBvh>(mesh) : nullptr);
   w.X_pose.push_back(X_WM);
   w.fixed_bodies.push_back(static_cast<int>(w.bodies.size()));
   w.triangles += b.triangles;
@@ -193,6 +210,8 @@ void AddTable(CollisionWorld::Impl& w, const patient::Table& t) {
   auto box = std::make_shared<fcl::Boxd>(t.length, t.width, t.thickness);
   box->computeLocalAABB();
   w.geometry.push_back(box);
+  w.convex.emplace_back();
+  w.mesh.push_back(nullptr);
   Eigen::Isometry3d X_WT = Eigen::Isometry3d::Identity();
   X_WT.translation() = Eigen::Vector3d(0, 0, t.height - 0.5 * t.thickness);
   w.X_pose.push_back(X_WT);

@@ -9,6 +9,7 @@
 #include <fcl/fcl.h>
 
 #include "collision/collision_world.hpp"
+#include "collision/triangle_bvh.hpp"
 
 namespace trocar::collision {
 
@@ -20,6 +21,18 @@ struct CollisionWorld::Impl {
   std::vector<std::shared_ptr<fcl::CollisionGeometryd>> geometry;
   /// Per body: robot bodies, the shape's pose in its link (X_LG); fixed bodies, its pose in W.
   std::vector<Eigen::Isometry3d> X_pose;
+  /// A robot body that is a capsule, a sphere or a box, checked against patient meshes with
+  /// `mesh` (our exact BVH) rather than FCL: a capsule's axis in the shape frame G (a == b for a
+  /// sphere) and radius; a box's half sizes.
+  struct Convex {
+    enum class Kind { kOther, kSweptSphere, kBox };
+    Kind kind = Kind::kOther;
+    Eigen::Vector3d a_G = Eigen::Vector3d::Zero(), b_G = Eigen::Vector3d::Zero();
+    double radius = 0.0;
+    Eigen::Vector3d half = Eigen::Vector3d::Zero();
+  };
+  std::vector<Convex> convex;                            ///< per body
+  std::vector<std::shared_ptr<const TriangleBvh>> mesh;  ///< per body: fixed meshes, else null
   std::vector<Arm> arms;
   std::vector<Port> ports;
   std::vector<int> port_frame;  ///< index into robot->frames()
