@@ -243,7 +243,6 @@ struct CollisionChecker::State {
   struct Candidate {
     double lower_bound;
     int r, f;
-    ShapeInMesh shape;
   };
   // Reused by MinimumDistance (no allocation once warm).
   std::vector<Candidate> others;
@@ -348,7 +347,7 @@ void CollisionChecker::State::DistanceRobotFixed(DistanceData& d) {
       if (!ScreenPair(w, d.mask, a, b, &cls) || PortPair(w, a, b) >= 0) continue;
       const Convex::Kind fast = FastPath(w, r, f);
       if (fast == Convex::Kind::kOther) {
-        others.push_back({AabbDistance(o_r->getAABB(), objects[f]->getAABB()), r, f, {}});
+        others.push_back({AabbDistance(o_r->getAABB(), objects[f]->getAABB()), r, f});
         continue;
       }
       const ShapeInMesh shape = InMesh(w, *o_r, r, f);

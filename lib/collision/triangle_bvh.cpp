@@ -273,11 +273,6 @@ void TriangleBvh::Build(int begin, int end, int leaf_size) {
   }
 }
 
-double TriangleBvh::LowerBound(const Vector3d& a_M, const Vector3d& b_M) const {
-  if (triangles_.empty()) return std::numeric_limits<double>::infinity();
-  return std::sqrt(SegmentBoxDistanceSquared(a_M, b_M, nodes_[0].lo, nodes_[0].hi));
-}
-
 namespace {
 
 // Queries for TriangleBvh::Search: NodeBound2 (a lower bound on the squared distance to a box of

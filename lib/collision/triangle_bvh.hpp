@@ -85,9 +85,6 @@ class TriangleBvh {
                                 const Eigen::Vector3d& exclude_centre = Eigen::Vector3d::Zero(),
                                 double exclude_radius = -1.0) const;
 
-  /// A lower bound on the distance from the segment to the mesh (the root box's distance).
-  double LowerBound(const Eigen::Vector3d& a_M, const Eigen::Vector3d& b_M) const;
-
   /// Brute force over every triangle (tests): Closest and ClosestToBox must agree with these.
   MeshClosest ClosestBruteForce(const Eigen::Vector3d& a_M, const Eigen::Vector3d& b_M) const;
   MeshClosest ClosestToBoxBruteForce(const Eigen::Isometry3d& X_MB,
