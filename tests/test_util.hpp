@@ -5,11 +5,13 @@
 #include <filesystem>
 #include <random>
 #include <sstream>
+#include <functional>
 #include <string>
 
 #include <Eigen/Core>
 #include <gtest/gtest.h>
 
+#include "common/mesh.hpp"
 #include "robot/robot_model.hpp"
 
 namespace trocar::test {
@@ -30,6 +32,29 @@ inline std::string SharedDataPath(const std::string& relative) {
                    << " is absent (../shared/data beside the repository); test skipped"; \
     }                                                                                     \
   } while (false)
+
+/// A closed UV-sphere surface with 2·rings·segments triangles, wound outward: `at(phi, theta)`
+/// gives the vertex at polar angle phi (0 at the top pole, pi at the bottom) and azimuth theta;
+/// ring r and segment s ask for phi = pi·r/rings and theta = 2·pi·s/segments.
+inline TriangleMesh UvSphere(int rings, int segments, const std::function<Eigen::Vector3d(int r, int s)>& at) {
+  TriangleMesh m;
+  m.vertices.push_back(at(0, 0));
+  for (int r = 1; r < rings; ++r) {
+    for (int s = 0; s < segments; ++s) m.vertices.push_back(at(r, s));
+  }
+  m.vertices.push_back(at(rings, 0));
+  const int last = static_cast<int>(m.vertices.size()) - 1;
+  auto index = [&](int r, int s) { return 1 + (r - 1) * segments + (s % segments); };
+  for (int s = 0; s < segments; ++s) m.triangles.emplace_back(0, index(1, s), index(1, s + 1));
+  for (int r = 1; r < rings - 1; ++r) {
+    for (int s = 0; s < segments; ++s) {
+      m.triangles.emplace_back(index(r, s), index(r + 1, s), index(r + 1, s + 1));
+      m.triangles.emplace_back(index(r, s), index(r + 1, s + 1), index(r, s + 1));
+    }
+  }
+  for (int s = 0; s < segments; ++s) m.triangles.emplace_back(last, index(rings - 1, s + 1), index(rings - 1, s));
+  return m;
+}
 
 /// Uniform within the active joints' limits; unbounded joints in [-pi, pi].
 inline Eigen::VectorXd RandomConfiguration(const robot::RobotModel& model, std::mt19937* rng) {

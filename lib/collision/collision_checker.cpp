@@ -1,9 +1,9 @@
 // CollisionChecker: per-thread FCL objects over a shared CollisionWorld. Robot shapes against each
 // other go through FCL's broadphase (a dynamic AABB tree refitted after each SetRobotState); robot
 // shapes against the fixed bodies (a handful of patient structures and the table) through a loop
-// over the pairs screened by their boxes, where capsules and spheres against meshes use our exact
-// TriangleBvh and everything else FCL. Pairs are filtered by the world's allowed pairs, the
-// caller's class mask and the port rule.
+// over the pairs screened by their boxes. Capsules, spheres and boxes against meshes use our exact
+// TriangleBvh, capsule–capsule and capsule–box pairs a closed form, everything else FCL. Pairs
+// are filtered by the world's allowed pairs, the caller's class mask and the port rule.
 #include <algorithm>
 #include <cmath>
 
@@ -94,7 +94,6 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
       double t = 0.0;
       d2 = SegmentBoxDistanceSquared(p, q, -box.half, box.half, &t);
       reach = cap.radius;
-      if (d2 > reach * reach) return false;
       const Eigen::Vector3d on_axis = p + t * (q - p);
       const Eigen::Vector3d on_box = on_axis.cwiseMax(-box.half).cwiseMin(box.half);
       c1 = X_WX * (box_first ? on_box : on_axis);
@@ -236,7 +235,7 @@ ShapeInMesh InMesh(const CollisionWorld::Impl& w, const fcl::CollisionObjectd& r
 struct CollisionChecker::State {
   std::vector<std::unique_ptr<fcl::CollisionObjectd>> objects;  // per body
   /// Robot bodies against each other: FCL's broadphase. Robot against fixed bodies (a few
-  /// structures): a loop over the pairs, capsules and spheres against meshes by TriangleBvh.
+  /// structures): a loop over the pairs, capsules, spheres and boxes against meshes by TriangleBvh.
   fcl::DynamicAABBTreeCollisionManagerd robot_tree;
   const CollisionWorld::Impl* world = nullptr;
   std::vector<Eigen::Vector3d> port_W;
@@ -252,8 +251,13 @@ struct CollisionChecker::State {
 
   void CollideRobotFixed(QueryData& d);
   void DistanceRobotFixed(DistanceData& d);
+  /// Robot pairs, then robot against fixed bodies (stopping early when d.stop_at_first).
+  void Collide(QueryData& d) {
+    if (robot_tree.size() == 0) return;
+    robot_tree.collide(&d, Narrowphase);
+    if (!d.done) CollideRobotFixed(d);
+  }
 };
-
 
 CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
     : world_(std::move(world)), state_(std::make_unique<State>()) {
@@ -395,6 +399,13 @@ void CollisionChecker::SetRobotState(const robot::RobotState& state) {
                       "collision checker: robot state has " << state.X_WL.size() << " link poses, robot '"
                                                             << w.robot->name() << "' has "
                                                             << w.robot->num_links() << " links");
+  // Every pose checked before any is used: a refused state leaves the last one in place.
+  for (int i : w.robot_bodies) {
+    TROCAR_THROW_UNLESS(state.X_WL[w.bodies[i].link].matrix().allFinite(),
+                        "collision checker: link '" << w.robot->link(w.bodies[i].link).name
+                                                    << "' has a non-finite pose (NaN or infinite joint values or "
+                                                       "base pose?)");
+  }
   for (int i : w.robot_bodies) {
     fcl::CollisionObjectd& o = *state_->objects[i];
     o.setTransform(state.X_WL[w.bodies[i].link] * w.X_pose[i]);
@@ -423,10 +434,7 @@ bool CollisionChecker::InCollision(unsigned mask) {
   d.port_W = &state_->port_W;
   d.mask = mask;
   d.stop_at_first = true;
-  if (state_->robot_tree.size() > 0) {
-    state_->robot_tree.collide(&d, Narrowphase);
-    if (!d.done) state_->CollideRobotFixed(d);
-  }
+  state_->Collide(d);
   return d.report.collision;
 }
 
@@ -436,10 +444,7 @@ CollisionReport CollisionChecker::Check(unsigned mask) {
   d.port_W = &state_->port_W;
   d.mask = mask;
   d.want_contacts = true;
-  if (state_->robot_tree.size() > 0) {
-    state_->robot_tree.collide(&d, Narrowphase);
-    state_->CollideRobotFixed(d);
-  }
+  state_->Collide(d);
   std::sort(d.report.contacts.begin(), d.report.contacts.end(),
             [](const Contact& x, const Contact& y) { return std::tie(x.a, x.b) < std::tie(y.a, y.b); });
   return d.report;

@@ -37,28 +37,11 @@ TriangleMesh BoxMesh(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
 
 // An ellipsoid surface (UV sphere) with about 2·rings·segments triangles.
 TriangleMesh Ellipsoid(const Eigen::Vector3d& centre, const Eigen::Vector3d& semi, int rings, int segments) {
-  TriangleMesh m;
-  m.vertices.push_back(centre + Eigen::Vector3d(0, 0, semi.z()));
-  for (int r = 1; r < rings; ++r) {
-    const double phi = M_PI * r / rings;
-    for (int s = 0; s < segments; ++s) {
-      const double th = 2 * M_PI * s / segments;
-      m.vertices.push_back(centre + Eigen::Vector3d(semi.x() * std::sin(phi) * std::cos(th),
+  return test::UvSphere(rings, segments, [&](int r, int s) {
+    const double phi = M_PI * r / rings, th = 2 * M_PI * s / segments;
+    return Eigen::Vector3d(centre + Eigen::Vector3d(semi.x() * std::sin(phi) * std::cos(th),
                                                     semi.y() * std::sin(phi) * std::sin(th), semi.z() * std::cos(phi)));
-    }
-  }
-  m.vertices.push_back(centre - Eigen::Vector3d(0, 0, semi.z()));
-  const int last = static_cast<int>(m.vertices.size()) - 1;
-  auto at = [&](int r, int s) { return 1 + (r - 1) * segments + (s % segments); };
-  for (int s = 0; s < segments; ++s) m.triangles.emplace_back(0, at(1, s), at(1, s + 1));
-  for (int r = 1; r < rings - 1; ++r) {
-    for (int s = 0; s < segments; ++s) {
-      m.triangles.emplace_back(at(r, s), at(r + 1, s), at(r + 1, s + 1));
-      m.triangles.emplace_back(at(r, s), at(r + 1, s + 1), at(r, s + 1));
-    }
-  }
-  for (int s = 0; s < segments; ++s) m.triangles.emplace_back(last, at(rings - 1, s + 1), at(rings - 1, s));
-  return m;
+  });
 }
 
 std::shared_ptr<const robot::RobotModel> RobotFromYaml(const std::string& name, const std::string& yaml) {
@@ -349,6 +332,27 @@ TEST(CollisionWorld, CartSelfPairsOfTheParallelogramsAreAllowedAndArmsStillColli
 
 // The same seeded queries from two threads (each with its own checker over one world) give
 // exactly the answers of one thread.
+TEST(CollisionWorld, ANonFinitePoseIsRefusedNamingTheLink) {
+  const CartScene s = MakeCartScene();
+  CollisionChecker checker(s.world);
+  std::mt19937 rng(9);
+  robot::RobotState state = RandomCartState(*s.cart, rng);
+  checker.SetRobotState(state);
+  const bool before = checker.InCollision();
+  const int link = s.cart->FindLink("psm1_yaw_link");
+  ASSERT_GE(link, 0);
+  state.X_WL[link].translation().x() = std::numeric_limits<double>::quiet_NaN();
+  try {
+    checker.SetRobotState(state);
+    FAIL() << "a NaN link pose was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("psm1_yaw_link"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("non-finite"), std::string::npos) << e.what();
+  }
+  // The checker still answers for the last good state.
+  EXPECT_EQ(checker.InCollision(), before);
+}
+
 // Our exact capsule/sphere/box–mesh queries (the default) against FCL's for every pair, on the
 // whole cart over an ellipsoid patient: same collisions, same minimum distances. (FCL's
 // collision test with libccd missed shallow capsule–skin contacts its own distance query saw;

@@ -3,9 +3,11 @@
 // dense sampling, and the joint search finds the nearest of many queries.
 #include "collision/triangle_bvh.hpp"
 
+#include <random>
+
 #include <gtest/gtest.h>
 
-#include <random>
+#include "test_util.hpp"
 
 namespace trocar {
 namespace {
@@ -19,33 +21,13 @@ using Eigen::Vector3d;
 // triangles, vertices jittered: no symmetry for the hierarchy to exploit.
 TriangleMesh Bumpy(std::mt19937& rng, int rings, int segments) {
   std::uniform_real_distribution<double> jitter(-0.3, 0.3);
-  TriangleMesh m;
-  auto radius = [](double phi, double th) {
-    return 0.1 + 0.02 * std::sin(3 * phi) * std::cos(5 * th);
-  };
-  m.vertices.push_back(Vector3d(0, 0, radius(0, 0)));
-  for (int r = 1; r < rings; ++r) {
-    for (int s = 0; s < segments; ++s) {
-      const double phi = M_PI * (r + jitter(rng)) / rings;
-      const double th = 2 * M_PI * (s + jitter(rng)) / segments;
-      const double rad = radius(phi, th);
-      m.vertices.push_back(rad * Vector3d(std::sin(phi) * std::cos(th),
-                                          std::sin(phi) * std::sin(th), std::cos(phi)));
-    }
-  }
-  m.vertices.push_back(Vector3d(0, 0, -radius(M_PI, 0)));
-  const int last = static_cast<int>(m.vertices.size()) - 1;
-  auto at = [&](int r, int s) { return 1 + (r - 1) * segments + (s % segments); };
-  for (int s = 0; s < segments; ++s) m.triangles.emplace_back(0, at(1, s), at(1, s + 1));
-  for (int r = 1; r < rings - 1; ++r) {
-    for (int s = 0; s < segments; ++s) {
-      m.triangles.emplace_back(at(r, s), at(r + 1, s), at(r + 1, s + 1));
-      m.triangles.emplace_back(at(r, s), at(r + 1, s + 1), at(r, s + 1));
-    }
-  }
-  for (int s = 0; s < segments; ++s)
-    m.triangles.emplace_back(last, at(rings - 1, s + 1), at(rings - 1, s));
-  return m;
+  auto radius = [](double phi, double th) { return 0.1 + 0.02 * std::sin(3 * phi) * std::cos(5 * th); };
+  return test::UvSphere(rings, segments, [&](int r, int s) {
+    const bool pole = r == 0 || r == rings;
+    const double phi = M_PI * (r + (pole ? 0.0 : jitter(rng))) / rings;
+    const double th = 2 * M_PI * (s + (pole ? 0.0 : jitter(rng))) / segments;
+    return Vector3d(radius(phi, th) * Vector3d(std::sin(phi) * std::cos(th), std::sin(phi) * std::sin(th), std::cos(phi)));
+  });
 }
 
 Vector3d RandomPoint(std::mt19937& rng, double range) {
