@@ -6,8 +6,10 @@
 #include <gtest/gtest.h>
 
 #include "common/error.hpp"
+#include "collision/triangle_bvh.hpp"
 #include "common/file_util.hpp"
 #include "patient/markups.hpp"
+#include "patient/volume.hpp"
 #include "test_util.hpp"
 
 namespace trocar {
@@ -228,6 +230,81 @@ TEST(PatientModel, Lidc2CaseHasSkinRibsHeartTargetsOnTheTable) {
     EXPECT_LT(nearest, 0.006);  // the LAD lies on the heart's surface
   }
   EXPECT_GE(m.port_candidates.size(), 1u);
+}
+
+// The fraction of skin points under which the chest wall is clear of rib: the CT along the
+// horizontal ray from the point toward the body's axis, 3 to 35 mm below it, stays below
+// `rib_value`.
+double ClearOfRibs(const patient::Volume& ct, const std::vector<Eigen::Vector3d>& points_P,
+                   const Eigen::Vector3d& axis_P, double rib_value) {
+  const Eigen::Matrix3d to_index = ct.index_to_P.inverse();
+  int clear = 0;
+  for (const Eigen::Vector3d& p : points_P) {
+    Eigen::Vector3d inward(axis_P.x() - p.x(), axis_P.y() - p.y(), 0.0);
+    inward.normalize();
+    float highest = 0;
+    for (double depth = 0.003; depth <= 0.035; depth += 0.0005) {
+      const Eigen::Vector3d ijk = to_index * (p + depth * inward - ct.origin_P);
+      const Eigen::Vector3i n(static_cast<int>(std::lround(ijk.x())), static_cast<int>(std::lround(ijk.y())),
+                              static_cast<int>(std::lround(ijk.z())));
+      if ((n.array() < 0).any() || (n.array() >= ct.size.array()).any()) continue;
+      highest = std::max(highest, ct.at(n.x(), n.y(), n.z()));
+    }
+    if (highest < rib_value) ++clear;
+  }
+  return static_cast<double>(clear) / static_cast<double>(points_P.size());
+}
+
+TEST(PatientModel, Lidc2IntercostalAnnotationsLieOnTheSkinBetweenTheRibs) {
+  const std::string ct_path = test::SharedDataPath("ct/lidc2/ct.nhdr");
+  TROCAR_REQUIRE_SHARED_FILE(ct_path);
+  const patient::PatientModel m =
+      patient::ImportPatient(test::SourcePath("patients/lidc2"), {false, false});
+  const patient::Volume ct = patient::LoadVolume(ct_path);
+  ASSERT_EQ(m.port_candidates.size(), 5u);
+  const collision::TriangleBvh skin(m.Find("skin")->mesh);
+  const Eigen::Vector3d axis_P = 0.5 * (m.body_min_P + m.body_max_P);
+  double previous_z = HUGE_VAL;
+  for (std::size_t n = 0; n < m.port_candidates.size(); ++n) {
+    const patient::PortCandidate& c = m.port_candidates[n];
+    SCOPED_TRACE(c.name);
+    // Annotated (they override the spaces found from the ribs), named and ordered head to foot.
+    EXPECT_EQ(c.name, "ICS-L" + std::to_string(n + 2));
+    EXPECT_EQ(c.source.rfind("markups:", 0), 0u) << c.source;
+    ASSERT_GE(c.skin.size(), 10u);
+    double z = 0;
+    for (const Eigen::Vector3d& p : c.skin) {
+      z += p.z() / static_cast<double>(c.skin.size());
+      EXPECT_GT(p.x(), axis_P.x());  // the left chest
+      // On the skin (the model's smoothed, decimated surface).
+      EXPECT_LT(skin.Closest(p, p).distance, 0.003);
+    }
+    EXPECT_LT(z, previous_z - 0.015);  // a rib and a space below the one above
+    previous_z = z;
+    // Between the ribs: under most points the chest wall is clear of rib (rib cross-sections
+    // reach 110 and more in this window; intercostal muscle stays below; the scapula overlies
+    // the upper spaces toward the back).
+    EXPECT_GE(ClearOfRibs(ct, c.skin, axis_P, 110.0), 0.75);
+  }
+  // One rib between neighbouring spaces: halfway between two curves (at the same angle around
+  // the body's axis) the chest wall is rib for most points. A space skipped or annotated twice
+  // would put these points in a space instead.
+  auto angle = [&](const Eigen::Vector3d& p) { return std::atan2(p.x() - axis_P.x(), axis_P.y() - p.y()); };
+  for (std::size_t n = 0; n + 1 < m.port_candidates.size(); ++n) {
+    const auto& upper = m.port_candidates[n].skin;
+    const auto& lower = m.port_candidates[n + 1].skin;
+    std::vector<Eigen::Vector3d> between;
+    for (const Eigen::Vector3d& p : upper) {
+      const Eigen::Vector3d* nearest = nullptr;
+      for (const Eigen::Vector3d& q : lower) {
+        if (nearest == nullptr || std::abs(angle(q) - angle(p)) < std::abs(angle(*nearest) - angle(p))) nearest = &q;
+      }
+      if (std::abs(angle(*nearest) - angle(p)) < 0.03) between.push_back(0.5 * (p + *nearest));
+    }
+    SCOPED_TRACE(m.port_candidates[n].name);
+    ASSERT_GE(between.size(), 8u);
+    EXPECT_LE(ClearOfRibs(ct, between, axis_P, 110.0), 0.3);
+  }
 }
 
 }  // namespace
