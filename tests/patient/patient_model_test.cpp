@@ -237,14 +237,13 @@ TEST(PatientModel, Lidc2CaseHasSkinRibsHeartTargetsOnTheTable) {
 // `rib_value`.
 double ClearOfRibs(const patient::Volume& ct, const std::vector<Eigen::Vector3d>& points_P,
                    const Eigen::Vector3d& axis_P, double rib_value) {
-  const Eigen::Matrix3d to_index = ct.index_to_P.inverse();
   int clear = 0;
   for (const Eigen::Vector3d& p : points_P) {
     Eigen::Vector3d inward(axis_P.x() - p.x(), axis_P.y() - p.y(), 0.0);
     inward.normalize();
     float highest = 0;
     for (double depth = 0.003; depth <= 0.035; depth += 0.0005) {
-      const Eigen::Vector3d ijk = to_index * (p + depth * inward - ct.origin_P);
+      const Eigen::Vector3d ijk = ct.IndexOf(p + depth * inward);
       const Eigen::Vector3i n(static_cast<int>(std::lround(ijk.x())), static_cast<int>(std::lround(ijk.y())),
                               static_cast<int>(std::lround(ijk.z())));
       if ((n.array() < 0).any() || (n.array() >= ct.size.array()).any()) continue;
