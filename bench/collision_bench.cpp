@@ -22,10 +22,10 @@
 #include <random>
 #include <string>
 
-#include "collision/cart_setup.hpp"
 #include "collision/collision_world.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "patient/patient_model.hpp"
+#include "port_placement/cart_placement.hpp"
 #include "robot/load_robot.hpp"
 
 using namespace trocar;
@@ -47,7 +47,8 @@ Stats Summarise(std::vector<double> us) {
 }
 
 template <typename F>
-Stats Time(const std::vector<robot::RobotState>& states, collision::CollisionChecker& checker, F query) {
+Stats Time(const std::vector<robot::RobotState>& states, collision::CollisionChecker& checker,
+           F query) {
   std::vector<double> us;
   for (int rep = 0; rep < 2; ++rep) {  // the first pass warms caches; the second is kept
     us.clear();
@@ -64,16 +65,19 @@ Stats Time(const std::vector<robot::RobotState>& states, collision::CollisionChe
 }  // namespace
 
 int main(int argc, char** argv) {
-  const std::string case_dir = argc > 1 ? argv[1] : std::string(TROCAR_SOURCE_DIR) + "/patients/phantom-default";
+  const std::string case_dir =
+      argc > 1 ? argv[1] : std::string(TROCAR_SOURCE_DIR) + "/patients/phantom-default";
   const int n = argc > 2 ? std::atoi(argv[2]) : 2000;
   const patient::PatientModel patient = patient::ImportPatient(case_dir);
   auto cart = std::make_shared<const robot::RobotModel>(
       robot::LoadRobot(std::string(TROCAR_SOURCE_DIR) + "/robots/davinci-classic/cart.yaml"));
-  collision::CartSetup setup = collision::DefaultPorts(patient, *cart);
+  planners::CartPlacementRequest setup = planners::DefaultPorts(patient, planners::FindArms(*cart));
   robot::RobotState placed(*cart);
-  const auto placement = collision::PlaceCartAutomatically(*cart, &setup, &placed);
-  std::printf("patient %s: %ld triangles; cart placed: %s\n", patient.name.c_str(), patient.triangle_count(),
-              placement.ok ? "every port reached" : "nearest placement (not every port reached)");
+  const auto placement = planners::PlaceCartAutomatically(*cart, &setup, {}, &placed);
+  std::printf(
+      "patient %s: %ld triangles; cart placed: %s\n", patient.name.c_str(),
+      patient.triangle_count(),
+      placement.placed() ? "every port reached" : "nearest placement (not every port reached)");
 
   std::mt19937 rng(7);
   std::vector<robot::RobotState> states;
@@ -83,12 +87,13 @@ int main(int argc, char** argv) {
     for (int i = 0; i < q.size(); ++i) {
       const auto& lim = cart->joint(cart->active_joints()[i]).limits;
       const double third = (lim.upper - lim.lower) / 6;
-      q[i] = std::clamp(q[i] + std::uniform_real_distribution<double>(-third, third)(rng), lim.lower, lim.upper);
+      q[i] = std::clamp(q[i] + std::uniform_real_distribution<double>(-third, third)(rng),
+                        lim.lower, lim.upper);
     }
     if (kinematics::ForwardKinematics(*cart, q, &s).ok) states.push_back(s);
   }
-  const unsigned robot_patient =
-      collision::Bit(collision::PairClass::kArmPatient) | collision::Bit(collision::PairClass::kInstrumentPatient);
+  const unsigned robot_patient = collision::Bit(collision::PairClass::kArmPatient) |
+                                 collision::Bit(collision::PairClass::kInstrumentPatient);
   // Collision-free configurations near the patient.
   std::vector<robot::RobotState> free_states;
   int attempts = 0;
@@ -104,10 +109,12 @@ int main(int argc, char** argv) {
       ++attempts;
       robot::RobotState s = placed;
       for (int j : cart->dof_joints()) {
-        if (cart->joint(j).drive == robot::JointDrive::kHeld) s.joint_values[cart->joint(j).dof_index] = uniform(cart->joint(j).limits);
+        if (cart->joint(j).drive == robot::JointDrive::kHeld)
+          s.joint_values[cart->joint(j).dof_index] = uniform(cart->joint(j).limits);
       }
       Eigen::VectorXd q(cart->num_positions());
-      for (int i = 0; i < q.size(); ++i) q[i] = uniform(cart->joint(cart->active_joints()[i]).limits);
+      for (int i = 0; i < q.size(); ++i)
+        q[i] = uniform(cart->joint(cart->active_joints()[i]).limits);
       if (!kinematics::ForwardKinematics(*cart, q, &s).ok) continue;
       checker.SetRobotState(s);
       if (checker.InCollision()) continue;
@@ -115,22 +122,26 @@ int main(int argc, char** argv) {
       free_states.push_back(s);
     }
   }
-  std::printf("%d configurations around the placement; %zu collision-free near the patient (of %d tried)\n",
-              n, free_states.size(), attempts);
+  std::printf(
+      "%d configurations around the placement; %zu collision-free near the patient (of %d tried)\n",
+      n, free_states.size(), attempts);
   std::printf("times per configuration in microseconds\n\n");
   std::printf("%-11s %-48s %10s %10s %10s %10s\n", "bvh", "query", "median", "p90", "mean", "hits");
   struct Variant {
     collision::BvhKind kind;
     bool exact;
   };
-  for (const Variant variant : {Variant{collision::BvhKind::kObbRss, true}, Variant{collision::BvhKind::kObb, true},
-                                Variant{collision::BvhKind::kObbRss, false}}) {
+  for (const Variant variant :
+       {Variant{collision::BvhKind::kObbRss, true}, Variant{collision::BvhKind::kObb, true},
+        Variant{collision::BvhKind::kObbRss, false}}) {
     const auto kind = variant.kind;
     collision::WorldOptions options;
     options.bvh = kind;
     options.exact_mesh_queries = variant.exact;
-    const std::string label = std::string(collision::ToString(kind)) + (variant.exact ? "" : " FCL");
-    const std::size_t count = variant.exact ? states.size() : std::min<std::size_t>(50, states.size());
+    const std::string label =
+        std::string(collision::ToString(kind)) + (variant.exact ? "" : " FCL");
+    const std::size_t count =
+        variant.exact ? states.size() : std::min<std::size_t>(50, states.size());
     const std::vector<robot::RobotState> around(states.begin(), states.begin() + count);
     const std::vector<robot::RobotState> free_set(
         free_states.begin(), free_states.begin() + std::min(count, free_states.size()));
@@ -139,34 +150,41 @@ int main(int argc, char** argv) {
     const double build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
     collision::CollisionChecker checker(world);
     auto row = [&](const char* query, const Stats& st, const std::string& hits) {
-      std::printf("%-11s %-48s %10.1f %10.1f %10.1f %10s\n", label.c_str(), query, st.median, st.p90,
-                  st.mean, hits.c_str());
+      std::printf("%-11s %-48s %10.1f %10.1f %10.1f %10s\n", label.c_str(), query, st.median,
+                  st.p90, st.mean, hits.c_str());
     };
     if (!free_set.empty()) {
-      row("  of which SetRobotState (poses, boxes, tree)", Time(free_set, checker, [](collision::CollisionChecker&) {}),
-          "-");
+      row("  of which SetRobotState (poses, boxes, tree)",
+          Time(free_set, checker, [](collision::CollisionChecker&) {}), "-");
       row("  of which arm-arm and self pairs",
-          Time(free_set, checker, [&](collision::CollisionChecker& c) {
-            c.InCollision(collision::Bit(collision::PairClass::kArmArm) | collision::Bit(collision::PairClass::kSelf));
-          }),
+          Time(free_set, checker,
+               [&](collision::CollisionChecker& c) {
+                 c.InCollision(collision::Bit(collision::PairClass::kArmArm) |
+                               collision::Bit(collision::PairClass::kSelf));
+               }),
           "-");
       int free_hits = 0;
       row("whole-cart check, collision-free near patient",
-          Time(free_set, checker, [&](collision::CollisionChecker& c) { free_hits += c.InCollision(); }),
+          Time(free_set, checker,
+               [&](collision::CollisionChecker& c) { free_hits += c.InCollision(); }),
           std::to_string(free_hits / 2));
       if (kind == collision::BvhKind::kObbRss) {
         row("arm-patient distance, collision-free near patient",
-            Time(free_set, checker, [&](collision::CollisionChecker& c) { c.MinimumDistance(robot_patient); }),
+            Time(free_set, checker,
+                 [&](collision::CollisionChecker& c) { c.MinimumDistance(robot_patient); }),
             "-");
         row("whole-cart distance, collision-free near patient",
-            Time(free_set, checker, [&](collision::CollisionChecker& c) { c.MinimumDistance(); }), "-");
+            Time(free_set, checker, [&](collision::CollisionChecker& c) { c.MinimumDistance(); }),
+            "-");
       }
     }
     int hits = 0;
-    const Stats cart_check = Time(around, checker, [&](collision::CollisionChecker& c) { hits += c.InCollision(); });
+    const Stats cart_check =
+        Time(around, checker, [&](collision::CollisionChecker& c) { hits += c.InCollision(); });
     row("whole-cart check, around the placement", cart_check, std::to_string(hits / 2));
     hits = 0;
-    const Stats all = Time(around, checker, [&](collision::CollisionChecker& c) { hits += c.Check().collision; });
+    const Stats all =
+        Time(around, checker, [&](collision::CollisionChecker& c) { hits += c.Check().collision; });
     row("all pairs (Check), around the placement", all, std::to_string(hits / 2));
     if (kind == collision::BvhKind::kObbRss) {
       int zero = 0;
@@ -175,7 +193,8 @@ int main(int argc, char** argv) {
       });
       row("arm-patient distance, around the placement", dist, std::to_string(zero / 2) + " at 0");
     }
-    std::printf("%-11s %-48s %10.1f ms\n", label.c_str(), "world build (BVHs, allowed pairs)", build_ms);
+    std::printf("%-11s %-48s %10.1f ms\n", label.c_str(), "world build (BVHs, allowed pairs)",
+                build_ms);
   }
   return 0;
 }

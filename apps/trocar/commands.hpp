@@ -3,6 +3,8 @@
 /// Subcommands of the `trocar` executable; each registers itself on the top-level app.
 
 #include <CLI/CLI.hpp>
+#include <ostream>
+#include <string>
 
 namespace trocar::apps {
 
@@ -21,5 +23,12 @@ void AddPatientCommands(CLI::App* app);
 /// `trocar check [--patient DIR] [--port F=x,y,z] [--base x y deg] [--q ...]`: collisions and
 /// clearances of a robot configuration at a patient.
 void AddCheckCommand(CLI::App* app);
+
+/// `trocar plan CASE --out DIR [...]`: ports and cart pose by optimisation.
+void AddPlanCommand(CLI::App* app);
+
+/// Re-checks every claim of a plan file (trocar check --plan); prints what fails.
+/// @return 0 when every claim holds, 3 otherwise. @throws trocar::Error for a malformed file.
+int CheckPlanFile(const std::string& path, std::ostream& out);
 
 }  // namespace trocar::apps

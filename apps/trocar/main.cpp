@@ -1,7 +1,6 @@
 // trocar: port placement and surgeon verification for robot-assisted minimally invasive surgery.
-#include <iostream>
-
 #include <CLI/CLI.hpp>
+#include <iostream>
 
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
@@ -14,6 +13,7 @@ int main(int argc, char** argv) {
   trocar::apps::AddTuneCommand(&app);
   trocar::apps::AddPatientCommands(&app);
   trocar::apps::AddCheckCommand(&app);
+  trocar::apps::AddPlanCommand(&app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -51,8 +51,8 @@ bool ScreenPair(const CollisionWorld::Impl& w, unsigned mask, int a, int b, Pair
 }
 
 // Orders a broadphase pair by body index and screens it (ScreenPair).
-bool Screen(const CollisionWorld::Impl& w, unsigned mask, fcl::CollisionObjectd** o1, fcl::CollisionObjectd** o2,
-            int* a, int* b, PairClass* cls) {
+bool Screen(const CollisionWorld::Impl& w, unsigned mask, fcl::CollisionObjectd** o1,
+            fcl::CollisionObjectd** o2, int* a, int* b, PairClass* cls) {
   *a = BodyOf(*o1);
   *b = BodyOf(*o2);
   if (*a > *b) {
@@ -71,7 +71,8 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
   const CollisionWorld::Impl& w = *d.world;
   const Convex& A = w.convex[a];
   const Convex& B = w.convex[b];
-  const bool swept_a = A.kind == Convex::Kind::kSweptSphere, swept_b = B.kind == Convex::Kind::kSweptSphere;
+  const bool swept_a = A.kind == Convex::Kind::kSweptSphere,
+             swept_b = B.kind == Convex::Kind::kSweptSphere;
   const bool box_a = A.kind == Convex::Kind::kBox, box_b = B.kind == Convex::Kind::kBox;
   if (w.options.exact_mesh_queries && ((swept_a && (swept_b || box_b)) || (box_a && swept_b))) {
     // Closed form: two capsules (or spheres) whose axes are nearer than their radii, or a capsule
@@ -107,7 +108,8 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
     contact.cls = cls;
     // Midway between the two surfaces along the closest points.
     const double r1 = swept_a ? A.radius : 0.0;
-    contact.p_W = gap > 0 ? Eigen::Vector3d(c1 + (r1 + 0.5 * (gap - reach)) / gap * (c2 - c1)) : Eigen::Vector3d(c1);
+    contact.p_W = gap > 0 ? Eigen::Vector3d(c1 + (r1 + 0.5 * (gap - reach)) / gap * (c2 - c1))
+                          : Eigen::Vector3d(c1);
     contact.depth = reach - gap;
     d.report.collision = true;
     d.report.contacts.push_back(contact);
@@ -160,7 +162,8 @@ struct DistanceData {
 };
 
 // FCL's distance between two objects, 0 with a contact point for both witnesses when touching.
-double FclDistance(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, Eigen::Vector3d* p1, Eigen::Vector3d* p2) {
+double FclDistance(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, Eigen::Vector3d* p1,
+                   Eigen::Vector3d* p2) {
   // FCL's own GJK (GST_INDEP) with a tight tolerance: primitives to 1e-6 m and better.
   fcl::DistanceRequestd request(true, false, 0.0, 0.0, 1e-8, fcl::GST_INDEP);
   fcl::DistanceResultd result;
@@ -222,7 +225,8 @@ struct ShapeInMesh {
   Eigen::Isometry3d X_MG = Eigen::Isometry3d::Identity();
   Eigen::Vector3d a_M = Eigen::Vector3d::Zero(), b_M = Eigen::Vector3d::Zero();
 };
-ShapeInMesh InMesh(const CollisionWorld::Impl& w, const fcl::CollisionObjectd& robot_object, int r, int f) {
+ShapeInMesh InMesh(const CollisionWorld::Impl& w, const fcl::CollisionObjectd& robot_object, int r,
+                   int f) {
   ShapeInMesh out;
   out.X_MG = w.X_pose[f].inverse() * robot_object.getTransform();
   out.a_M = out.X_MG * w.convex[r].a_G;
@@ -279,7 +283,8 @@ CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
   if (w.robot) {
     const robot::RobotState rest(*w.robot);
     robot::RobotState state = rest;
-    if (!kinematics::ForwardKinematics(*w.robot, state.q, &state).ok) kinematics::ForwardKinematics(*w.robot, &state);
+    if (!kinematics::ForwardKinematics(*w.robot, state.q, &state).ok)
+      kinematics::ForwardKinematics(*w.robot, &state);
     std::vector<fcl::CollisionObjectd*> robot;
     for (int i : w.robot_bodies) robot.push_back(state_->objects[i].get());
     SetRobotState(state);
@@ -311,8 +316,9 @@ void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
       }
       const ShapeInMesh shape = InMesh(w, *o_r, r, f);
       const int port = PortPair(w, a, b);
-      const Eigen::Vector3d centre_M = port >= 0 ? Eigen::Vector3d(w.X_pose[f].inverse() * port_W[port])
-                                                 : Eigen::Vector3d::Zero();
+      const Eigen::Vector3d centre_M = port >= 0
+                                           ? Eigen::Vector3d(w.X_pose[f].inverse() * port_W[port])
+                                           : Eigen::Vector3d::Zero();
       const double exclude = port >= 0 ? w.options.port_radius : -1.0;
       const SweptSphereContact hit =
           fast == Convex::Kind::kSweptSphere
@@ -367,7 +373,8 @@ void CollisionChecker::State::DistanceRobotFixed(DistanceData& d) {
       query_pair.emplace_back(r, f);
     }
   }
-  auto keep = [&](int r, int f, double distance, const Eigen::Vector3d& p_r, const Eigen::Vector3d& p_f) {
+  auto keep = [&](int r, int f, double distance, const Eigen::Vector3d& p_r,
+                  const Eigen::Vector3d& p_f) {
     const int a = std::min(r, f), b = std::max(r, f);
     if (r < f) {
       Keep(d, distance, a, b, w.Class(a, b), p_r, p_f);
@@ -396,15 +403,16 @@ void CollisionChecker::SetRobotState(const robot::RobotState& state) {
   const CollisionWorld::Impl& w = world_->impl();
   TROCAR_THROW_UNLESS(w.robot, "collision checker: the world has no robot");
   TROCAR_THROW_UNLESS(state.X_WL.size() == static_cast<std::size_t>(w.robot->num_links()),
-                      "collision checker: robot state has " << state.X_WL.size() << " link poses, robot '"
-                                                            << w.robot->name() << "' has "
-                                                            << w.robot->num_links() << " links");
+                      "collision checker: robot state has "
+                          << state.X_WL.size() << " link poses, robot '" << w.robot->name()
+                          << "' has " << w.robot->num_links() << " links");
   // Every pose checked before any is used: a refused state leaves the last one in place.
   for (int i : w.robot_bodies) {
     TROCAR_THROW_UNLESS(state.X_WL[w.bodies[i].link].matrix().allFinite(),
-                        "collision checker: link '" << w.robot->link(w.bodies[i].link).name
-                                                    << "' has a non-finite pose (NaN or infinite joint values or "
-                                                       "base pose?)");
+                        "collision checker: link '"
+                            << w.robot->link(w.bodies[i].link).name
+                            << "' has a non-finite pose (NaN or infinite joint values or "
+                               "base pose?)");
   }
   for (int i : w.robot_bodies) {
     fcl::CollisionObjectd& o = *state_->objects[i];
@@ -412,21 +420,29 @@ void CollisionChecker::SetRobotState(const robot::RobotState& state) {
     o.computeAABB();
   }
   if (state_->robot_tree.size() > 0) state_->robot_tree.update();
+  const std::size_t known = state_->port_W.size();
   state_->port_W.resize(w.ports.size());
   for (std::size_t p = 0; p < w.ports.size(); ++p) {
-    state_->port_W[p] = kinematics::FramePose(state, w.robot->frames()[w.port_frame[p]]).translation();
+    if (w.port_frame[p] >= 0) {
+      state_->port_W[p] =
+          kinematics::FramePose(state, w.robot->frames()[w.port_frame[p]]).translation();
+    } else if (p >= known) {
+      state_->port_W[p] = state.X_WL[w.port_link[p]].translation();
+    }
   }
 }
 
 void CollisionChecker::SetPortPosition(int port, const Eigen::Vector3d& p_W) {
   TROCAR_THROW_UNLESS(port >= 0 && port < static_cast<int>(state_->port_W.size()),
-                      "collision checker: port " << port << " does not exist (" << state_->port_W.size()
-                                                 << " ports)");
+                      "collision checker: port " << port << " does not exist ("
+                                                 << state_->port_W.size() << " ports)");
   TROCAR_THROW_UNLESS(p_W.allFinite(), "collision checker: port position is not finite");
   state_->port_W[port] = p_W;
 }
 
-const Eigen::Vector3d& CollisionChecker::port_position(int port) const { return state_->port_W.at(port); }
+const Eigen::Vector3d& CollisionChecker::port_position(int port) const {
+  return state_->port_W.at(port);
+}
 
 bool CollisionChecker::InCollision(unsigned mask) {
   QueryData d;
@@ -445,8 +461,9 @@ CollisionReport CollisionChecker::Check(unsigned mask) {
   d.mask = mask;
   d.want_contacts = true;
   state_->Collide(d);
-  std::sort(d.report.contacts.begin(), d.report.contacts.end(),
-            [](const Contact& x, const Contact& y) { return std::tie(x.a, x.b) < std::tie(y.a, y.b); });
+  std::sort(
+      d.report.contacts.begin(), d.report.contacts.end(),
+      [](const Contact& x, const Contact& y) { return std::tie(x.a, x.b) < std::tie(y.a, y.b); });
   return d.report;
 }
 

@@ -34,14 +34,15 @@ std::shared_ptr<fcl::CollisionGeometryd> MakeMeshGeometry(const TriangleMesh& me
   return kind == BvhKind::kObb ? MakeBvh<fcl::OBBd>(mesh) : MakeBvh<fcl::OBBRSSd>(mesh);
 }
 
-std::shared_ptr<fcl::CollisionGeometryd> MakeShape(const robot::Geometry& g, BvhKind kind,
-                                                   const std::string& name,
-                                                   std::map<const TriangleMesh*, std::shared_ptr<fcl::CollisionGeometryd>>& meshes) {
+std::shared_ptr<fcl::CollisionGeometryd> MakeShape(
+    const robot::Geometry& g, BvhKind kind, const std::string& name,
+    std::map<const TriangleMesh*, std::shared_ptr<fcl::CollisionGeometryd>>& meshes) {
   using Shape = robot::Geometry::Shape;
   const Eigen::Vector3d& s = g.size;
   auto positive = [&](double x, const char* what) {
-    TROCAR_THROW_UNLESS(std::isfinite(x) && x > 0.0, name << ": " << ToString(g.shape) << " " << what
-                                                          << " = " << x << ", expected a positive length (m)");
+    TROCAR_THROW_UNLESS(std::isfinite(x) && x > 0.0, name << ": " << ToString(g.shape) << " "
+                                                          << what << " = " << x
+                                                          << ", expected a positive length (m)");
   };
   std::shared_ptr<fcl::CollisionGeometryd> out;
   switch (g.shape) {
@@ -78,7 +79,8 @@ std::shared_ptr<fcl::CollisionGeometryd> MakeShape(const robot::Geometry& g, Bvh
 }
 
 bool EndsWith(const std::string& s, const std::string& suffix) {
-  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+  return s.size() >= suffix.size() &&
+         s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
 // Links of the subtree rooted at `link`, the root first.
@@ -127,8 +129,9 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
     for (std::size_t i = 0; i < model.frames().size(); ++i) {
       if (model.frames()[i].name == name) frame = static_cast<int>(i);
     }
-    TROCAR_THROW_UNLESS(frame >= 0, "collision world: port frame '" << name << "' is not a frame of robot '"
-                                                                    << model.name() << "'");
+    TROCAR_THROW_UNLESS(frame >= 0, "collision world: port frame '"
+                                        << name << "' is not a frame of robot '" << model.name()
+                                        << "'");
     const int link = model.frames()[frame].link;
     int insertion = -1;
     for (int l : Subtree(model, link)) {
@@ -140,8 +143,10 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
       }
     }
     if (insertion < 0) {
-      TROCAR_THROW_UNLESS(automatic, "collision world: port frame '" << name << "' has no insertion "
-                                                                      "(prismatic active) joint below it");
+      TROCAR_THROW_UNLESS(automatic, "collision world: port frame '"
+                                         << name
+                                         << "' has no insertion "
+                                            "(prismatic active) joint below it");
       continue;
     }
     Port port;
@@ -151,6 +156,23 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
     for (int l : port.links) port_of[l] = static_cast<int>(w.ports.size());
     w.ports.push_back(port);
     w.port_frame.push_back(frame);
+    w.port_link.push_back(link);
+  }
+  for (const auto& name : w.options.shaft_ports) {
+    const int link = model.FindLink(name);
+    TROCAR_THROW_UNLESS(link >= 0, "collision world: shaft port link '"
+                                       << name << "' is not a link of robot '" << model.name()
+                                       << "'");
+    TROCAR_THROW_UNLESS(port_of[link] < 0, "collision world: link '"
+                                               << name << "' is already an instrument of port '"
+                                               << w.ports[port_of[link]].frame << "'");
+    Port port;
+    port.arm = arm_of[link];
+    port.links = Subtree(model, link);
+    for (int l : port.links) port_of[l] = static_cast<int>(w.ports.size());
+    w.ports.push_back(port);
+    w.port_frame.push_back(-1);
+    w.port_link.push_back(link);
   }
   std::map<const TriangleMesh*, std::shared_ptr<fcl::CollisionGeometryd>> meshes;
   for (int l = 0; l < model.num_links(); ++l) {
@@ -163,10 +185,12 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
       b.arm = arm_of[l];
       b.port = port_of[l];
       const robot::Geometry& g = link.collisions[s];
-      w.geometry.push_back(MakeShape(g, kind, "robot '" + model.name() + "' link '" + b.name + "'", meshes));
+      w.geometry.push_back(
+          MakeShape(g, kind, "robot '" + model.name() + "' link '" + b.name + "'", meshes));
       using Convex = CollisionWorld::Impl::Convex;
       Convex convex;
-      if (g.shape == robot::Geometry::Shape::kCapsule || g.shape == robot::Geometry::Shape::kSphere) {
+      if (g.shape == robot::Geometry::Shape::kCapsule ||
+          g.shape == robot::Geometry::Shape::kSphere) {
         convex.kind = Convex::Kind::kSweptSphere;
         convex.radius = g.size.x();
         if (g.shape == robot::Geometry::Shape::kCapsule) {
@@ -179,7 +203,8 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
       }
       w.convex.push_back(convex);
       w.mesh.push_back(nullptr);
-      if (g.shape == robot::Geometry::Shape::kMesh) b.triangles = static_cast<long>(g.mesh->triangles.size());
+      if (g.shape == robot::Geometry::Shape::kMesh)
+        b.triangles = static_cast<long>(g.mesh->triangles.size());
       w.X_pose.push_back(g.X_LG);
       w.robot_bodies.push_back(static_cast<int>(w.bodies.size()));
       w.bodies.push_back(b);
@@ -188,7 +213,8 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
 }
 
 void AddFixedMesh(CollisionWorld::Impl& w, const std::string& name, const TriangleMesh& mesh,
-                  const Eigen::Isometry3d& X_WM, bool patient, bool skin, const std::string& context) {
+                  const Eigen::Isometry3d& X_WM, bool patient, bool skin,
+                  const std::string& context) {
   Body b;
   b.name = name;
   b.kind = patient ? Body::Kind::kPatient : Body::Kind::kFixed;
@@ -196,7 +222,8 @@ void AddFixedMesh(CollisionWorld::Impl& w, const std::string& name, const Triang
   b.triangles = static_cast<long>(mesh.triangles.size());
   w.geometry.push_back(MakeMeshGeometry(mesh, w.options.bvh, context));
   w.convex.emplace_back();
-  w.mesh.push_back(w.options.exact_mesh_queries ? std::make_shared<const TriangleBvh>(mesh) : nullptr);
+  w.mesh.push_back(w.options.exact_mesh_queries ? std::make_shared<const TriangleBvh>(mesh)
+                                                : nullptr);
   w.X_pose.push_back(X_WM);
   w.fixed_bodies.push_back(static_cast<int>(w.bodies.size()));
   w.triangles += b.triangles;
@@ -225,7 +252,8 @@ PairClass ClassOf(const Body& a, const Body& b) {
   if (ra && rb) return a.arm == b.arm && a.arm >= 0 ? PairClass::kSelf : PairClass::kArmArm;
   const Body& r = ra ? a : b;
   const Body& f = ra ? b : a;
-  if (f.kind == Body::Kind::kPatient) return r.port >= 0 ? PairClass::kInstrumentPatient : PairClass::kArmPatient;
+  if (f.kind == Body::Kind::kPatient)
+    return r.port >= 0 ? PairClass::kInstrumentPatient : PairClass::kArmPatient;
   return PairClass::kArmTable;
 }
 
@@ -235,12 +263,18 @@ const char* ToString(BvhKind kind) { return kind == BvhKind::kObb ? "OBB" : "OBB
 
 const char* ToString(PairClass cls) {
   switch (cls) {
-    case PairClass::kArmArm: return "arm-arm";
-    case PairClass::kArmPatient: return "arm-patient";
-    case PairClass::kInstrumentPatient: return "instrument-patient";
-    case PairClass::kArmTable: return "arm-table";
-    case PairClass::kSelf: return "self";
-    case PairClass::kPatientTable: return "patient-table";
+    case PairClass::kArmArm:
+      return "arm-arm";
+    case PairClass::kArmPatient:
+      return "arm-patient";
+    case PairClass::kInstrumentPatient:
+      return "instrument-patient";
+    case PairClass::kArmTable:
+      return "arm-table";
+    case PairClass::kSelf:
+      return "self";
+    case PairClass::kPatientTable:
+      return "patient-table";
   }
   return "?";
 }
@@ -264,10 +298,9 @@ int CollisionWorld::FindBody(const std::string& name) const {
   return -1;
 }
 
-std::shared_ptr<const CollisionWorld> CollisionWorld::Build(const patient::PatientModel* patient,
-                                                            std::shared_ptr<const robot::RobotModel> robot,
-                                                            const WorldOptions& options,
-                                                            const std::vector<AllowedPair>& allowed) {
+std::shared_ptr<const CollisionWorld> CollisionWorld::Build(
+    const patient::PatientModel* patient, std::shared_ptr<const robot::RobotModel> robot,
+    const WorldOptions& options, const std::vector<AllowedPair>& allowed) {
   std::vector<FixedMesh> meshes;
   if (patient) {
     for (const auto& s : patient->structures) {
@@ -280,24 +313,23 @@ std::shared_ptr<const CollisionWorld> CollisionWorld::Build(const patient::Patie
       meshes.push_back(std::move(m));
     }
   }
-  return BuildWith(meshes, patient && options.add_table ? &patient->table : nullptr, std::move(robot),
-                   options, allowed);
+  return BuildWith(meshes, patient && options.add_table ? &patient->table : nullptr,
+                   std::move(robot), options, allowed);
 }
 
-std::shared_ptr<const CollisionWorld> CollisionWorld::Build(const std::vector<FixedMesh>& meshes,
-                                                            std::shared_ptr<const robot::RobotModel> robot,
-                                                            const WorldOptions& options,
-                                                            const std::vector<AllowedPair>& allowed) {
+std::shared_ptr<const CollisionWorld> CollisionWorld::Build(
+    const std::vector<FixedMesh>& meshes, std::shared_ptr<const robot::RobotModel> robot,
+    const WorldOptions& options, const std::vector<AllowedPair>& allowed) {
   return BuildWith(meshes, nullptr, std::move(robot), options, allowed);
 }
 
-std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(const std::vector<FixedMesh>& meshes,
-                                                                const patient::Table* table,
-                                                                std::shared_ptr<const robot::RobotModel> robot,
-                                                                const WorldOptions& options,
-                                                                const std::vector<AllowedPair>& allowed) {
-  TROCAR_THROW_UNLESS(std::isfinite(options.port_radius) && options.port_radius >= 0.0,
-                      "collision world: port_radius = " << options.port_radius << ", expected >= 0 m");
+std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(
+    const std::vector<FixedMesh>& meshes, const patient::Table* table,
+    std::shared_ptr<const robot::RobotModel> robot, const WorldOptions& options,
+    const std::vector<AllowedPair>& allowed) {
+  TROCAR_THROW_UNLESS(
+      std::isfinite(options.port_radius) && options.port_radius >= 0.0,
+      "collision world: port_radius = " << options.port_radius << ", expected >= 0 m");
   auto impl = std::make_unique<Impl>();
   impl->options = options;
   impl->robot = std::move(robot);
@@ -401,8 +433,8 @@ std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(const std::vecto
           out.push_back(static_cast<int>(i));
         }
       }
-      TROCAR_THROW_UNLESS(!out.empty(), "collision world: allowed pair names '" << name
-                                                                                << "', which is no body or link");
+      TROCAR_THROW_UNLESS(!out.empty(), "collision world: allowed pair names '"
+                                            << name << "', which is no body or link");
       return out;
     };
     for (int a : matches(p.a)) {
@@ -435,11 +467,13 @@ std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(const std::vecto
           }
         }
         Eigen::VectorXd q(model.num_positions());
-        for (int i = 0; i < model.num_positions(); ++i) q[i] = sample(model.joint(model.active_joints()[i]).limits);
+        for (int i = 0; i < model.num_positions(); ++i)
+          q[i] = sample(model.joint(model.active_joints()[i]).limits);
         if (!kinematics::ForwardKinematics(model, q, &trial).ok) continue;
         ++valid;
         checker.SetRobotState(trial);
-        for (const auto& c : checker.Check(Bit(PairClass::kSelf) | Bit(PairClass::kArmArm)).contacts) {
+        for (const auto& c :
+             checker.Check(Bit(PairClass::kSelf) | Bit(PairClass::kArmArm)).contacts) {
           ++touching[{c.a, c.b}];
         }
       }

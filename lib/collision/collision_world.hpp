@@ -5,8 +5,9 @@
 /// Model/state split (design.md): a CollisionWorld holds the immutable shared geometry — one BVH
 /// per patient structure and per robot mesh, primitives for capsules and boxes, and for each
 /// patient structure our own exact hierarchy (triangle_bvh.hpp) that answers the robot's
-/// capsules, spheres and boxes against it — and the rules (allowed pairs, ports). A CollisionChecker, one per thread, owns its FCL objects and their
-/// poses and answers the queries. Checkers share the world's geometry and never modify it.
+/// capsules, spheres and boxes against it — and the rules (allowed pairs, ports). A
+/// CollisionChecker, one per thread, owns its FCL objects and their poses and answers the queries.
+/// Checkers share the world's geometry and never modify it.
 ///
 /// Ports: an instrument's shaft passes through the skin at its own port by design. A robot link
 /// below an arm's insertion joint is an *instrument* link of that arm's port (the RCM frame);
@@ -14,12 +15,11 @@
 /// anywhere else are. Distances between instrument links and the skin are not reported (they
 /// are zero by design at the port); instrument links against bones and organs are.
 
+#include <Eigen/Geometry>
 #include <limits>
 #include <memory>
 #include <string>
 #include <vector>
-
-#include <Eigen/Geometry>
 
 #include "common/mesh.hpp"
 #include "robot/robot_model.hpp"
@@ -28,7 +28,7 @@
 namespace trocar::patient {
 struct PatientModel;
 struct Table;
-}
+}  // namespace trocar::patient
 
 namespace trocar::collision {
 
@@ -42,7 +42,8 @@ const char* ToString(BvhKind kind);
 enum class PairClass {
   kArmArm,             ///< robot links of two different arms (or an arm and the cart)
   kArmPatient,         ///< a robot link (not an instrument) and a patient structure
-  kInstrumentPatient,  ///< an instrument link and a patient structure (ribs, heart; skin away from the port)
+  kInstrumentPatient,  ///< an instrument link and a patient structure (ribs, heart; skin away from
+                       ///< the port)
   kArmTable,           ///< a robot link and the table (or another fixed obstacle)
   kSelf,               ///< two links of the same arm that are not allowed to touch
   kPatientTable,       ///< never queried: fixed bodies do not move relative to each other
@@ -51,19 +52,19 @@ const char* ToString(PairClass cls);
 /// Bit for a PairClass in a class mask.
 constexpr unsigned Bit(PairClass cls) { return 1u << static_cast<unsigned>(cls); }
 constexpr unsigned kAllMovingPairs = Bit(PairClass::kArmArm) | Bit(PairClass::kArmPatient) |
-                                     Bit(PairClass::kInstrumentPatient) | Bit(PairClass::kArmTable) |
-                                     Bit(PairClass::kSelf);
+                                     Bit(PairClass::kInstrumentPatient) |
+                                     Bit(PairClass::kArmTable) | Bit(PairClass::kSelf);
 
 /// One collision object: a shape of a robot link, a patient structure, the table.
 struct Body {
   enum class Kind { kRobot, kPatient, kFixed };
-  std::string name;   ///< "psm1_yaw_link", "psm1_insertion_link#1" (second shape), "skin", "table"
+  std::string name;  ///< "psm1_yaw_link", "psm1_insertion_link#1" (second shape), "skin", "table"
   Kind kind = Kind::kFixed;
-  int link = -1;      ///< robot link index (robot bodies)
-  int arm = -1;       ///< robot: index into CollisionWorld::arms(); -1 for the robot's base link
-  int port = -1;      ///< robot: the port its link passes through (an instrument link), else -1
-  bool skin = false;  ///< the patient's skin (where ports are)
-  long triangles = 0; ///< mesh bodies
+  int link = -1;       ///< robot link index (robot bodies)
+  int arm = -1;        ///< robot: index into CollisionWorld::arms(); -1 for the robot's base link
+  int port = -1;       ///< robot: the port its link passes through (an instrument link), else -1
+  bool skin = false;   ///< the patient's skin (where ports are)
+  long triangles = 0;  ///< mesh bodies
 };
 
 /// An arm: a subtree hanging from the robot's base link (a da Vinci cart has psm1, psm2, ecm).
@@ -74,7 +75,7 @@ struct Arm {
 
 /// A port: the remote centre of motion of an arm, and the links passing through it.
 struct Port {
-  std::string frame;       ///< the robot frame at the port, e.g. "psm1_rcm"
+  std::string frame;  ///< the robot frame at the port, e.g. "psm1_rcm"; "" for a shaft port
   int arm = -1;
   std::vector<int> links;  ///< instrument links (below the arm's insertion joint)
 };
@@ -86,6 +87,10 @@ struct WorldOptions {
   /// Ports: robot frames at the RCMs; empty: every frame whose name ends in "rcm" whose link has
   /// a prismatic (insertion) joint below it.
   std::vector<std::string> port_frames;
+  /// Ports without an RCM frame (an arm holding its instrument through a port in software): the
+  /// named link and every link below it are that port's instrument; the port's position is set
+  /// with CollisionChecker::SetPortPosition (until then, the link's origin).
+  std::vector<std::string> shaft_ports;
   bool add_table = true;
   /// Capsules, spheres and boxes against the patient's meshes by our exact hierarchy
   /// (triangle_bvh.hpp), and capsule–capsule and capsule–box collisions in closed form: mesh
@@ -142,7 +147,8 @@ class CollisionWorld {
   const WorldOptions& options() const;
   /// Whether a pair of bodies is never checked (allowed to touch).
   bool Allowed(int a, int b) const;
-  /// Number of robot body pairs allowed automatically (adjacent or always touching) and by the caller.
+  /// Number of robot body pairs allowed automatically (adjacent or always touching) and by the
+  /// caller.
   int auto_allowed_pairs() const;
   PairClass Classify(int a, int b) const;
   int FindBody(const std::string& name) const;
@@ -153,11 +159,10 @@ class CollisionWorld {
 
  private:
   explicit CollisionWorld(std::unique_ptr<Impl> impl);
-  static std::shared_ptr<const CollisionWorld> BuildWith(const std::vector<FixedMesh>& meshes,
-                                                         const patient::Table* table,
-                                                         std::shared_ptr<const robot::RobotModel> robot,
-                                                         const WorldOptions& options,
-                                                         const std::vector<AllowedPair>& allowed);
+  static std::shared_ptr<const CollisionWorld> BuildWith(
+      const std::vector<FixedMesh>& meshes, const patient::Table* table,
+      std::shared_ptr<const robot::RobotModel> robot, const WorldOptions& options,
+      const std::vector<AllowedPair>& allowed);
   std::unique_ptr<Impl> impl_;
 };
 
@@ -196,7 +201,8 @@ class CollisionChecker {
   CollisionChecker& operator=(const CollisionChecker&) = delete;
 
   /// Places the robot's shapes from `state.X_WL` (after kinematics::ForwardKinematics); each
-  /// port follows its RCM frame.
+  /// port follows its RCM frame (a shaft port keeps the position last set, or starts at its
+  /// link's origin).
   void SetRobotState(const robot::RobotState& state);
   /// Puts a port somewhere other than its RCM frame (until the next SetRobotState).
   void SetPortPosition(int port, const Eigen::Vector3d& p_W);

@@ -2,11 +2,11 @@
 // Private to lib/collision: the FCL side of CollisionWorld. Not installed, not included by any
 // public header.
 
+#include <fcl/fcl.h>
+
 #include <memory>
 #include <mutex>
 #include <vector>
-
-#include <fcl/fcl.h>
 
 #include "collision/collision_world.hpp"
 #include "collision/triangle_bvh.hpp"
@@ -35,9 +35,11 @@ struct CollisionWorld::Impl {
   std::vector<std::shared_ptr<const TriangleBvh>> mesh;  ///< per body: fixed meshes, else null
   std::vector<Arm> arms;
   std::vector<Port> ports;
-  std::vector<int> port_frame;  ///< index into robot->frames()
+  std::vector<int>
+      port_frame;  ///< index into robot->frames(); -1 for a shaft port (its link in port_link)
+  std::vector<int> port_link;
   std::vector<int> robot_bodies, fixed_bodies;
-  std::vector<char> allowed;  ///< bodies × bodies
+  std::vector<char> allowed;       ///< bodies × bodies
   std::vector<PairClass> classes;  ///< bodies × bodies
   int auto_allowed = 0;
   long triangles = 0;

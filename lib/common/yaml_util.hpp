@@ -1,14 +1,14 @@
 #pragma once
 /// @file
 /// Reading YAML with errors that name file, line, column and field path. Internal to
-/// trocar::core (yaml-cpp is linked privately): include it only from .cpp files in lib/.
+/// trocar (yaml-cpp is linked privately): include it only from .cpp files (lib/, planners/).
 
+#include <yaml-cpp/yaml.h>
+
+#include <Eigen/Core>
 #include <initializer_list>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
-#include <yaml-cpp/yaml.h>
 
 namespace trocar {
 
@@ -24,8 +24,7 @@ class YamlReader {
   std::string Where(const YAML::Node& node, const std::string& path) const;
 
   /// node[key], which must exist. @throws naming `path.key` when missing.
-  YAML::Node Require(const YAML::Node& map, const std::string& key,
-                     const std::string& path) const;
+  YAML::Node Require(const YAML::Node& map, const std::string& key, const std::string& path) const;
   /// The node must be a map whose keys are all in `allowed` (catches typos).
   void ExpectMap(const YAML::Node& node, const std::string& path,
                  std::initializer_list<const char*> allowed) const;

@@ -44,7 +44,8 @@ Eigen::Vector3d NearestSurfaceNormal(const TriangleMesh& mesh, const Eigen::Vect
   Eigen::Vector3d n = Eigen::Vector3d::Zero();
   for (const auto& t : mesh.triangles) {
     if (t[0] != int(best) && t[1] != int(best) && t[2] != int(best)) continue;
-    n += (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
+    n += (mesh.vertices[t[1]] - mesh.vertices[t[0]])
+             .cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
   }
   TROCAR_THROW_UNLESS(n.norm() > 0.0, mesh.source << ": vertex " << best << " has no triangles");
   return n.normalized();
@@ -66,8 +67,8 @@ Eigen::Isometry3d PoseOnTable(const TriangleMesh& skin, double left_side_up, con
   }
   Eigen::Isometry3d X_WP = Eigen::Isometry3d::Identity();
   X_WP.linear() = R_WP;
-  X_WP.translation() = Eigen::Vector3d(-0.5 * (lo.x() + hi.x()), -0.5 * (lo.y() + hi.y()),
-                                       table.height - lo.z());
+  X_WP.translation() =
+      Eigen::Vector3d(-0.5 * (lo.x() + hi.x()), -0.5 * (lo.y() + hi.y()), table.height - lo.z());
   return X_WP;
 }
 
@@ -285,14 +286,15 @@ CaseSpec ReadCase(const std::string& case_dir) {
   const YAML::Node& root = y.root();
   y.ExpectMap(root, "patient.yaml",
               {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
-               "port_candidates", "intercostal", "surfaces"});
+               "port_candidates", "intercostal", "surfaces", "plan"});  // plan: read by trocar plan
   c.name = root["name"] ? y.String(root["name"], "name")
                         : std::filesystem::path(case_dir).filename().string();
   c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
   if (root["phantom"]) {
     const YAML::Node ph = root["phantom"];
-    y.ExpectMap(ph, "phantom", {"seed", "body_width", "body_depth", "length", "ribs_per_side",
-                                "rib_spacing", "heart_scale", "voxel_size"});
+    y.ExpectMap(ph, "phantom",
+                {"seed", "body_width", "body_depth", "length", "ribs_per_side", "rib_spacing",
+                 "heart_scale", "voxel_size"});
     c.has_phantom = true;
     PhantomParameters& p = c.phantom;
     // Whole numbers in range before the casts (a cast of a negative or huge double is undefined).
@@ -300,7 +302,8 @@ CaseSpec ReadCase(const std::string& case_dir) {
       const double n = y.NumberOr(ph, key, "phantom", fallback);
       TROCAR_THROW_UNLESS(n == std::floor(n) && n >= lo && n <= hi,
                           y.Where(ph[key], std::string("phantom.") + key)
-                              << ": " << n << " (expected a whole number in " << lo << ".." << hi << ")");
+                              << ": " << n << " (expected a whole number in " << lo << ".." << hi
+                              << ")");
       return n;
     };
     p.seed = static_cast<unsigned>(whole("seed", p.seed, 0, 4294967295.0));
@@ -314,8 +317,9 @@ CaseSpec ReadCase(const std::string& case_dir) {
   }
   if (root["units"]) {
     const std::string u = y.String(root["units"], "units");
-    TROCAR_THROW_UNLESS(u == "hounsfield" || u == "raw",
-                        y.Where(root["units"], "units") << ": '" << u << "' (expected hounsfield or raw)");
+    TROCAR_THROW_UNLESS(u == "hounsfield" || u == "raw", y.Where(root["units"], "units")
+                                                             << ": '" << u
+                                                             << "' (expected hounsfield or raw)");
     c.units = u == "hounsfield" ? 1 : 2;
   }
   if (root["thresholds"]) {
@@ -325,15 +329,17 @@ CaseSpec ReadCase(const std::string& case_dir) {
     if (t["body"]) c.seg.body_hu = c.seg.raw_body = y.Number(t["body"], "thresholds.body");
     if (t["bone"]) c.seg.bone_hu = c.seg.raw_bone = y.Number(t["bone"], "thresholds.bone");
     TROCAR_THROW_UNLESS(c.seg.body_hu < c.seg.bone_hu && c.seg.raw_body < c.seg.raw_bone,
-                        y.Where(t, "thresholds") << ": the body threshold must be below the bone threshold");
+                        y.Where(t, "thresholds")
+                            << ": the body threshold must be below the bone threshold");
   }
   if (root["heart"]) {
     const YAML::Node h = root["heart"];
     y.ExpectMap(h, "heart", {"mask", "threshold", "contrast", "blood", "soft", "opening_radius"});
     if (h["mask"]) {
       c.heart_mask = JoinPath(case_dir, y.String(h["mask"], "heart.mask"));
-      TROCAR_THROW_UNLESS(IsRegularFile(c.heart_mask),
-                          y.Where(h["mask"], "heart.mask") << ": file " << c.heart_mask << " not found");
+      TROCAR_THROW_UNLESS(IsRegularFile(c.heart_mask), y.Where(h["mask"], "heart.mask")
+                                                           << ": file " << c.heart_mask
+                                                           << " not found");
       c.heart_mask_threshold = y.NumberOr(h, "threshold", "heart", 0.5);
     }
     if (h["contrast"]) c.heart_contrast = y.Bool(h["contrast"], "heart.contrast");
@@ -356,9 +362,9 @@ CaseSpec ReadCase(const std::string& case_dir) {
     c.table.height = y.NumberOr(t, "height", "table", c.table.height);
     c.table.width = y.NumberOr(t, "width", "table", c.table.width);
     c.table.length = y.NumberOr(t, "length", "table", c.table.length);
-    TROCAR_THROW_UNLESS(c.table.height > 0.3 && c.table.height < 1.5 && c.table.width > 0.2 &&
-                            c.table.length > 0.5,
-                        y.Where(t, "table") << ": table height 0.3-1.5 m, width > 0.2 m, length > 0.5 m expected");
+    TROCAR_THROW_UNLESS(
+        c.table.height > 0.3 && c.table.height < 1.5 && c.table.width > 0.2 && c.table.length > 0.5,
+        y.Where(t, "table") << ": table height 0.3-1.5 m, width > 0.2 m, length > 0.5 m expected");
   }
   if (root["targets"]) {
     y.ExpectSequence(root["targets"], "targets");
@@ -371,20 +377,23 @@ CaseSpec ReadCase(const std::string& case_dir) {
       s.markups = JoinPath(case_dir, y.String(y.Require(t, "markups", path), path + ".markups"));
       // A phantom case generates its markups with its CT on first use.
       const bool generated = c.has_phantom && !std::filesystem::exists(c.ct);
-      TROCAR_THROW_UNLESS(generated || IsRegularFile(s.markups), y.Where(t["markups"], path + ".markups")
-                                                        << ": file " << s.markups << " not found");
+      TROCAR_THROW_UNLESS(generated || IsRegularFile(s.markups),
+                          y.Where(t["markups"], path + ".markups")
+                              << ": file " << s.markups << " not found");
       if (t["surface"]) {
         s.surface = y.String(t["surface"], path + ".surface");
-        TROCAR_THROW_UNLESS(s.surface == "skin" || s.surface == "ribs" || s.surface == "sternum" ||
-                                s.surface == "spine" || s.surface == "heart",
-                            y.Where(t["surface"], path + ".surface")
-                                << ": surface '" << s.surface
-                                << "' is not a structure of the model (skin, ribs, sternum, spine, heart)");
+        TROCAR_THROW_UNLESS(
+            s.surface == "skin" || s.surface == "ribs" || s.surface == "sternum" ||
+                s.surface == "spine" || s.surface == "heart",
+            y.Where(t["surface"], path + ".surface")
+                << ": surface '" << s.surface
+                << "' is not a structure of the model (skin, ribs, sternum, spine, heart)");
       }
       if (t["facing"]) {
         const std::string f = y.String(t["facing"], path + ".facing");
-        TROCAR_THROW_UNLESS(f == "outward" || f == "inward", y.Where(t["facing"], path + ".facing")
-                                                                 << ": '" << f << "' (expected outward or inward)");
+        TROCAR_THROW_UNLESS(f == "outward" || f == "inward",
+                            y.Where(t["facing"], path + ".facing")
+                                << ": '" << f << "' (expected outward or inward)");
         s.inward = f == "inward";
       }
       if (t["normals"]) {
@@ -421,7 +430,8 @@ CaseSpec ReadCase(const std::string& case_dir) {
       if (!s[key]) return;
       const double n = y.Number(s[key], std::string("surfaces.") + key);
       TROCAR_THROW_UNLESS(n >= 100 && n <= 5e6, y.Where(s[key], std::string("surfaces.") + key)
-                                                    << ": triangle budget " << n << " outside 100..5000000");
+                                                    << ": triangle budget " << n
+                                                    << " outside 100..5000000");
       *v = static_cast<int>(n);
     };
     budget("skin", &c.budgets.skin);
@@ -517,7 +527,8 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   CaseSpec c = ReadCase(case_dir);
   if (c.has_phantom && !std::filesystem::exists(c.ct)) {
     stage("generate phantom", [&] {
-      WritePhantomCase(GeneratePhantom(c.phantom), case_dir, CtFormat::kNrrdLps, /*write_patient_yaml=*/false);
+      WritePhantomCase(GeneratePhantom(c.phantom), case_dir, CtFormat::kNrrdLps,
+                       /*write_patient_yaml=*/false);
     });
   }
   // The key needs the CT's files (a detached data file too): read the header cheaply by loading.
@@ -532,7 +543,8 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       cached.case_dir = case_dir;
       cached.from_cache = true;
       cached.timings = timings;
-      cached.timings.emplace_back("load cache", std::chrono::duration<double>(Clock::now() - t0).count());
+      cached.timings.emplace_back("load cache",
+                                  std::chrono::duration<double>(Clock::now() - t0).count());
       return cached;
     }
   }
@@ -576,7 +588,8 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   };
   stage("surfaces", [&] {
     add("skin", seg.body, c.budgets.skin);
-    add("ribs", LabelMask(ct, seg.bones.labels, {&seg.bones.ribs_left, &seg.bones.ribs_right}), c.budgets.ribs);
+    add("ribs", LabelMask(ct, seg.bones.labels, {&seg.bones.ribs_left, &seg.bones.ribs_right}),
+        c.budgets.ribs);
     add("sternum", LabelMask(ct, seg.bones.labels, {&seg.bones.sternum}), c.budgets.sternum);
     add("spine", LabelMask(ct, seg.bones.labels, {&seg.bones.spine}), c.budgets.spine);
     if (have_heart) add("heart", heart, c.budgets.heart);
@@ -620,9 +633,9 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     }
     if (m.port_candidates.empty()) {
       for (const auto& space : FindIntercostalSpaces(ct, seg, c.intercostal)) {
-        m.port_candidates.push_back({std::string(space.side > 0 ? "ICS-L" : "ICS-R") +
-                                         std::to_string(space.upper_rib + 1),
-                                     space.skin, "intercostal"});
+        m.port_candidates.push_back(
+            {std::string(space.side > 0 ? "ICS-L" : "ICS-R") + std::to_string(space.upper_rib + 1),
+             space.skin, "intercostal"});
       }
     }
   });

@@ -1,13 +1,13 @@
 // The `trocar` command line as a user runs it: exit codes, output and error messages.
-#include <array>
-#include <filesystem>
-#include <fstream>
-#include <cstdio>
-#include <regex>
-#include <string>
+#include <gtest/gtest.h>
 #include <sys/wait.h>
 
-#include <gtest/gtest.h>
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <string>
 
 #include "common/file_util.hpp"
 #include "common/plot.hpp"
@@ -36,14 +36,12 @@ CommandRun Trocar(const std::string& arguments) {
 }
 
 TEST(TrocarRobotInfo, DescribesEveryBundledRobot) {
-  for (const char* file : {"robots/pa10/pa10.yaml", "robots/pa10/pa10.urdf",
-                           "robots/pa10/pa10_instrument.yaml",
-                           "robots/prismatic-test/prismatic10.yaml",
-                           "robots/parallelogram/parallelogram.urdf",
-                           "robots/davinci-classic/psm.yaml", "robots/davinci-classic/psm_si.yaml",
-                           "robots/davinci-classic/ecm.yaml", "robots/davinci-classic/ecm_30.yaml",
-                           "robots/davinci-classic/suj_psm.yaml",
-                           "robots/davinci-classic/suj_ecm.yaml"}) {
+  for (const char* file :
+       {"robots/pa10/pa10.yaml", "robots/pa10/pa10.urdf", "robots/pa10/pa10_instrument.yaml",
+        "robots/prismatic-test/prismatic10.yaml", "robots/parallelogram/parallelogram.urdf",
+        "robots/davinci-classic/psm.yaml", "robots/davinci-classic/psm_si.yaml",
+        "robots/davinci-classic/ecm.yaml", "robots/davinci-classic/ecm_30.yaml",
+        "robots/davinci-classic/suj_psm.yaml", "robots/davinci-classic/suj_ecm.yaml"}) {
     const CommandRun run = Trocar("robot info " + test::SourcePath(file));
     EXPECT_EQ(run.exit_code, 0) << file << "\n" << run.output;
     EXPECT_NE(run.output.find("tool pose at q = 0"), std::string::npos) << run.output;
@@ -54,7 +52,8 @@ TEST(TrocarRobotInfo, DescribesEveryBundledRobot) {
 TEST(TrocarRobotInfo, PrintsTheDhTableAndTheClosure) {
   const CommandRun pa10 = Trocar("robot info " + test::SourcePath("robots/pa10/pa10.urdf"));
   EXPECT_NE(pa10.output.find("equivalent DH table"), std::string::npos) << pa10.output;
-  const CommandRun loop = Trocar("robot info " + test::SourcePath("robots/parallelogram/parallelogram.urdf"));
+  const CommandRun loop =
+      Trocar("robot info " + test::SourcePath("robots/parallelogram/parallelogram.urdf"));
   EXPECT_NE(loop.output.find("closure 'pitch_parallelogram': driver crank_joint"),
             std::string::npos)
       << loop.output;
@@ -106,16 +105,17 @@ TEST(TrocarRobotFk, WrongCountAndOutOfLimitValuesAreClearErrors) {
 }
 
 TEST(TrocarRobotFk, AClosureOutOfRangeIsReportedNotCrashed) {
-  const CommandRun run = Trocar("robot fk " +
-                         test::SourcePath("robots/parallelogram/parallelogram.urdf") +
-                         " 0 1.7 0 --ignore-limits");
+  const CommandRun run =
+      Trocar("robot fk " + test::SourcePath("robots/parallelogram/parallelogram.urdf") +
+             " 0 1.7 0 --ignore-limits");
   EXPECT_EQ(run.exit_code, 3);
   EXPECT_NE(run.output.find("not reachable: closure 'pitch_parallelogram'"), std::string::npos)
       << run.output;
 }
 
 TEST(TrocarRobotInfo, ShowsTheWholeDaVinciCart) {
-  const CommandRun run = Trocar("robot info " + test::SourcePath("robots/davinci-classic/cart.yaml"));
+  const CommandRun run =
+      Trocar("robot info " + test::SourcePath("robots/davinci-classic/cart.yaml"));
   EXPECT_EQ(run.exit_code, 0) << run.output;
   EXPECT_NE(run.output.find("18 active, 16 held"), std::string::npos) << run.output;
   EXPECT_NE(run.output.find("psm2_rcm on link"), std::string::npos) << run.output;
@@ -124,15 +124,14 @@ TEST(TrocarRobotInfo, ShowsTheWholeDaVinciCart) {
 
 TEST(TrocarRobotSuj, PlacesAnRcmOrSaysHowFarOffItIs) {
   const std::string cart = test::SourcePath("robots/davinci-classic/cart.yaml");
-  const CommandRun ok = Trocar("robot suj " + cart +
-                               " --frame psm1_rcm --position 0.9 -0.15 1.1 --axis 0.2 0 -1");
+  const CommandRun ok =
+      Trocar("robot suj " + cart + " --frame psm1_rcm --position 0.9 -0.15 1.1 --axis 0.2 0 -1");
   EXPECT_EQ(ok.exit_code, 0) << ok.output;
   EXPECT_NE(ok.output.find("frame 'psm1_rcm' placed within"), std::string::npos) << ok.output;
   EXPECT_NE(ok.output.find("psm1_suj_wrist_3"), std::string::npos) << ok.output;
   const CommandRun far = Trocar("robot suj " + cart + " --frame ecm_rcm --position 5 0 1");
   EXPECT_EQ(far.exit_code, 3) << far.output;
-  EXPECT_NE(far.output.find("unreachable: frame 'ecm_rcm' stays"), std::string::npos)
-      << far.output;
+  EXPECT_NE(far.output.find("unreachable: frame 'ecm_rcm' stays"), std::string::npos) << far.output;
   const CommandRun bad = Trocar("robot suj " + cart + " --frame psm9_rcm --position 1 0 1");
   EXPECT_EQ(bad.exit_code, 1) << bad.output;
   EXPECT_NE(bad.output.find("has no frame 'psm9_rcm'"), std::string::npos) << bad.output;
@@ -141,15 +140,17 @@ TEST(TrocarRobotSuj, PlacesAnRcmOrSaysHowFarOffItIs) {
 TEST(TrocarTeleop, RunsHeadlessAndRecords) {
   const std::string dir = ::testing::TempDir() + "/trocar_cli_teleop";
   std::filesystem::remove_all(dir);
-  const CommandRun run = Trocar("teleop --robot " + test::SourcePath("robots/davinci-classic/psm.yaml") +
-                                " --input step --scale 5 --duration 2 --controller dls --record " + dir);
+  const CommandRun run =
+      Trocar("teleop --robot " + test::SourcePath("robots/davinci-classic/psm.yaml") +
+             " --input step --scale 5 --duration 2 --controller dls --record " + dir);
   ASSERT_EQ(run.exit_code, 0) << run.output;
   EXPECT_NE(run.output.find("scale 5:1"), std::string::npos) << run.output;
   EXPECT_NE(run.output.find("settling time after the step"), std::string::npos) << run.output;
   std::ifstream csv(dir + "/record.csv");
   std::string header;
   std::getline(csv, header);
-  EXPECT_EQ(header.rfind("t,xd,yd,zd,qwd,qxd,qyd,qzd,x,y,z,qw,qx,qy,qz,q_outer_yaw", 0), 0u) << header;
+  EXPECT_EQ(header.rfind("t,xd,yd,zd,qwd,qxd,qyd,qzd,x,y,z,qw,qx,qy,qz,q_outer_yaw", 0), 0u)
+      << header;
   int rows = 0;
   for (std::string line; std::getline(csv, line);) ++rows;
   EXPECT_EQ(rows, 2001);
@@ -164,7 +165,8 @@ TEST(TrocarTeleop, BadInputsAreClearErrors) {
   const std::string robot = test::SourcePath("robots/pa10/pa10.yaml");
   const CommandRun unknown = Trocar("teleop --robot " + robot + " --input zigzag");
   EXPECT_EQ(unknown.exit_code, 1);
-  EXPECT_NE(unknown.output.find("unknown scripted input 'zigzag'"), std::string::npos) << unknown.output;
+  EXPECT_NE(unknown.output.find("unknown scripted input 'zigzag'"), std::string::npos)
+      << unknown.output;
   const std::string csv = ::testing::TempDir() + "/trocar_cli_bad_device.csv";
   std::ofstream(csv) << "t,x,y,z,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n0.1,0,0,0,1,0,zero,0\n";
   const CommandRun bad = Trocar("teleop --robot " + robot + " --input " + csv);
@@ -173,7 +175,8 @@ TEST(TrocarTeleop, BadInputsAreClearErrors) {
       << bad.output;
   const CommandRun scale = Trocar("teleop --robot " + robot + " --scale -2 --duration 0.1");
   EXPECT_EQ(scale.exit_code, 1);
-  EXPECT_NE(scale.output.find("scale -2 must be a positive number"), std::string::npos) << scale.output;
+  EXPECT_NE(scale.output.find("scale -2 must be a positive number"), std::string::npos)
+      << scale.output;
 }
 
 TEST(TrocarPhantom, WritesACaseAPersonCanOpen) {
@@ -200,13 +203,14 @@ TEST(TrocarImport, BuildsThenLoadsThePhantomCaseFromItsCache) {
   const CommandRun cold = Trocar("import " + dir);
   ASSERT_EQ(cold.exit_code, 0) << cold.output;
   for (const char* line : {"patient phantom-seed-2\n", "    heart ", "    ribs ", "LAD: 25 points",
-                           "normals from file", "port candidates: 8 (markups:", "left side up 25.0 deg",
-                           "timings (s): load CT"}) {
+                           "normals from file", "port candidates: 8 (markups:",
+                           "left side up 25.0 deg", "timings (s): load CT"}) {
     EXPECT_NE(cold.output.find(line), std::string::npos) << line << "\n" << cold.output;
   }
   EXPECT_EQ(cold.output.find("(from cache)"), std::string::npos);
   const CommandRun warm = Trocar("import " + dir);
-  EXPECT_NE(warm.output.find("patient phantom-seed-2 (from cache)"), std::string::npos) << warm.output;
+  EXPECT_NE(warm.output.find("patient phantom-seed-2 (from cache)"), std::string::npos)
+      << warm.output;
   EXPECT_NE(warm.output.find("load cache"), std::string::npos) << warm.output;
   const CommandRun missing = Trocar("import " + dir + "/nowhere");
   EXPECT_EQ(missing.exit_code, 1);
@@ -221,7 +225,8 @@ TEST(TrocarImport, ADicomSeriesCaseImportsAndAnyChangedSliceRebuilds) {
   EXPECT_NE(phantom.output.find("/ct/ (DICOM series, "), std::string::npos) << phantom.output;
   const CommandRun cold = Trocar("import " + dir);
   ASSERT_EQ(cold.exit_code, 0) << cold.output;
-  for (const char* line : {"patient phantom-seed-2\n", "    heart ", "LAD: 25 points", "port candidates: 8"}) {
+  for (const char* line :
+       {"patient phantom-seed-2\n", "    heart ", "LAD: 25 points", "port candidates: 8"}) {
     EXPECT_NE(cold.output.find(line), std::string::npos) << line << "\n" << cold.output;
   }
   EXPECT_NE(Trocar("import " + dir).output.find("(from cache)"), std::string::npos);
@@ -241,13 +246,17 @@ TEST(TrocarCheck, PlacesTheCartAtAPatientAndListsCollisionsAndClearances) {
   ASSERT_EQ(Trocar("phantom --out " + dir + " --seed 2 --voxel 0.004").exit_code, 0);
   const CommandRun run = Trocar("check --patient " + dir);
   EXPECT_TRUE(run.exit_code == 0 || run.exit_code == 3) << run.output;  // free, or in collision
-  for (const char* line : {"robot davinci_classic_cart: 51 collision bodies", "3 arms, 3 ports (radius 15 mm)",
-                           "port psm1_rcm at", "instruments aimed at LAD", "clearances (m):", "arm-table"}) {
+  for (const char* line :
+       {"robot davinci_classic_cart: 51 collision bodies", "3 arms, 3 ports (radius 15 mm)",
+        "port psm1_rcm at", "instruments aimed at LAD", "clearances (m):", "arm-table"}) {
     EXPECT_NE(run.output.find(line), std::string::npos) << line << "\n" << run.output;
   }
-  EXPECT_NE(run.output.find(run.exit_code == 3 ? "IN COLLISION" : "collision-free"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find(run.exit_code == 3 ? "IN COLLISION" : "collision-free"),
+            std::string::npos)
+      << run.output;
   // A robot alone, at its neutral configuration.
-  const CommandRun alone = Trocar("check --robot " + test::SourcePath("robots/davinci-classic/psm.yaml"));
+  const CommandRun alone =
+      Trocar("check --robot " + test::SourcePath("robots/davinci-classic/psm.yaml"));
   EXPECT_EQ(alone.exit_code, 0) << alone.output;
   EXPECT_NE(alone.output.find("collision-free"), std::string::npos) << alone.output;
   const CommandRun bad = Trocar("check --patient " + dir + " --port psm1_rcm=0.1,0.2");
@@ -258,7 +267,8 @@ TEST(TrocarCheck, PlacesTheCartAtAPatientAndListsCollisionsAndClearances) {
   EXPECT_NE(bad_base.output.find("--base"), std::string::npos) << bad_base.output;
   const CommandRun bad_q = Trocar("check --q 1 2");
   EXPECT_EQ(bad_q.exit_code, 1);
-  EXPECT_NE(bad_q.output.find("has 18 active joints, got 2 values"), std::string::npos) << bad_q.output;
+  EXPECT_NE(bad_q.output.find("has 18 active joints, got 2 values"), std::string::npos)
+      << bad_q.output;
 }
 
 TEST(TrocarRobotInfo, MissingFileIsNamed) {
@@ -267,6 +277,59 @@ TEST(TrocarRobotInfo, MissingFileIsNamed) {
   EXPECT_NE(run.output.find("error: /no/such/robot.urdf: robot description not found"),
             std::string::npos)
       << run.output;
+}
+
+// trocar plan writes a plan whose every claim trocar check --plan confirms; a plan whose cart was
+// moved after the fact is caught; bad options are refused before any work.
+TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
+  const std::string out = ::testing::TempDir() + "trocar_plan_cli";
+  std::filesystem::remove_all(out);
+  const CommandRun plan =
+      Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+             " --evaluations 120 --starts 2 --polish-evaluations 10 --top 2 --seed 3");
+  ASSERT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
+  EXPECT_NE(plan.output.find("verdict: "), std::string::npos) << plan.output;
+  EXPECT_NE(plan.output.find("coverage"), std::string::npos) << plan.output;
+  ASSERT_TRUE(IsRegularFile(out + "/plan.json"));
+  ASSERT_TRUE(IsRegularFile(out + "/ports.mrk.json"));
+  const CommandRun check = Trocar("check --plan " + out + "/plan.json");
+  EXPECT_EQ(check.exit_code, 0) << check.output;
+  EXPECT_NE(check.output.find("all hold"), std::string::npos) << check.output;
+
+  // Move the cart 20 cm in the file: the RCMs leave their pivots.
+  std::string text = ReadTextFile(out + "/plan.json");
+  const std::regex cart_x("(\"cart\": \\{\\s*\"X_WB\"[\\s\\S]*?\"x\": )(-?[0-9.e+-]+)");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(text, m, cart_x)) << text.substr(0, 2000);
+  const double x = std::stod(m[2].str());
+  text = std::string(m.prefix()) + m[1].str() + std::to_string(x + 0.2) + std::string(m.suffix());
+  WriteFileAtomically(out + "/tampered.json", text);
+  const CommandRun tampered = Trocar("check --plan " + out + "/tampered.json");
+  EXPECT_EQ(tampered.exit_code, 3) << tampered.output;
+  EXPECT_NE(tampered.output.find("from its pivot"), std::string::npos) << tampered.output;
+}
+
+TEST(TrocarPlan, BadOptionsAreRefusedNamingThem) {
+  const std::string out = ::testing::TempDir() + "trocar_plan_bad";
+  CommandRun r = Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+                        " --algorithm annealing");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("direct-l, crs2-lm, isres, mlsl, exhaustive"), std::string::npos)
+      << r.output;
+  r = Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+             " --time-limit 0");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("--time-limit"), std::string::npos) << r.output;
+  r = Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+             " --robot " + test::SourcePath("robots/pa10/pa10.yaml"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("no RCM frame"), std::string::npos) << r.output;
+  r = Trocar("plan /nonexistent/case --out " + out);
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(out + "/plan.json"));
+  r = Trocar("check --plan " + test::SourcePath("README.md"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("not a plan"), std::string::npos) << r.output;
 }
 
 }  // namespace

@@ -1,0 +1,305 @@
+// trocar check --plan: re-checks every claim a plan file makes through the robot model, the joint
+// limits and the collision checker only — none of the optimiser's code (planners/port_placement's
+// problem and optimizer) is used, so a bug there cannot vouch for itself.
+#include <cmath>
+#include <filesystem>
+#include <iomanip>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "apps/trocar/commands.hpp"
+#include "collision/collision_world.hpp"
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "patient/patient_model.hpp"
+#include "port_placement/plan_io.hpp"
+#include "robot/load_robot.hpp"
+
+namespace trocar::apps {
+namespace {
+
+using nlohmann::json;
+
+constexpr double kPortTolerance = 0.001;  // m: an RCM at its port, a port on its curve
+constexpr double kSlack = 1e-4;           // m: beyond the tolerance the plan claims
+
+Eigen::Vector3d Vec(const json& j, const std::string& what) {
+  TROCAR_THROW_UNLESS(
+      j.is_array() && j.size() == 3 && j[0].is_number() && j[1].is_number() && j[2].is_number(),
+      what << ": expected [x, y, z]");
+  return Eigen::Vector3d(j[0].get<double>(), j[1].get<double>(), j[2].get<double>());
+}
+
+double DistanceToPolyline(const Eigen::Vector3d& p, const std::vector<Eigen::Vector3d>& line) {
+  double best = std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i + 1 < line.size(); ++i) {
+    const Eigen::Vector3d a = line[i], ab = line[i + 1] - line[i];
+    const double t =
+        ab.squaredNorm() > 0 ? std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;
+    best = std::min(best, (a + t * ab - p).norm());
+  }
+  if (line.size() == 1) best = (line[0] - p).norm();
+  return best;
+}
+
+std::string Mm(double m) {
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(2) << m * 1e3 << " mm";
+  return s.str();
+}
+
+}  // namespace
+
+int CheckPlanFile(const std::string& path, std::ostream& out) {
+  json doc;
+  try {
+    doc = json::parse(ReadTextFile(path));
+  } catch (const json::exception& e) {
+    TROCAR_THROW(path << ": not a plan (JSON: " << e.what() << ")");
+  }
+  auto field = [&](const json& j, const std::string& name) -> const json& {
+    TROCAR_THROW_UNLESS(j.is_object() && j.contains(name),
+                        path << ": missing field '" << name << "'");
+    return j.at(name);
+  };
+  TROCAR_THROW_UNLESS(doc.is_object() && doc.value("format", "") == "trocar-plan",
+                      path << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
+  const int version = field(doc, "version").get<int>();
+  TROCAR_THROW_UNLESS(version == planners::kPlanFormatVersion,
+                      path << ": plan format version " << version << ", this trocar reads version "
+                           << planners::kPlanFormatVersion);
+  try {
+    const json& inputs = field(doc, "inputs");
+    const std::string plan_dir = ParentDirectory(path);
+    auto resolve = [&](const std::string& p) {
+      return IsRegularFile(p) || std::filesystem::exists(p) ? p : JoinPath(plan_dir, p);
+    };
+    const std::string robot_file = resolve(field(inputs, "robot").get<std::string>());
+    const std::string case_dir = resolve(field(inputs, "case").get<std::string>());
+    std::vector<std::string> failures;
+    auto fail = [&](const std::string& what) { failures.push_back(what); };
+    if (planners::HashFile(robot_file) != field(inputs, "robot_hash").get<std::string>()) {
+      fail("robot file " + robot_file + " changed since the plan was made (hash differs)");
+    }
+    auto robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(robot_file));
+    const patient::PatientModel patient = patient::ImportPatient(case_dir);
+    if (planners::HashPatientModel(patient) !=
+        field(inputs, "patient_model_hash").get<std::string>()) {
+      fail("patient model of " + case_dir +
+           " differs from the one the plan was made for (hash differs)");
+    }
+    const json& arms = field(field(doc, "robot"), "arms");
+    const json& scoring = field(doc, "scoring");
+    const double ik_tolerance = field(scoring, "ik_tolerance_m").get<double>();
+    const double half_fov = field(scoring, "scope_half_fov_deg").get<double>() * M_PI / 180;
+    const double scope_min = field(scoring, "scope_min_distance_m").get<double>();
+    const double scope_max = field(scoring, "scope_max_distance_m").get<double>();
+    collision::WorldOptions world_options;
+    for (const auto& arm : arms) {
+      if (field(arm, "rcm_frame").get<std::string>().empty())
+        world_options.shaft_ports.push_back(field(arm, "shaft_link"));
+    }
+    const auto world = collision::CollisionWorld::Build(&patient, robot, world_options);
+    collision::CollisionChecker checker(world);
+    const auto& bodies = world->bodies();
+    // Each arm's port in the world: RCM ports by frame, shaft ports after them in arm order. The
+    // skin may be touched around the port's skin point.
+    std::vector<int> world_port;
+    {
+      int shaft = 0;
+      for (const auto& port : world->ports()) shaft += port.frame.empty() ? 0 : 1;
+      for (const auto& arm : arms) {
+        const std::string rcm = field(arm, "rcm_frame").get<std::string>();
+        int index = rcm.empty() ? shaft++ : -1;
+        for (std::size_t p = 0; p < world->ports().size() && !rcm.empty(); ++p) {
+          if (world->ports()[p].frame == rcm) index = static_cast<int>(p);
+        }
+        world_port.push_back(index);
+      }
+    }
+    auto collisions = [&](const robot::RobotState& state,
+                          const std::vector<Eigen::Vector3d>& skin_ports) {
+      checker.SetRobotState(state);
+      for (std::size_t a = 0; a < world_port.size() && a < skin_ports.size(); ++a) {
+        if (world_port[a] >= 0) checker.SetPortPosition(world_port[a], skin_ports[a]);
+      }
+      const collision::CollisionReport report = checker.Check();
+      std::string text;
+      for (std::size_t i = 0; i < std::min<std::size_t>(3, report.contacts.size()); ++i) {
+        text += (i ? ", " : "") + bodies[report.contacts[i].a].name + " - " +
+                bodies[report.contacts[i].b].name;
+      }
+      return std::make_pair(static_cast<int>(report.contacts.size()), text);
+    };
+    std::vector<Eigen::Vector3d> aims, sample_points;
+    for (const auto& s : field(doc, "target_samples")) {
+      aims.push_back(Vec(field(s, "aim_W"), "target_samples[].aim_W"));
+      sample_points.push_back(Vec(field(s, "p_W"), "target_samples[].p_W"));
+    }
+    int claims = 0;
+    for (const auto& plan : field(doc, "plans")) {
+      const std::string tag = "plan " + std::to_string(field(plan, "rank").get<int>()) + ": ";
+      const std::size_t failures_before = failures.size();
+      robot::RobotState state(*robot);
+      // Cart on the floor.
+      const json& cart = field(plan, "cart");
+      const double yaw = field(cart, "yaw_deg").get<double>() * M_PI / 180;
+      state.X_WB = Eigen::Isometry3d::Identity();
+      state.X_WB.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      state.X_WB.translation() =
+          Eigen::Vector3d(field(cart, "x").get<double>(), field(cart, "y").get<double>(), 0);
+      ++claims;
+      // Setup joints: held, inside their limits.
+      for (const auto& [name, value] : field(plan, "setup_joints").items()) {
+        ++claims;
+        try {
+          const auto r = kinematics::SetHeldJoint(*robot, name, value.get<double>(), &state);
+          if (!r.ok) fail(tag + "setup joint '" + name + "': " + r.message);
+        } catch (const Error& e) {
+          fail(tag + "setup joint '" + name + "': " + e.what());
+        }
+      }
+      // Nominal configuration.
+      for (const auto& [name, value] : field(plan, "q_nominal").items()) {
+        const int j = robot->GetJoint(name);
+        TROCAR_THROW_UNLESS(robot->joint(j).q_index >= 0,
+                            path << ": q_nominal names '" << name << "', not an active joint");
+        state.q[robot->joint(j).q_index] = value.get<double>();
+      }
+      ++claims;
+      for (const auto& v : kinematics::LimitViolations(*robot, state.q))
+        fail(tag + "nominal pose: " + v);
+      const auto fk = kinematics::ForwardKinematics(*robot, state.q, &state);
+      if (!fk.ok) fail(tag + "nominal pose: " + fk.message);
+      const robot::RobotState nominal = state;
+      // Ports: on their candidate curve, RCMs at them.
+      std::vector<Eigen::Vector3d> ports_W, pivots;
+      const json& ports = field(plan, "ports");
+      TROCAR_THROW_UNLESS(ports.size() == arms.size(), path << ": " << tag << ports.size()
+                                                            << " ports for " << arms.size()
+                                                            << " arms");
+      for (std::size_t a = 0; a < arms.size(); ++a) {
+        const json& port = ports[a];
+        const Eigen::Vector3d p_W = Vec(field(port, "p_W"), "ports[].p_W");
+        const Eigen::Vector3d p_P = Vec(field(port, "p_P"), "ports[].p_P");
+        ports_W.push_back(p_W);
+        const std::string arm_name = field(arms[a], "name").get<std::string>();
+        claims += 2;
+        if ((patient.X_WP * p_P - p_W).norm() > kSlack)
+          fail(tag + arm_name + ": port p_W is not X_WP p_P");
+        const std::string candidate = field(port, "candidate").get<std::string>();
+        const patient::PortCandidate* curve = nullptr;
+        for (const auto& c : patient.port_candidates) {
+          if (c.name == candidate) curve = &c;
+        }
+        if (!curve) {
+          fail(tag + arm_name + ": port candidate '" + candidate + "' is not one of the patient's");
+        } else if (DistanceToPolyline(p_P, curve->skin) > kPortTolerance) {
+          fail(tag + arm_name + ": port is " + Mm(DistanceToPolyline(p_P, curve->skin)) +
+               " off its curve " + candidate);
+        }
+        const std::string rcm = field(arms[a], "rcm_frame").get<std::string>();
+        const Eigen::Vector3d rcm_W = Vec(field(port, "rcm_W"), "ports[].rcm_W");
+        pivots.push_back(rcm_W);
+        ++claims;
+        if ((rcm_W - p_W).norm() > 0.1)
+          fail(tag + arm_name + ": the pivot is " + Mm((rcm_W - p_W).norm()) +
+               " from the skin port");
+        if (rcm.empty()) continue;
+        ++claims;
+        const double off =
+            (kinematics::FramePose(nominal, robot->GetFrame(rcm)).translation() - rcm_W).norm();
+        if (off > kPortTolerance)
+          fail(tag + arm_name + ": RCM frame '" + rcm + "' is " + Mm(off) + " from its pivot");
+      }
+      // Nominal pose collision-free when the plan says "placed".
+      if (field(plan, "status").get<std::string>() == "placed") {
+        ++claims;
+        const auto [n, which] = collisions(nominal, ports_W);
+        if (n > 0)
+          fail(tag + "claims a collision-free placement, but " + std::to_string(n) +
+               " pairs collide at the nominal pose: " + which);
+      }
+      // Every sample the plan calls reached or seen.
+      for (const auto& r : field(plan, "samples")) {
+        const int sample = field(r, "sample").get<int>();
+        TROCAR_THROW_UNLESS(sample >= 0 && sample < static_cast<int>(aims.size()),
+                            path << ": sample index " << sample << " out of range");
+        const std::string arm_name = field(r, "arm").get<std::string>();
+        int a = -1;
+        for (std::size_t i = 0; i < arms.size(); ++i) {
+          if (arms[i].at("name") == arm_name) a = static_cast<int>(i);
+        }
+        TROCAR_THROW_UNLESS(a >= 0, path << ": sample names unknown arm '" << arm_name << "'");
+        const bool scope = field(arms[a], "role").get<std::string>() == "endoscope";
+        const std::string where = tag + arm_name + " at sample " + std::to_string(sample) + ": ";
+        if (!field(r, "reached").get<bool>()) continue;
+        ++claims;
+        const robot::Frame& tool = robot->GetFrame(field(arms[a], "tool_frame").get<std::string>());
+        if (scope) {
+          const Eigen::Vector3d tip = kinematics::FramePose(nominal, tool).translation();
+          const Eigen::Vector3d axis = (tip - pivots[a]).normalized();
+          const Eigen::Vector3d d = sample_points[sample] - tip;
+          const double angle = std::acos(std::clamp(axis.dot(d.normalized()), -1.0, 1.0));
+          if (angle > half_fov + 1e-6 || d.norm() < scope_min - kSlack ||
+              d.norm() > scope_max + kSlack) {
+            fail(where + "claimed in view, but it is " + std::to_string(angle * 180 / M_PI) +
+                 " deg off the axis at " + Mm(d.norm()));
+          }
+          continue;
+        }
+        state = nominal;
+        for (const auto& [name, value] : field(r, "q").items())
+          state.q[robot->joint(robot->GetJoint(name)).q_index] = value.get<double>();
+        const auto limits = kinematics::LimitViolations(*robot, state.q);
+        if (!limits.empty()) {
+          fail(where + limits.front());
+          continue;
+        }
+        const auto f = kinematics::ForwardKinematics(*robot, state.q, &state);
+        if (!f.ok) {
+          fail(where + f.message);
+          continue;
+        }
+        const double tip_error =
+            (kinematics::FramePose(state, tool).translation() - aims[sample]).norm();
+        if (tip_error > ik_tolerance + kSlack)
+          fail(where + "the tool tip is " + Mm(tip_error) + " from the target");
+        const std::string shaft = field(arms[a], "shaft_link").get<std::string>();
+        if (field(arms[a], "rcm_frame").get<std::string>().empty()) {
+          const int link = robot->GetLink(shaft);
+          const Eigen::Vector3d A =
+              state.X_WL[link] * Vec(field(arms[a], "shaft_a_L"), "shaft_a_L");
+          const Eigen::Vector3d B =
+              state.X_WL[link] * Vec(field(arms[a], "shaft_b_L"), "shaft_b_L");
+          const Eigen::Vector3d u = (B - A).normalized(), d = pivots[a] - A;
+          const double off = (d - d.dot(u) * u).norm();
+          if (off > ik_tolerance + kSlack)
+            fail(where + "the shaft passes " + Mm(off) + " from its pivot");
+        }
+        const auto [n, which] = collisions(state, ports_W);
+        if (n > 0)
+          fail(where + "claimed reached, but " + std::to_string(n) + " pairs collide: " + which);
+      }
+      out << tag
+          << (failures.size() == failures_before
+                  ? "every claim holds"
+                  : std::to_string(failures.size() - failures_before) + " claims fail")
+          << "\n";
+    }
+    if (failures.empty()) {
+      out << path << ": " << claims << " claims checked, all hold\n";
+      return 0;
+    }
+    out << path << ": " << failures.size() << " of " << claims << " claims fail:\n";
+    for (const auto& f : failures) out << "  " << f << "\n";
+    return 3;
+  } catch (const json::exception& e) {
+    TROCAR_THROW(path << ": malformed plan (" << e.what() << ")");
+  }
+}
+
+}  // namespace trocar::apps

@@ -1,0 +1,579 @@
+#include "port_placement/optimizer.hpp"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <nlopt.hpp>
+#include <numeric>
+#include <sstream>
+
+#include "collision/collision_world.hpp"
+#include "common/error.hpp"
+#include "patient/patient_model.hpp"
+
+namespace trocar::planners {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+struct Sample {
+  std::vector<double> x;
+  double score = -std::numeric_limits<double>::infinity();
+};
+
+std::string JoinNames(const std::vector<std::string>& names) {
+  std::ostringstream s;
+  for (std::size_t i = 0; i < names.size(); ++i) s << (i ? ", " : "") << names[i];
+  return s.str();
+}
+
+nlopt::algorithm GlobalAlgorithm(const std::string& name) {
+  if (name == "direct-l") return nlopt::GN_DIRECT_L;
+  if (name == "crs2-lm") return nlopt::GN_CRS2_LM;
+  if (name == "isres") return nlopt::GN_ISRES;
+  return nlopt::G_MLSL_LDS;
+}
+
+nlopt::algorithm LocalAlgorithm(const std::string& name) {
+  if (name == "subplex") return nlopt::LN_SBPLX;
+  if (name == "cobyla") return nlopt::LN_COBYLA;
+  return nlopt::LN_BOBYQA;
+}
+
+// Whether two placements differ enough to be a real choice: some arm's ports farther apart than d.
+bool Distinct(const Placement& a, const Placement& b, double d) {
+  for (std::size_t i = 0; i < a.sites.size(); ++i) {
+    if ((a.sites[i].p_W - b.sites[i].p_W).norm() > d) return true;
+  }
+  return false;
+}
+
+// Runs one NLopt optimisation; records every evaluation in `archive`.
+void RunNlopt(const PortPlacementProblem& problem, nlopt::algorithm algorithm,
+              const std::vector<double>& lb, const std::vector<double>& ub, std::vector<double> x0,
+              int max_evaluations, unsigned seed, Clock::time_point deadline, Workspace* ws,
+              std::vector<Sample>* archive, std::atomic<int>* counter,
+              std::atomic<bool>* out_of_time, const std::string& local_name = "bobyqa") {
+  if (max_evaluations <= 0) return;
+  nlopt::srand(seed);
+  const unsigned n = static_cast<unsigned>(lb.size());
+  nlopt::opt opt(algorithm, n);
+  opt.set_lower_bounds(lb);
+  opt.set_upper_bounds(ub);
+  opt.set_maxeval(max_evaluations);
+  if (algorithm == nlopt::GN_ISRES) opt.set_population(30);
+  if (algorithm == nlopt::GN_CRS2_LM) opt.set_population(10 * (n + 1));
+  nlopt::opt local(LocalAlgorithm(local_name == "none" ? "bobyqa" : local_name), n);
+  if (algorithm == nlopt::G_MLSL_LDS) {
+    local.set_maxeval(std::max(10, max_evaluations / 12));
+    local.set_xtol_rel(1e-3);
+    opt.set_local_optimizer(local);
+    opt.set_population(4);
+  }
+  if (algorithm == nlopt::LN_BOBYQA || algorithm == nlopt::LN_SBPLX ||
+      algorithm == nlopt::LN_COBYLA) {
+    std::vector<double> step(n);
+    for (unsigned i = 0; i < n; ++i) step[i] = 0.25 * (ub[i] - lb[i]);
+    opt.set_initial_step(step);
+    opt.set_xtol_rel(1e-4);
+  }
+  struct Context {
+    const PortPlacementProblem* problem;
+    Workspace* ws;
+    std::vector<Sample>* archive;
+    std::atomic<int>* counter;
+    std::atomic<bool>* out_of_time;
+    Clock::time_point deadline;
+    int budget;
+  } context{&problem, ws, archive, counter, out_of_time, deadline, max_evaluations};
+  auto objective = [](unsigned, const double* x, double*, void* data) -> double {
+    auto* c = static_cast<Context*>(data);
+    if (static_cast<int>(c->archive->size()) >= c->budget) throw nlopt::forced_stop();
+    if (Clock::now() > c->deadline) {
+      c->out_of_time->store(true);
+      throw nlopt::forced_stop();
+    }
+    std::vector<double> v(x, x + c->problem->dimension());
+    const Evaluation ev = c->problem->Evaluate(c->problem->Decode(v), c->ws);
+    c->archive->push_back({v, ev.score});
+    c->counter->fetch_add(1);
+    return ev.score;
+  };
+  opt.set_max_objective(objective, &context);
+  for (unsigned i = 0; i < n; ++i) x0[i] = std::clamp(x0[i], lb[i], ub[i]);
+  double best = 0.0;
+  try {
+    opt.optimize(x0, best);
+  } catch (const nlopt::forced_stop&) {
+  } catch (const nlopt::roundoff_limited&) {
+  } catch (const std::runtime_error& e) {
+    // NLopt's generic failure (e.g. a degenerate box): the archive holds what was evaluated.
+    (void)e;
+  }
+}
+
+// The geometric part of the score (no robot): what Cannon et al. 2003 scored exhaustively —
+// approach and triangulation angles, the endoscope's view, spacing, and reach by distance.
+double GeometricScore(const PortPlacementProblem& problem, const std::vector<PortSite>& sites) {
+  const auto& arms = problem.arms();
+  const auto& samples = problem.samples();
+  const ProblemOptions& o = problem.options();
+  double approach = 0, reach = 0, view = 0, tri = 0;
+  int instruments = 0, scopes = 0;
+  std::vector<int> inst;
+  for (std::size_t a = 0; a < arms.size(); ++a) {
+    const Eigen::Vector3d port = sites[a].p_W;
+    if (arms[a].role == ArmRole::kEndoscope) {
+      ++scopes;
+      const Eigen::Vector3d axis = (problem.aim_W() - port).normalized();
+      const Eigen::Vector3d tip = problem.aim_W() - o.scope_working_distance * axis;
+      for (const auto& s : samples) {
+        const Eigen::Vector3d d = s.p_W - tip;
+        const double angle = std::acos(std::clamp(axis.dot(d.normalized()), -1.0, 1.0));
+        view += angle <= o.scope_half_fov && d.norm() <= o.scope_max_distance ? 1.0 : 0.0;
+      }
+      continue;
+    }
+    ++instruments;
+    inst.push_back(static_cast<int>(a));
+    for (const auto& s : samples) {
+      const Eigen::Vector3d d = s.p_W - port;
+      reach += d.norm() <= problem.MaxReach(static_cast<int>(a)) ? 1.0 : 0.0;
+      const double angle =
+          std::acos(std::clamp(d.normalized().dot(-s.n_W), -1.0, 1.0)) * 180.0 / M_PI;
+      approach += std::clamp((90.0 - angle) / 60.0, 0.0, 1.0);
+    }
+  }
+  const double ns = std::max<double>(1, samples.size());
+  if (inst.size() >= 2) {
+    for (const auto& s : samples) {
+      const Eigen::Vector3d a = (sites[inst[0]].p_W - s.p_W).normalized();
+      const Eigen::Vector3d b = (sites[inst[1]].p_W - s.p_W).normalized();
+      const double off = std::abs(std::acos(std::clamp(a.dot(b), -1.0, 1.0)) * 180.0 / M_PI - 60.0);
+      tri += off <= 15 ? 1.0 - off / 30.0 : std::max(0.0, 0.5 - (off - 15) / 60.0);
+    }
+  }
+  double spacing = std::numeric_limits<double>::infinity();
+  for (std::size_t a = 0; a < sites.size(); ++a) {
+    for (std::size_t b = a + 1; b < sites.size(); ++b)
+      spacing = std::min(spacing, (sites[a].p_W - sites[b].p_W).norm());
+  }
+  const ScoreWeights& w = o.weights;
+  const double spacing_score =
+      std::isfinite(spacing)
+          ? std::clamp((spacing - o.spacing_min) / (o.spacing_ideal - o.spacing_min), 0.0, 1.0)
+          : 1.0;
+  return w.coverage * reach / std::max(1.0, instruments * ns) +
+         w.approach * approach / std::max(1.0, instruments * ns) + w.triangulation * tri / ns +
+         w.endoscope * (scopes ? view / (scopes * ns) : 1.0) + w.spacing * spacing_score;
+}
+
+}  // namespace
+
+std::vector<std::string> GlobalAlgorithms() {
+  return {"direct-l", "crs2-lm", "isres", "mlsl", "exhaustive"};
+}
+std::vector<std::string> LocalAlgorithms() { return {"bobyqa", "subplex", "cobyla", "none"}; }
+
+void ValidateOptions(const PortPlacementOptions& o) {
+  const auto global = GlobalAlgorithms(), local = LocalAlgorithms();
+  TROCAR_THROW_UNLESS(
+      std::find(global.begin(), global.end(), o.algorithm) != global.end(),
+      "--algorithm: unknown '" << o.algorithm << "' (valid: " << JoinNames(global) << ")");
+  TROCAR_THROW_UNLESS(std::find(local.begin(), local.end(), o.local) != local.end(),
+                      "--local: unknown '" << o.local << "' (valid: " << JoinNames(local) << ")");
+  TROCAR_THROW_UNLESS(
+      std::isfinite(o.time_limit) && o.time_limit > 0,
+      "--time-limit: " << o.time_limit << " s, expected a positive number of seconds");
+  TROCAR_THROW_UNLESS(o.evaluations >= 1, "--evaluations: " << o.evaluations << ", expected >= 1");
+  TROCAR_THROW_UNLESS(o.starts >= 1 && o.starts <= 64,
+                      "--starts: " << o.starts << ", expected 1 to 64");
+  TROCAR_THROW_UNLESS(o.polish_evaluations >= 0,
+                      "--polish-evaluations: " << o.polish_evaluations << ", expected >= 0");
+  TROCAR_THROW_UNLESS(o.threads >= 0,
+                      "--threads: " << o.threads << ", expected >= 0 (0: all cores)");
+  TROCAR_THROW_UNLESS(o.top_k >= 1 && o.top_k <= 20, "--top: " << o.top_k << ", expected 1 to 20");
+  TROCAR_THROW_UNLESS(
+      std::isfinite(o.robustness_shift) && o.robustness_shift >= 0 && o.robustness_shift <= 0.1,
+      "robustness shift: " << o.robustness_shift << " m, expected 0 to 0.1");
+  TROCAR_THROW_UNLESS(o.suitable_fraction >= 0 && o.suitable_fraction <= 1,
+                      "suitable fraction: " << o.suitable_fraction << ", expected 0 to 1");
+}
+
+PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
+                                  const PortPlacementOptions& options) {
+  ValidateOptions(options);
+  const auto t0 = Clock::now();
+  const auto deadline = t0 + std::chrono::duration_cast<Clock::duration>(
+                                 std::chrono::duration<double>(options.time_limit));
+  PortPlacementResult result;
+  result.algorithm = options.algorithm;
+  result.local = options.local;
+  result.threads = options.threads > 0 ? options.threads : omp_get_max_threads();
+  const int threads = result.threads;
+  const int dim = problem.dimension();
+  const std::vector<double> lb = problem.lower_bounds(), ub = problem.upper_bounds();
+  const int cart = dim - 3;
+  std::atomic<int> counter{0};
+  std::atomic<bool> out_of_time{false};
+  auto progress = [&](double fraction, const std::string& stage) {
+    if (options.progress && omp_get_thread_num() == 0)
+      options.progress(std::clamp(fraction, 0.0, 1.0), stage);
+  };
+  auto stamp = [&](const std::string& stage, Clock::time_point since) {
+    result.timings.push_back({stage, std::chrono::duration<double>(Clock::now() - since).count()});
+  };
+
+  // --- Global stage -------------------------------------------------------------------------
+  std::vector<Sample> archive;
+  auto t_stage = Clock::now();
+  if (options.algorithm == "exhaustive") {
+    // Cannon et al. 2003: every assignment of grid sites to the arms scored by the port-only
+    // (geometric) terms; the best triads then get a grid of cart poses, fully evaluated.
+    const int curves = static_cast<int>(problem.patient().port_candidates.size());
+    const std::vector<double> along = {0.1, 0.3, 0.5, 0.7, 0.9};
+    std::vector<PortSite> grid;
+    for (int c = 0; c < curves; ++c) {
+      if (problem.patient().port_candidates[c].skin.size() < 2) continue;
+      for (double s : along) grid.push_back(problem.Site(c, s));
+    }
+    const int arms = static_cast<int>(problem.arms().size());
+    std::vector<std::pair<double, std::vector<int>>> assignments;
+    std::vector<int> pick(arms, 0);
+    const int g = static_cast<int>(grid.size());
+    std::function<void(int)> enumerate = [&](int a) {
+      if (a == arms) {
+        std::vector<PortSite> sites;
+        for (int i : pick) sites.push_back(grid[i]);
+        assignments.push_back({GeometricScore(problem, sites), pick});
+        return;
+      }
+      for (int i = 0; i < g; ++i) {
+        if (std::find(pick.begin(), pick.begin() + a, i) != pick.begin() + a) continue;
+        pick[a] = i;
+        enumerate(a + 1);
+      }
+    };
+    enumerate(0);
+    std::stable_sort(assignments.begin(), assignments.end(),
+                     [](const auto& a, const auto& b) { return a.first > b.first; });
+    const int keep = std::min<int>(16, static_cast<int>(assignments.size()));
+    const std::vector<double> directions = {-M_PI, -3 * M_PI / 4, -M_PI / 2, -M_PI / 4,
+                                            0,     M_PI / 4,      M_PI / 2,  3 * M_PI / 4};
+    const std::vector<double> distances = {0.6, 0.9, 1.2};
+    std::vector<std::vector<double>> xs;
+    for (int k = 0; k < keep; ++k) {
+      for (double from : directions) {
+        for (double d : distances) {
+          std::vector<double> x;
+          for (int i : assignments[k].second)
+            x.insert(x.end(), {grid[i].candidate + 0.5, grid[i].s});
+          x.insert(x.end(), {from, std::clamp(d, lb[cart + 1], ub[cart + 1]), 0.0});
+          xs.push_back(x);
+        }
+      }
+    }
+    std::ostringstream grid_text;
+    grid_text << along.size() << " sites on each of " << curves
+              << " candidate curves (at 10, 30, 50, 70, 90 % of "
+              << "its length): " << assignments.size() << " assignments of sites to " << arms
+              << " arms scored by the port-only terms; the best " << keep << " with "
+              << directions.size() << " cart directions x " << distances.size()
+              << " distances (0.6, 0.9, 1.2 m), facing the ports: " << xs.size()
+              << " full evaluations";
+    result.grid = grid_text.str();
+    archive.resize(xs.size());
+    std::vector<Workspace*> spaces(threads, nullptr);
+#pragma omp parallel num_threads(threads)
+    {
+      Workspace ws(problem);
+#pragma omp for schedule(dynamic, 4)
+      for (int i = 0; i < static_cast<int>(xs.size()); ++i) {
+        if (Clock::now() > deadline) {
+          out_of_time.store(true);
+          continue;
+        }
+        archive[i] = {xs[i], problem.Evaluate(problem.Decode(xs[i]), &ws).score};
+        const int done = counter.fetch_add(1) + 1;
+        progress(0.7 * done / xs.size(), "exhaustive grid");
+      }
+    }
+    archive.erase(
+        std::remove_if(archive.begin(), archive.end(), [](const Sample& s) { return s.x.empty(); }),
+        archive.end());
+    double best = -std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < archive.size(); ++i) {
+      best = std::max(best, archive[i].score);
+      result.trace.push_back({static_cast<int>(i + 1), best});
+    }
+  } else {
+    const int starts = options.starts;
+    std::vector<std::vector<Sample>> archives(starts);
+    const int per_start = std::max(1, options.evaluations / starts);
+    std::atomic<int> done_starts{0};
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int s = 0; s < starts; ++s) {
+      Workspace ws(problem);
+      std::vector<double> slb = lb, sub = ub;
+      // Start s searches its own sector of directions the cart comes from.
+      slb[cart] = -M_PI + 2 * M_PI * s / starts;
+      sub[cart] = -M_PI + 2 * M_PI * (s + 1) / starts;
+      std::vector<double> x0(dim);
+      for (int i = 0; i < dim; ++i) x0[i] = 0.5 * (slb[i] + sub[i]);
+      RunNlopt(problem, GlobalAlgorithm(options.algorithm), slb, sub, x0, per_start,
+               options.seed * 7919u + static_cast<unsigned>(s), deadline, &ws, &archives[s],
+               &counter, &out_of_time, options.local);
+      done_starts.fetch_add(1);
+      progress(0.7 * counter.load() / (per_start * starts), "global " + options.algorithm);
+    }
+    // Merge in start order; the trace interleaves the starts round-robin (as if run side by side).
+    double best = -std::numeric_limits<double>::infinity();
+    int total = 0;
+    std::size_t longest = 0;
+    for (const auto& a : archives) longest = std::max(longest, a.size());
+    for (std::size_t i = 0; i < longest; ++i) {
+      for (const auto& a : archives) {
+        if (i >= a.size()) continue;
+        best = std::max(best, a[i].score);
+        result.trace.push_back({++total, best});
+      }
+    }
+    for (auto& a : archives) archive.insert(archive.end(), a.begin(), a.end());
+  }
+  result.global_evaluations = static_cast<int>(archive.size());
+  for (const auto& s : archive)
+    result.best_global_score = std::max(result.best_global_score, s.score);
+  if (archive.empty()) result.best_global_score = -std::numeric_limits<double>::infinity();
+  stamp("global " + options.algorithm, t_stage);
+
+  // --- Distinct candidates, polished ------------------------------------------------------------
+  t_stage = Clock::now();
+  std::vector<int> order(archive.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int a, int b) { return archive[a].score > archive[b].score; });
+  const int pool_size = options.top_k + 2;
+  std::vector<Sample> pool;
+  std::vector<Placement> pool_placements;
+  for (int i : order) {
+    if (static_cast<int>(pool.size()) >= pool_size) break;
+    const Placement p = problem.Decode(archive[i].x);
+    bool distinct = true;
+    for (const auto& q : pool_placements)
+      distinct = distinct && Distinct(p, q, options.distinct_distance);
+    if (!distinct) continue;
+    pool.push_back(archive[i]);
+    pool_placements.push_back(p);
+  }
+  std::vector<int> polish_counts(pool.size(), 0);
+  if (options.local != "none" && options.polish_evaluations > 0) {
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int i = 0; i < static_cast<int>(pool.size()); ++i) {
+      Workspace ws(problem);
+      std::vector<double> plb(dim), pub(dim);
+      const std::vector<double> span = [&] {
+        std::vector<double> v(dim);
+        for (int k = 0; k < dim; ++k) v[k] = 0.15 * (ub[k] - lb[k]);
+        return v;
+      }();
+      for (int k = 0; k < dim; ++k) {
+        plb[k] = std::max(lb[k], pool[i].x[k] - span[k]);
+        pub[k] = std::min(ub[k], pool[i].x[k] + span[k]);
+      }
+      // The curve coordinates stay on their curve: the polish moves ports along it.
+      for (int a = 0; a < cart; a += 2) {
+        const double c = std::floor(pool[i].x[a]);
+        plb[a] = c + 0.25;
+        pub[a] = c + 0.75;
+      }
+      std::vector<double> x0 = pool[i].x;
+      for (int a = 0; a < cart; a += 2) x0[a] = std::floor(x0[a]) + 0.5;
+      std::vector<Sample> local_archive;
+      RunNlopt(problem, LocalAlgorithm(options.local), plb, pub, x0, options.polish_evaluations,
+               options.seed * 104729u + static_cast<unsigned>(i), deadline, &ws, &local_archive,
+               &counter, &out_of_time);
+      polish_counts[i] = static_cast<int>(local_archive.size());
+      for (const auto& s : local_archive) {
+        if (s.score > pool[i].score) pool[i] = s;
+      }
+      progress(0.7 + 0.15 * (i + 1) / pool.size(), "polish " + options.local);
+    }
+  }
+  stamp("polish " + options.local, t_stage);
+
+  // --- Final plans: detailed, robustness, ranking ------------------------------------------------
+  t_stage = Clock::now();
+  std::vector<int> pool_order(pool.size());
+  std::iota(pool_order.begin(), pool_order.end(), 0);
+  std::stable_sort(pool_order.begin(), pool_order.end(),
+                   [&](int a, int b) { return pool[a].score > pool[b].score; });
+  std::vector<RankedPlan> finals;
+  for (int i : pool_order) {
+    RankedPlan plan;
+    plan.placement = problem.Decode(pool[i].x);
+    bool distinct = true;
+    for (const auto& f : finals)
+      distinct = distinct && Distinct(plan.placement, f.placement, options.distinct_distance);
+    if (distinct) finals.push_back(std::move(plan));
+  }
+  std::vector<Eigen::Vector3d> shifts;
+  if (options.robustness_shift > 0) {
+    for (int axis = 0; axis < 3; ++axis) {
+      for (double sign : {1.0, -1.0})
+        shifts.push_back(sign * options.robustness_shift * Eigen::Vector3d::Unit(axis));
+    }
+  }
+  int final_evaluations = 0;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(+ : final_evaluations)
+  for (int i = 0; i < static_cast<int>(finals.size()); ++i) {
+    Workspace ws(problem);
+    RankedPlan& plan = finals[i];
+    PortPlacementProblem::EvaluateOptions how;
+    how.detailed = true;
+    how.full_solver = true;
+    plan.evaluation = problem.Evaluate(plan.placement, &ws, how);
+    ++final_evaluations;
+    double sum = 0;
+    for (const auto& d_P : shifts) {
+      std::vector<TargetSample> moved = problem.samples();
+      const Eigen::Vector3d d_W = problem.patient().X_WP.linear() * d_P;
+      for (auto& s : moved) s.p_W += d_W;
+      PortPlacementProblem::EvaluateOptions shifted;
+      shifted.full_solver = true;
+      shifted.samples = &moved;
+      shifted.sample_mask =
+          collision::kAllMovingPairs & ~collision::Bit(collision::PairClass::kInstrumentPatient);
+      const Evaluation ev = problem.Evaluate(plan.placement, &ws, shifted);
+      ++final_evaluations;
+      Shift shift;
+      shift.d_P = d_P;
+      shift.score = ev.score;
+      shift.coverage = ev.Find("coverage") ? ev.Find("coverage")->value : 0.0;
+      shift.served =
+          ev.served.empty()
+              ? 0.0
+              : static_cast<double>(std::count(ev.served.begin(), ev.served.end(), true)) /
+                    ev.served.size();
+      plan.shifts.push_back(shift);
+      sum += ev.score;
+    }
+    plan.robust_score = shifts.empty() ? plan.evaluation.score : sum / shifts.size();
+    plan.degradation = plan.evaluation.score - plan.robust_score;
+    plan.rank_score =
+        plan.evaluation.score - options.robustness_weight * std::max(0.0, plan.degradation);
+    progress(0.85 + 0.15 * (i + 1) / finals.size(), "robustness");
+  }
+  std::stable_sort(finals.begin(), finals.end(), [](const RankedPlan& a, const RankedPlan& b) {
+    return a.rank_score > b.rank_score;
+  });
+  if (static_cast<int>(finals.size()) > options.top_k) finals.resize(options.top_k);
+  result.plans = std::move(finals);
+  stamp("final plans and robustness", t_stage);
+  result.evaluations = result.global_evaluations +
+                       std::accumulate(polish_counts.begin(), polish_counts.end(), 0) +
+                       final_evaluations;
+  result.time_limit_hit = out_of_time.load();
+
+  // --- Verdict
+  // ------------------------------------------------------------------------------------
+  Verdict& verdict = result.verdict;
+  const auto& targets = problem.patient().targets;
+  const auto& samples = problem.samples();
+  if (result.plans.empty() || result.plans[0].evaluation.status != PlacementStatus::kPlaced) {
+    verdict.suitable = false;
+    std::ostringstream why;
+    if (result.plans.empty()) {
+      why << "no placement was evaluated (time limit " << options.time_limit << " s)";
+    } else {
+      why << "no placement of the cart puts every arm at a port "
+          << (result.plans[0].evaluation.status == PlacementStatus::kInCollision
+                  ? "without collisions"
+                  : "within the setup joints' reach")
+          << "; the best: " << result.plans[0].evaluation.message;
+    }
+    verdict.reasons.push_back(why.str());
+    verdict.summary = "not suitable: " + verdict.reasons.front();
+  } else {
+    const Evaluation& best = result.plans[0].evaluation;
+    verdict.suitable = true;
+    for (int t = 0; t < static_cast<int>(targets.size()); ++t) {
+      std::vector<int> idx;
+      for (int s = 0; s < static_cast<int>(samples.size()); ++s) {
+        if (samples[s].target == t) idx.push_back(s);
+      }
+      int served = 0;
+      for (int s : idx) served += best.served[s] ? 1 : 0;
+      const double fraction = idx.empty() ? 1.0 : static_cast<double>(served) / idx.size();
+      if (fraction >= options.suitable_fraction) continue;
+      verdict.suitable = false;
+      // Group consecutive unserved samples with the same reason into stretches of the target.
+      auto reason_of = [&](int s) {
+        for (const auto& r : best.reaches) {
+          if (r.sample == s && !r.reached) {
+            std::string why = r.reason;
+            // "from every candidate port" when no candidate point is within reach
+            if (why.rfind("insertion limit", 0) == 0) {
+              double nearest = std::numeric_limits<double>::infinity();
+              for (const auto& c : problem.patient().port_candidates) {
+                for (const auto& p : c.skin)
+                  nearest = std::min(nearest, (problem.patient().X_WP * p - samples[s].p_W).norm());
+              }
+              const double reach = problem.MaxReach(r.arm);
+              const auto& joint = problem.robot().joint(
+                  problem.robot().active_joints()[problem.arms()[r.arm].insertion_q]);
+              std::ostringstream w;
+              if (nearest > reach) {
+                w << "insertion limit (" << std::lround(joint.limits.upper * 1e3)
+                  << " mm) exceeded from every candidate port (the nearest is "
+                  << std::lround(nearest * 1e3) << " mm away, the tool reaches "
+                  << std::lround(reach * 1e3) << " mm)";
+              } else {
+                w << "insertion limit (" << std::lround(joint.limits.upper * 1e3)
+                  << " mm) exceeded from the chosen port";
+              }
+              why = w.str();
+            }
+            return problem.arms()[r.arm].name + ": " + why;
+          }
+        }
+        return std::string("not served");
+      };
+      std::size_t i = 0;
+      while (i < idx.size()) {
+        if (best.served[idx[i]]) {
+          ++i;
+          continue;
+        }
+        const std::string why = reason_of(idx[i]);
+        std::size_t j = i;
+        while (j + 1 < idx.size() && !best.served[idx[j + 1]] && reason_of(idx[j + 1]) == why) ++j;
+        std::ostringstream line;
+        line << targets[t].name << " " << std::lround(samples[idx[i]].arc_length * 1e3) << "–"
+             << std::lround(samples[idx[j]].arc_length * 1e3) << " mm from its origin: " << why;
+        verdict.reasons.push_back(line.str());
+        i = j + 1;
+      }
+    }
+    std::ostringstream summary;
+    if (verdict.suitable) {
+      summary << "suitable: every target is served (both instruments reach, the endoscope sees) on "
+                 "at least "
+              << std::lround(options.suitable_fraction * 100)
+              << " % of its length by the best plan";
+    } else {
+      summary << "not suitable: " << verdict.reasons.size() << " target stretch"
+              << (verdict.reasons.size() == 1 ? "" : "es") << " not served by the best plan";
+    }
+    verdict.summary = summary.str();
+  }
+  stamp("total", t0);
+  return result;
+}
+
+}  // namespace trocar::planners

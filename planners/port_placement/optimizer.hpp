@@ -1,0 +1,109 @@
+#pragma once
+/// @file
+/// Choosing ports and the cart's pose: NLopt global algorithms (DIRECT-L, CRS2-LM, ISRES, MLSL)
+/// each followed by a local polish (BOBYQA, Subplex or COBYLA), or the exhaustive baseline of
+/// Cannon et al. 2003 over a grid of candidate ports; then the top k distinct plans, each scored
+/// again with the targets moved (robustness), ranked, and a verdict for the patient.
+///
+/// Determinism: the global stage is split into a fixed number of starts (sectors of the cart's
+/// direction), each with its own seed, evaluation budget and workspace; OpenMP runs the starts in
+/// parallel and the results are merged in start order, so the same seed gives the same plans at
+/// any thread count. The wall-clock limit is a safety cap: when it cuts a run short, the result
+/// says so (and may then depend on the machine's speed).
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "port_placement/problem.hpp"
+
+namespace trocar::planners {
+
+/// Valid names for PortPlacementOptions::algorithm and ::local.
+std::vector<std::string> GlobalAlgorithms();  ///< direct-l, crs2-lm, isres, mlsl, exhaustive
+std::vector<std::string> LocalAlgorithms();   ///< bobyqa, subplex, cobyla, none
+
+struct PortPlacementOptions {
+  std::string algorithm = "direct-l";
+  std::string local = "bobyqa";
+  /// Evaluations of the global stage, over all starts.
+  int evaluations = 1200;
+  /// Independent starts of the global stage (a fixed number: not the thread count).
+  int starts = 4;
+  /// Evaluations of each local polish.
+  int polish_evaluations = 100;
+  /// Wall-clock cap for the whole plan, in seconds.
+  double time_limit = 120.0;
+  /// OpenMP threads; 0: all cores.
+  int threads = 0;
+  unsigned seed = 1;
+  /// Distinct plans returned.
+  int top_k = 3;
+  /// Two plans are distinct when some arm's ports are farther apart than this (m).
+  double distinct_distance = 0.025;
+  /// Robustness: targets moved by this distance along ±x, ±y, ±z of the patient (m); 0: skip.
+  double robustness_shift = 0.02;
+  /// Weight of the robustness loss in the rank: rank = score − weight · (score − mean moved
+  /// score)⁺.
+  double robustness_weight = 0.5;
+  /// Share of each target's samples that must be served (both instruments reach, the scope sees)
+  /// for the patient to be suitable.
+  double suitable_fraction = 0.8;
+  /// Called with the fraction done (0..1) and a stage name, from the calling thread only.
+  std::function<void(double, const std::string&)> progress;
+};
+
+/// A target moved for the robustness check, and how the plan fares.
+struct Shift {
+  Eigen::Vector3d d_P = Eigen::Vector3d::Zero();  ///< the move, in the patient frame (m)
+  double score = 0.0;
+  double coverage = 0.0;
+  double served = 0.0;  ///< share of samples served
+};
+
+struct RankedPlan {
+  Placement placement;
+  Evaluation evaluation;  ///< detailed, with the setup-joint solver's full effort
+  std::vector<Shift> shifts;
+  double robust_score = 0.0;  ///< mean score over the shifts (the score itself when skipped)
+  double degradation = 0.0;   ///< score − robust_score
+  double rank_score = 0.0;
+};
+
+/// What a target needs that no plan gives it.
+struct Verdict {
+  bool suitable = false;
+  std::string summary;               ///< one line
+  std::vector<std::string> reasons;  ///< one per failing target stretch
+};
+
+/// Best score so far against evaluations, for the convergence figure.
+struct TracePoint {
+  int evaluations = 0;
+  double best = 0.0;
+};
+
+struct PortPlacementResult {
+  std::vector<RankedPlan> plans;  ///< best first
+  Verdict verdict;
+  std::string algorithm, local;
+  int evaluations = 0;  ///< global + polish + final
+  int global_evaluations = 0;
+  double best_global_score = 0.0;
+  std::vector<TracePoint> trace;  ///< global stage, starts interleaved in order
+  std::vector<std::pair<std::string, double>> timings;  ///< stage, seconds
+  bool time_limit_hit = false;
+  int threads = 1;
+  std::string grid;  ///< the exhaustive baseline's grid, when it ran
+};
+
+/// Runs the whole planning job on a problem.
+/// @throws trocar::Error for an unknown algorithm or local method (listing the valid names), a
+///         non-positive time limit or budget.
+PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
+                                  const PortPlacementOptions& options);
+
+/// Checks options before any work (same errors as OptimizePorts).
+void ValidateOptions(const PortPlacementOptions& options);
+
+}  // namespace trocar::planners

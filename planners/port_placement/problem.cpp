@@ -1,0 +1,759 @@
+#include "port_placement/problem.hpp"
+
+#include <Eigen/SVD>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <sstream>
+
+#include "collision/collision_world.hpp"
+#include "collision/triangle_bvh.hpp"
+#include "common/error.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "kinematics/jacobian.hpp"
+#include "patient/patient_model.hpp"
+
+namespace trocar::planners {
+
+namespace {
+
+constexpr double kCharacteristicLength =
+    0.1;  // m: weighs translation against rotation in the Jacobian
+constexpr double kNominalDepth =
+    0.03;  // m: instrument tips this far past their ports at the nominal pose
+constexpr double kDeg = M_PI / 180.0;
+
+Eigen::Vector3d Centroid(const std::vector<Eigen::Vector3d>& points) {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const auto& p : points) c += p;
+  return points.empty() ? c : Eigen::Vector3d(c / static_cast<double>(points.size()));
+}
+
+// Score of the angle between two instruments (deg): 1 at 60, 0.5 at 45 and 75, 0 at 15 and 105.
+double TriangulationScore(double deg) {
+  const double off = std::abs(deg - 60.0);
+  if (off <= 15.0) return 1.0 - off / 30.0;
+  return std::max(0.0, 0.5 - (off - 15.0) / 60.0);
+}
+
+// Score of the approach angle against the target's normal: 1 within 30 deg, 0 at 90 deg.
+double ApproachScore(double rad) {
+  const double deg = rad / kDeg;
+  return std::clamp((90.0 - deg) / 60.0, 0.0, 1.0);
+}
+
+struct IkOutcome {
+  bool converged = false;
+  double error = 0.0;      // m, tip to aim
+  double rcm_error = 0.0;  // m, port to shaft (software RCM)
+};
+
+// Position inverse kinematics of an arm's tool toward p_aim_W by damped least squares on the arm's
+// joints, clamped to their limits; for an arm without a mechanical RCM, its shaft is also kept
+// through `port_W` (two rows across the shaft). Writes q and poses into `state`.
+IkOutcome SolveReach(const robot::RobotModel& robot, const PlanArm& arm,
+                     const Eigen::Vector3d& p_aim_W, const Eigen::Vector3d& port_W, int iterations,
+                     double tolerance, robot::RobotState* state) {
+  const robot::Frame& tool = robot.GetFrame(arm.tool_frame);
+  const int m = static_cast<int>(arm.q_indices.size());
+  const bool software_rcm = !arm.has_rcm();
+  const int rows = software_rcm ? 5 : 3;
+  kinematics::Matrix6Xd J_tool, J_a, J_b;
+  Eigen::MatrixXd J(rows, m);
+  Eigen::VectorXd e(rows);
+  IkOutcome out;
+  const Eigen::VectorXd lower = robot.lower_limits(), upper = robot.upper_limits();
+  double damping = 1e-3;
+  double previous = std::numeric_limits<double>::infinity();
+  for (int it = 0; it <= iterations; ++it) {
+    if (!kinematics::ForwardKinematics(robot, state->q, state).ok) break;
+    const Eigen::Vector3d p = kinematics::FramePose(*state, tool).translation();
+    e.head<3>() = p_aim_W - p;
+    kinematics::ComputeFrameJacobian(robot, *state, tool, &J_tool);
+    for (int c = 0; c < m; ++c) J.block<3, 1>(0, c) = J_tool.block<3, 1>(3, arm.q_indices[c]);
+    out.error = e.head<3>().norm();
+    out.rcm_error = 0.0;
+    if (software_rcm) {
+      const Eigen::Vector3d A = state->X_WL[arm.shaft_link] * arm.p_L_shaft_a;
+      const Eigen::Vector3d B = state->X_WL[arm.shaft_link] * arm.p_L_shaft_b;
+      const Eigen::Vector3d AB = B - A;
+      const double lambda = (port_W - A).dot(AB) / AB.squaredNorm();
+      const Eigen::Vector3d u = AB.normalized();
+      Eigen::Vector3d n1 = u.cross(Eigen::Vector3d::UnitX());
+      if (n1.norm() < 0.1) n1 = u.cross(Eigen::Vector3d::UnitY());
+      n1.normalize();
+      const Eigen::Vector3d n2 = u.cross(n1);
+      const Eigen::Vector3d P = A + lambda * AB;
+      e[3] = n1.dot(port_W - P);
+      e[4] = n2.dot(port_W - P);
+      out.rcm_error = e.tail<2>().norm();
+      kinematics::ComputeJacobian(robot, *state, arm.shaft_link, arm.p_L_shaft_a, &J_a);
+      kinematics::ComputeJacobian(robot, *state, arm.shaft_link, arm.p_L_shaft_b, &J_b);
+      for (int c = 0; c < m; ++c) {
+        const Eigen::Vector3d v = (1.0 - lambda) * J_a.block<3, 1>(3, arm.q_indices[c]) +
+                                  lambda * J_b.block<3, 1>(3, arm.q_indices[c]);
+        J(3, c) = n1.dot(v);
+        J(4, c) = n2.dot(v);
+      }
+    }
+    if (out.error <= tolerance && out.rcm_error <= tolerance) {
+      out.converged = true;
+      break;
+    }
+    if (it == iterations) break;
+    const double norm = e.norm();
+    damping = norm < previous ? std::max(damping * 0.5, 1e-4) : std::min(damping * 4.0, 1.0);
+    previous = norm;
+    Eigen::MatrixXd JJt = J * J.transpose();
+    JJt.diagonal().array() += damping * damping;
+    Eigen::VectorXd dq = J.transpose() * JJt.ldlt().solve(e);
+    const double largest = dq.cwiseAbs().maxCoeff();
+    if (largest > 0.2) dq *= 0.2 / largest;
+    for (int c = 0; c < m; ++c) {
+      const int i = arm.q_indices[c];
+      state->q[i] = std::clamp(state->q[i] + dq[c], lower[i], upper[i]);
+    }
+  }
+  return out;
+}
+
+// Why an arm does not reach a point: the insertion limit, a joint at its limit, or no solution.
+std::string ReachFailure(const robot::RobotModel& robot, const PlanArm& arm,
+                         const robot::RobotState& state, const Eigen::Vector3d& p_aim_W,
+                         const Eigen::Vector3d& port_W, double max_reach, const IkOutcome& ik) {
+  std::ostringstream why;
+  const double distance = (p_aim_W - port_W).norm();
+  if (arm.insertion_q >= 0 && distance > max_reach) {
+    const auto& joint = robot.joint(robot.active_joints()[arm.insertion_q]);
+    why << "insertion limit (" << std::lround(joint.limits.upper * 1e3)
+        << " mm) exceeded: the point is " << std::lround(distance * 1e3)
+        << " mm from the port, the tool reaches " << std::lround(max_reach * 1e3) << " mm";
+    return why.str();
+  }
+  for (int i : arm.q_indices) {
+    const auto& joint = robot.joint(robot.active_joints()[i]);
+    const double range = joint.limits.upper - joint.limits.lower;
+    if (!std::isfinite(range)) continue;
+    if (state.q[i] <= joint.limits.lower + 1e-6 || state.q[i] >= joint.limits.upper - 1e-6) {
+      why << "joint limit '" << joint.name << "' ("
+          << (state.q[i] <= joint.limits.lower + 1e-6 ? "lower" : "upper") << "), "
+          << std::lround(ik.error * 1e3) << " mm short";
+      return why.str();
+    }
+  }
+  if (ik.rcm_error > 0.001) {
+    why << "the shaft cannot pass through the port (" << std::lround(ik.rcm_error * 1e3)
+        << " mm off)";
+  } else {
+    why << "no inverse-kinematics solution (" << std::lround(ik.error * 1e3) << " mm short)";
+  }
+  return why.str();
+}
+
+double InverseCondition(const Eigen::MatrixXd& J) {
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(J);
+  const auto& s = svd.singularValues();
+  if (s.size() == 0 || s[0] <= 0.0) return 0.0;
+  return s[s.size() - 1] / s[0];
+}
+
+}  // namespace
+
+double ScoreWeights::sum() const {
+  return coverage + dexterity + approach + triangulation + endoscope + spacing + clearance_arm_arm +
+         clearance_arm_patient + clearance_instrument_rib;
+}
+
+Eigen::Isometry3d Placement::X_WB() const {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = Eigen::AngleAxisd(cart_yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  X.translation() = Eigen::Vector3d(cart_x, cart_y, 0.0);
+  return X;
+}
+
+const ScoreTerm* Evaluation::Find(const std::string& name) const {
+  for (const auto& t : terms) {
+    if (t.name == name) return &t;
+  }
+  return nullptr;
+}
+
+Workspace::Workspace(const PortPlacementProblem& problem)
+    : state(problem.robot()),
+      checker(std::make_unique<collision::CollisionChecker>(problem.world())) {}
+Workspace::~Workspace() = default;
+
+PortPlacementProblem::~PortPlacementProblem() = default;
+
+PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::PatientModel> patient,
+                                           std::shared_ptr<const robot::RobotModel> robot,
+                                           const ProblemOptions& options)
+    : patient_(std::move(patient)), robot_(std::move(robot)), options_(options) {
+  const patient::PatientModel& p = *patient_;
+  TROCAR_THROW_UNLESS(!p.targets.empty(),
+                      "patient '" << p.name << "' (" << p.case_dir
+                                  << "/patient.yaml): no targets to plan for (add `targets:`)");
+  for (const auto& t : p.targets) {
+    TROCAR_THROW_UNLESS(!t.points.empty(),
+                        "patient '" << p.name << "': target '" << t.name << "' has no points");
+  }
+  std::size_t usable = 0;
+  for (const auto& c : p.port_candidates) usable += c.skin.size() >= 2 ? 1 : 0;
+  TROCAR_THROW_UNLESS(usable > 0, "patient '"
+                                      << p.name << "' (" << p.case_dir
+                                      << "/patient.yaml): no port candidate curves (annotate "
+                                         "`port_candidates:` or let `intercostal:` find them)");
+  TROCAR_THROW_UNLESS(options.samples_per_target >= 1,
+                      "samples per target: " << options.samples_per_target << ", expected >= 1");
+  TROCAR_THROW_UNLESS(options.weights.sum() > 0.0, "score weights: their sum must be positive");
+  for (double w :
+       {options.weights.coverage, options.weights.dexterity, options.weights.approach,
+        options.weights.triangulation, options.weights.endoscope, options.weights.spacing,
+        options.weights.clearance_arm_arm, options.weights.clearance_arm_patient,
+        options.weights.clearance_instrument_rib}) {
+    TROCAR_THROW_UNLESS(std::isfinite(w) && w >= 0.0,
+                        "score weights: " << w << " is not a finite weight >= 0");
+  }
+  TROCAR_THROW_UNLESS(
+      options.cart_distance_min > 0 && options.cart_distance_max > options.cart_distance_min,
+      "cart distance range [" << options.cart_distance_min << ", " << options.cart_distance_max
+                              << "] m is empty");
+  arms_ = FindArms(*robot_, options.roles);
+  if (!options.arms.empty()) arms_ = SelectArms(arms_, options.arms);
+
+  // Target samples, evenly by arc length.
+  for (int t = 0; t < static_cast<int>(p.targets.size()); ++t) {
+    const auto& target = p.targets[t];
+    const int n = static_cast<int>(target.points.size());
+    std::vector<double> arc(n, 0.0);
+    for (int i = 1; i < n; ++i)
+      arc[i] = arc[i - 1] + (target.points[i] - target.points[i - 1]).norm();
+    const int k = std::min(n, options.samples_per_target);
+    std::vector<int> picked;
+    for (int s = 0; s < k; ++s) {
+      const double want = k == 1 ? 0.5 * arc.back() : arc.back() * s / (k - 1);
+      int best = 0;
+      for (int i = 1; i < n; ++i) {
+        if (std::abs(arc[i] - want) < std::abs(arc[best] - want)) best = i;
+      }
+      if (std::find(picked.begin(), picked.end(), best) == picked.end()) picked.push_back(best);
+    }
+    for (int i : picked) {
+      TargetSample sample;
+      sample.target = t;
+      sample.point = i;
+      sample.arc_length = arc[i];
+      sample.p_W = p.X_WP * target.points[i];
+      const Eigen::Vector3d n_P = i < static_cast<int>(target.normals.size())
+                                      ? target.normals[i]
+                                      : Eigen::Vector3d::UnitY() * -1.0;
+      sample.n_W = (p.X_WP.linear() * n_P).normalized();
+      samples_.push_back(sample);
+    }
+  }
+  std::vector<Eigen::Vector3d> points;
+  for (const auto& s : samples_) points.push_back(s.p_W);
+  aim_W_ = Centroid(points);
+
+  // Candidate curves: cumulative arc lengths; their centre anchors the cart's bounds.
+  points.clear();
+  for (const auto& c : p.port_candidates) {
+    std::vector<double> arc(c.skin.size(), 0.0);
+    for (std::size_t i = 1; i < c.skin.size(); ++i)
+      arc[i] = arc[i - 1] + (c.skin[i] - c.skin[i - 1]).norm();
+    candidate_arc_.push_back(arc);
+    for (const auto& q : c.skin) points.push_back(p.X_WP * q);
+  }
+  centre_W_ = Centroid(points);
+
+  collision::WorldOptions world_options;
+  for (const auto& arm : arms_) {
+    if (!arm.has_rcm()) world_options.shaft_ports.push_back(robot_->link(arm.shaft_link).name);
+  }
+  world_ = collision::CollisionWorld::Build(patient_.get(), robot_, world_options);
+  {
+    // RCM ports by frame; shaft ports follow them in arm order.
+    const auto& ports = world_->ports();
+    int shaft = 0;
+    for (const auto& port : ports) shaft += port.frame.empty() ? 0 : 1;
+    for (const auto& arm : arms_) {
+      int index = -1;
+      if (arm.has_rcm()) {
+        for (std::size_t p = 0; p < ports.size(); ++p) {
+          if (ports[p].frame == arm.rcm_frame) index = static_cast<int>(p);
+        }
+      } else {
+        index = shaft++;
+      }
+      world_port_.push_back(index);
+    }
+  }
+  std::vector<patient::Structure const*> ribs;
+  for (const auto& s : p.structures) {
+    if (s.name.rfind("rib", 0) == 0 && !s.mesh.triangles.empty()) ribs.push_back(&s);
+  }
+  if (!ribs.empty()) {
+    TriangleMesh merged;
+    for (const auto* s : ribs) {
+      const int offset = static_cast<int>(merged.vertices.size());
+      merged.vertices.insert(merged.vertices.end(), s->mesh.vertices.begin(),
+                             s->mesh.vertices.end());
+      for (auto t : s->mesh.triangles)
+        merged.triangles.push_back(t + Eigen::Vector3i::Constant(offset));
+    }
+    ribs_ = std::make_unique<collision::TriangleBvh>(merged);
+  }
+
+  // Longest reach of each arm's tool from its RCM, insertion at the upper limit.
+  for (const auto& arm : arms_) {
+    double reach = std::numeric_limits<double>::infinity();
+    if (arm.has_rcm() && arm.insertion_q >= 0) {
+      robot::RobotState s(*robot_);
+      s.q = robot_->home_configuration();
+      s.q[arm.insertion_q] = robot_->joint(robot_->active_joints()[arm.insertion_q]).limits.upper;
+      if (kinematics::ForwardKinematics(*robot_, s.q, &s).ok) {
+        reach = (kinematics::FramePose(s, robot_->GetFrame(arm.tool_frame)).translation() -
+                 kinematics::FramePose(s, robot_->GetFrame(arm.rcm_frame)).translation())
+                    .norm();
+      }
+    }
+    max_reach_.push_back(reach);
+  }
+}
+
+double PortPlacementProblem::MaxReach(int arm) const { return max_reach_.at(arm); }
+
+void PortPlacementProblem::SetPorts(const Placement& placement,
+                                    collision::CollisionChecker* checker) const {
+  for (std::size_t a = 0; a < arms_.size() && a < placement.sites.size(); ++a) {
+    if (world_port_[a] >= 0) checker->SetPortPosition(world_port_[a], placement.sites[a].p_W);
+  }
+}
+
+std::vector<double> PortPlacementProblem::lower_bounds() const {
+  std::vector<double> lb;
+  for (std::size_t i = 0; i < arms_.size(); ++i) lb.insert(lb.end(), {0.0, 0.0});
+  lb.insert(lb.end(), {-M_PI, options_.cart_distance_min, -options_.cart_heading_offset_max});
+  return lb;
+}
+
+std::vector<double> PortPlacementProblem::upper_bounds() const {
+  std::vector<double> ub;
+  const double n = static_cast<double>(patient_->port_candidates.size());
+  for (std::size_t i = 0; i < arms_.size(); ++i) ub.insert(ub.end(), {n, 1.0});
+  ub.insert(ub.end(), {M_PI, options_.cart_distance_max, options_.cart_heading_offset_max});
+  return ub;
+}
+
+PortSite PortPlacementProblem::Site(int candidate, double s) const {
+  const auto& curve = patient_->port_candidates.at(candidate).skin;
+  const auto& arc = candidate_arc_.at(candidate);
+  PortSite site;
+  site.candidate = candidate;
+  site.s = std::clamp(s, 0.0, 1.0);
+  if (curve.size() == 1 || arc.back() <= 0.0) {
+    site.p_P = curve.front();
+  } else {
+    const double want = site.s * arc.back();
+    std::size_t i = 1;
+    while (i + 1 < arc.size() && arc[i] < want) ++i;
+    const double span = arc[i] - arc[i - 1];
+    const double f = span > 0 ? std::clamp((want - arc[i - 1]) / span, 0.0, 1.0) : 0.0;
+    site.p_P = (1 - f) * curve[i - 1] + f * curve[i];
+  }
+  site.p_W = patient_->X_WP * site.p_P;
+  const Eigen::Vector3d toward = aim_W_ - site.p_W;
+  site.p_rcm_W =
+      site.p_W + (toward.norm() > 1e-9 ? Eigen::Vector3d(options_.rcm_depth * toward.normalized())
+                                       : Eigen::Vector3d::Zero());
+  return site;
+}
+
+Placement PortPlacementProblem::Decode(const std::vector<double>& x) const {
+  TROCAR_THROW_UNLESS(static_cast<int>(x.size()) == dimension(),
+                      "decision vector: " << x.size() << " values, expected " << dimension());
+  Placement placement;
+  const int n = static_cast<int>(patient_->port_candidates.size());
+  for (std::size_t a = 0; a < arms_.size(); ++a) {
+    int c = std::clamp(static_cast<int>(std::floor(x[2 * a])), 0, n - 1);
+    // Candidates with fewer than two points are skipped over to the next usable one.
+    for (int k = 0; k < n && patient_->port_candidates[c].skin.size() < 2; ++k) c = (c + 1) % n;
+    placement.sites.push_back(Site(c, x[2 * a + 1]));
+  }
+  const int k = 2 * static_cast<int>(arms_.size());
+  const double from = x[k], distance = x[k + 1], offset = x[k + 2];
+  placement.cart_x = centre_W_.x() + distance * std::cos(from);
+  placement.cart_y = centre_W_.y() + distance * std::sin(from);
+  // Facing the centre (from + pi), turned by the offset.
+  placement.cart_yaw = std::remainder(from + M_PI + offset, 2 * M_PI);
+  return placement;
+}
+
+std::vector<double> PortPlacementProblem::Encode(const Placement& placement) const {
+  std::vector<double> x;
+  for (const auto& site : placement.sites) x.insert(x.end(), {site.candidate + 0.5, site.s});
+  const double dx = placement.cart_x - centre_W_.x(), dy = placement.cart_y - centre_W_.y();
+  const double from = std::atan2(dy, dx);
+  x.push_back(from);
+  x.push_back(
+      std::clamp(std::hypot(dx, dy), options_.cart_distance_min, options_.cart_distance_max));
+  x.push_back(std::clamp(std::remainder(placement.cart_yaw - from - M_PI, 2 * M_PI),
+                         -options_.cart_heading_offset_max, options_.cart_heading_offset_max));
+  return x;
+}
+
+Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace* ws,
+                                          const EvaluateOptions& how) const {
+  const robot::RobotModel& robot = *robot_;
+  const std::vector<TargetSample>& samples = how.samples ? *how.samples : samples_;
+  const bool detailed = how.detailed, full_solver = how.full_solver;
+  TROCAR_THROW_UNLESS(
+      placement.sites.size() == arms_.size(),
+      "placement: " << placement.sites.size() << " ports for " << arms_.size() << " arms");
+  Evaluation ev;
+  robot::RobotState& state = ws->state;
+  collision::CollisionChecker& checker = *ws->checker;
+  CartPlacementResult placed;
+  collision::CollisionReport nominal;
+  std::vector<bool> nominal_ok;
+  robot::RobotState best_state = state;
+  CartPlacementResult best_placed;
+  collision::CollisionReport best_nominal;
+  std::vector<bool> best_ok;
+  std::string best_message;
+  bool have_best = false;
+  // Collisions at the nominal pose are often the setup arms' choice among their redundant
+  // solutions (an arm folded into the cart's column): a few seeded attempts.
+  for (int attempt = 0; attempt < options_.placement_attempts; ++attempt) {
+    // A pure function of the placement: every evaluation starts from the same state (attempt 0:
+    // the setup joints at their neutral values; later attempts: seeded random values, so that the
+    // setup-joint solver lands on another of its redundant solutions).
+    state = robot::RobotState(robot);
+    state.q = robot.home_configuration();
+    if (attempt > 0) {
+      std::mt19937 rng(options_.seed * 31u + static_cast<unsigned>(attempt));
+      for (int d = 0; d < robot.num_dofs(); ++d) {
+        const robot::Joint& joint = robot.joint(robot.dof_joints()[d]);
+        if (joint.drive != robot::JointDrive::kHeld) continue;
+        const double lo = std::isfinite(joint.limits.lower) ? joint.limits.lower : -M_PI;
+        const double hi = std::isfinite(joint.limits.upper) ? joint.limits.upper : M_PI;
+        kinematics::SetHeldJoint(robot, joint.name,
+                                 std::uniform_real_distribution<double>(lo, hi)(rng), &state);
+      }
+    }
+    CartPlacementRequest request;
+    request.X_WB = placement.X_WB();
+    request.aim_W = aim_W_;
+    for (std::size_t a = 0; a < arms_.size(); ++a)
+      request.ports.push_back({arms_[a], placement.sites[a].p_rcm_W});
+    CartPlacementOptions cart_options;
+    cart_options.seed = options_.seed;
+    cart_options.starts = full_solver ? 32 : options_.suj_starts;
+    cart_options.max_iterations = full_solver ? 300 : options_.suj_iterations;
+    placed = PlaceCart(robot, request, cart_options, &state);
+    ev.message = placed.message;
+    if (!placed.placed()) {
+      if (attempt == 0) {
+        ev.status = PlacementStatus::kUnreachable;
+        // Below every placed plan, better the nearer the RCMs come to their ports.
+        ev.score = -2.0 - std::min(placed.worst_position_error, 1.0);
+        return ev;
+      }
+      continue;
+    }
+
+    // Nominal pose: each arm aimed at the targets' centroid, the instruments just inside their
+    // ports (their start pose), the endoscope at its working distance.
+    nominal_ok.assign(arms_.size(), true);
+    for (std::size_t a = 0; a < arms_.size(); ++a) {
+      const PlanArm& arm = arms_[a];
+      const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+      const Eigen::Vector3d dir = (aim_W_ - port).normalized();
+      const Eigen::Vector3d p =
+          arm.role == ArmRole::kEndoscope
+              ? Eigen::Vector3d(aim_W_ - options_.scope_working_distance * dir)
+              : Eigen::Vector3d(port + kNominalDepth * dir);
+      const IkOutcome ik =
+          SolveReach(robot, arm, p, port, options_.ik_iterations * 2, 0.005, &state);
+      nominal_ok[a] = ik.converged;
+    }
+    kinematics::ForwardKinematics(robot, state.q, &state);
+    ev.q_nominal = state.q;
+    ev.joint_values = state.joint_values;
+    checker.SetRobotState(state);
+    SetPorts(placement, &checker);
+    nominal = checker.Check();
+    if (!have_best || nominal.contacts.size() < best_nominal.contacts.size()) {
+      have_best = true;
+      best_state = state;
+      best_placed = placed;
+      best_nominal = nominal;
+      best_ok = nominal_ok;
+      best_message = ev.message;
+    }
+    if (!nominal.collision) break;
+  }
+  state = best_state;
+  placed = best_placed;
+  nominal = best_nominal;
+  nominal_ok = best_ok;
+  ev.message = best_message;
+  ev.q_nominal = state.q;
+  ev.joint_values = state.joint_values;
+  checker.SetRobotState(state);
+  SetPorts(placement, &checker);
+  ev.collisions = static_cast<int>(nominal.contacts.size());
+  if (nominal.collision) {
+    ev.status = PlacementStatus::kInCollision;
+    std::ostringstream m;
+    const auto& bodies = world_->bodies();
+    m << ev.message << "  in collision at the nominal pose: " << nominal.contacts.size()
+      << " pairs";
+    for (std::size_t i = 0; i < std::min<std::size_t>(3, nominal.contacts.size()); ++i) {
+      m << (i == 0 ? " (" : ", ") << bodies[nominal.contacts[i].a].name << " - "
+        << bodies[nominal.contacts[i].b].name;
+    }
+    m << ")\n";
+    ev.message = m.str();
+  } else {
+    ev.status = PlacementStatus::kPlaced;
+  }
+  const robot::RobotState nominal_state = state;
+
+  // Per arm and sample: reach (instruments) or view (endoscopes).
+  const int ns = static_cast<int>(samples.size());
+  std::vector<std::vector<SampleReach>> reach(arms_.size(), std::vector<SampleReach>(ns));
+  for (std::size_t a = 0; a < arms_.size(); ++a) {
+    const PlanArm& arm = arms_[a];
+    const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+    if (arm.role == ArmRole::kEndoscope) {
+      state = nominal_state;
+      const Eigen::Vector3d tip =
+          kinematics::FramePose(state, robot.GetFrame(arm.tool_frame)).translation();
+      const Eigen::Vector3d view = (tip - port).normalized();
+      for (int s = 0; s < ns; ++s) {
+        SampleReach& r = reach[a][s];
+        r.sample = s;
+        r.arm = static_cast<int>(a);
+        const Eigen::Vector3d d = samples[s].p_W - tip;
+        const double dist = d.norm();
+        const double angle = std::acos(std::clamp(view.dot(d / std::max(dist, 1e-9)), -1.0, 1.0));
+        r.seen = nominal_ok[a] && !nominal.collision && angle <= options_.scope_half_fov &&
+                 dist >= options_.scope_min_distance && dist <= options_.scope_max_distance;
+        r.reached = r.seen;
+        r.approach = angle;
+        if (!r.seen) {
+          std::ostringstream why;
+          if (!nominal_ok[a])
+            why << "the endoscope cannot reach its viewpoint";
+          else if (nominal.collision)
+            why << "the nominal pose is in collision";
+          else if (angle > options_.scope_half_fov)
+            why << "outside the field of view (" << std::lround(angle / kDeg)
+                << " deg off the axis)";
+          else
+            why << "outside the working distance (" << std::lround(dist * 1e3) << " mm)";
+          r.reason = why.str();
+        }
+        r.q_arm.resize(arm.q_indices.size());
+        for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
+          r.q_arm[c] = state.q[arm.q_indices[c]];
+      }
+      continue;
+    }
+    for (int s = 0; s < ns; ++s) {
+      SampleReach& r = reach[a][s];
+      r.sample = s;
+      r.arm = static_cast<int>(a);
+      state = nominal_state;
+      const Eigen::Vector3d p_aim = samples[s].p_W + options_.standoff * samples[s].n_W;
+      const Eigen::Vector3d dir = (p_aim - port).normalized();
+      r.approach = std::acos(std::clamp(dir.dot(-samples[s].n_W), -1.0, 1.0));
+      const IkOutcome ik = SolveReach(robot, arm, p_aim, port, options_.ik_iterations,
+                                      options_.ik_tolerance, &state);
+      r.tip_error = ik.error;
+      r.q_arm.resize(arm.q_indices.size());
+      for (std::size_t c = 0; c < arm.q_indices.size(); ++c) r.q_arm[c] = state.q[arm.q_indices[c]];
+      if (!ik.converged) {
+        r.reason = ReachFailure(robot, arm, state, p_aim, port, max_reach_[a], ik);
+        continue;
+      }
+      checker.SetRobotState(state);
+      SetPorts(placement, &checker);
+      if (checker.InCollision(how.sample_mask & collision::kAllMovingPairs)) {
+        if (detailed) {
+          const auto report = checker.Check(how.sample_mask & collision::kAllMovingPairs);
+          const auto& bodies = world_->bodies();
+          const auto& c = report.contacts.front();
+          r.reason = "collision: " + bodies[c.a].name + " - " + bodies[c.b].name;
+        } else {
+          r.reason = "collision";
+        }
+        continue;
+      }
+      r.reached = true;
+      kinematics::Matrix6Xd J_WT;
+      kinematics::ComputeFrameJacobian(robot, state, robot.GetFrame(arm.tool_frame), &J_WT);
+      std::vector<int> cols;
+      for (int i : arm.q_indices) {
+        if (J_WT.col(i).norm() > 1e-9) cols.push_back(i);
+      }
+      Eigen::MatrixXd J(6, cols.size());
+      for (std::size_t c = 0; c < cols.size(); ++c) {
+        J.col(c).head<3>() = J_WT.col(cols[c]).head<3>();
+        J.col(c).tail<3>() = J_WT.col(cols[c]).tail<3>() / kCharacteristicLength;
+      }
+      r.dexterity = InverseCondition(J);
+    }
+  }
+
+  // Terms.
+  const ScoreWeights& w = options_.weights;
+  std::vector<int> instruments, scopes;
+  for (std::size_t a = 0; a < arms_.size(); ++a) {
+    (arms_[a].role == ArmRole::kEndoscope ? scopes : instruments).push_back(static_cast<int>(a));
+  }
+  ev.served.assign(ns, true);
+  double coverage = 0, dexterity = 0, approach = 0, approach_deg = 0;
+  int reached_count = 0;
+  for (int s = 0; s < ns; ++s) {
+    for (int a : instruments) ev.served[s] = ev.served[s] && reach[a][s].reached;
+    if (!scopes.empty()) {
+      bool seen = false;
+      for (int a : scopes) seen = seen || reach[a][s].seen;
+      ev.served[s] = ev.served[s] && seen;
+    }
+  }
+  for (int a : instruments) {
+    for (int s = 0; s < ns; ++s) {
+      const SampleReach& r = reach[a][s];
+      if (!r.reached) continue;
+      ++reached_count;
+      dexterity += r.dexterity;
+      approach += ApproachScore(r.approach);
+      approach_deg += r.approach / kDeg;
+    }
+  }
+  const double slots = std::max<double>(1, instruments.size() * ns);
+  coverage = reached_count / slots;
+  const double per_reached = std::max(1, reached_count);
+  auto add = [&](const std::string& name, const std::string& unit, double value, double score,
+                 double weight, const std::string& note) {
+    ev.terms.push_back({name, unit, value, std::clamp(score, 0.0, 1.0), weight, note});
+  };
+  add("coverage", "fraction", coverage, coverage, w.coverage,
+      "share of (instrument, target sample) pairs reached within joint and insertion limits, every "
+      "arm "
+      "collision-free");
+  add("dexterity", "1", dexterity / per_reached, dexterity / per_reached * coverage, w.dexterity,
+      "mean inverse condition number of the tool Jacobian at the reached samples (length 0.1 m), "
+      "times coverage");
+  add("approach", "deg", reached_count ? approach_deg / per_reached : 90.0, approach / slots,
+      w.approach,
+      "mean angle between instrument axis and the target's approach normal; score 1 within 30 deg, "
+      "0 at 90");
+  // Triangulation between the first two instruments, at every sample (geometric: from the ports).
+  double tri_deg = 0, tri_score = 0;
+  if (instruments.size() >= 2) {
+    const Eigen::Vector3d p1 = placement.sites[instruments[0]].p_W,
+                          p2 = placement.sites[instruments[1]].p_W;
+    for (int s = 0; s < ns; ++s) {
+      const Eigen::Vector3d a = (p1 - samples[s].p_W).normalized(),
+                            b = (p2 - samples[s].p_W).normalized();
+      const double deg = std::acos(std::clamp(a.dot(b), -1.0, 1.0)) / kDeg;
+      tri_deg += deg;
+      tri_score += TriangulationScore(deg);
+    }
+    tri_deg /= std::max(1, ns);
+    tri_score /= std::max(1, ns);
+    add("triangulation", "deg", tri_deg, tri_score, w.triangulation,
+        "mean angle between the two instruments at the target samples; 60 ideal, 45-75 acceptable "
+        "(score 0.5)");
+  } else {
+    add("triangulation", "deg", 0.0, 1.0, 0.0, "fewer than two instruments: not applicable");
+  }
+  if (!scopes.empty()) {
+    int seen = 0;
+    for (int s = 0; s < ns; ++s) {
+      for (int a : scopes) {
+        if (reach[a][s].seen) {
+          ++seen;
+          break;
+        }
+      }
+    }
+    add("endoscope", "fraction", static_cast<double>(seen) / std::max(1, ns),
+        static_cast<double>(seen) / std::max(1, ns), w.endoscope,
+        "share of target samples inside the scope's field of view, in front of it, within its "
+        "working distance");
+  } else {
+    add("endoscope", "fraction", 0.0, 1.0, 0.0, "no endoscope arm: not applicable");
+  }
+  double spacing = std::numeric_limits<double>::infinity();
+  for (std::size_t a = 0; a < placement.sites.size(); ++a) {
+    for (std::size_t b = a + 1; b < placement.sites.size(); ++b) {
+      spacing = std::min(spacing, (placement.sites[a].p_W - placement.sites[b].p_W).norm());
+    }
+  }
+  if (std::isfinite(spacing)) {
+    add("spacing", "m", spacing,
+        (spacing - options_.spacing_min) / (options_.spacing_ideal - options_.spacing_min),
+        w.spacing, "smallest distance between two ports; full score from 8 cm");
+  } else {
+    add("spacing", "m", 0.0, 1.0, 0.0, "one port: not applicable");
+  }
+  // Clearances at the nominal pose.
+  checker.SetRobotState(nominal_state);
+  SetPorts(placement, &checker);
+  const auto by_class = checker.ClearanceByClass();
+  auto clearance = [&](collision::PairClass cls) {
+    const auto i = static_cast<std::size_t>(cls);
+    return i < by_class.size() && by_class[i].valid() ? by_class[i].distance
+                                                      : std::numeric_limits<double>::infinity();
+  };
+  const double arm_arm = clearance(collision::PairClass::kArmArm);
+  const double arm_patient = clearance(collision::PairClass::kArmPatient);
+  add("clearance_arm_arm", "m", std::isfinite(arm_arm) ? arm_arm : -1.0,
+      std::isfinite(arm_arm) ? arm_arm / options_.clearance_scale : 1.0, w.clearance_arm_arm,
+      "smallest distance between two arms at the nominal pose (-1: one arm); full score from 5 cm");
+  add("clearance_arm_patient", "m", arm_patient, arm_patient / options_.clearance_scale,
+      w.clearance_arm_patient,
+      "smallest distance from an arm (not its instrument) to the patient at the nominal pose; full "
+      "score from 5 cm");
+  double rib = std::numeric_limits<double>::infinity();
+  if (ribs_) {
+    const Eigen::Isometry3d X_PW = patient_->X_WP.inverse();
+    for (std::size_t a = 0; a < arms_.size(); ++a) {
+      const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+      const Eigen::Vector3d dir = (aim_W_ - port).normalized();
+      // The shaft through the chest wall: 4 cm either side of its pivot.
+      const auto closest = ribs_->Closest(X_PW * (port - 0.04 * dir), X_PW * (port + 0.04 * dir));
+      rib = std::min(rib, closest.distance);
+    }
+  }
+  add("clearance_instrument_rib", "m", std::isfinite(rib) ? rib : -1.0,
+      std::isfinite(rib) ? rib / options_.rib_clearance_scale : 1.0, w.clearance_instrument_rib,
+      "smallest distance from a shaft's axis (4 cm either side of its pivot, aimed at the targets) "
+      "to a rib; full "
+      "score from 4 mm (-1: no ribs)");
+
+  double total = 0, weights = 0;
+  for (const auto& t : ev.terms) {
+    total += t.weight * t.score;
+    weights += t.weight;
+  }
+  ev.score = weights > 0 ? total / weights : 0.0;
+  if (ev.status == PlacementStatus::kInCollision) {
+    // Below every collision-free plan, better with fewer colliding pairs.
+    ev.score = -1.0 + 0.5 * ev.score - 0.01 * std::min(ev.collisions, 50);
+  }
+  if (detailed) {
+    for (auto& arm_reach : reach) {
+      for (auto& r : arm_reach) ev.reaches.push_back(std::move(r));
+    }
+  }
+  return ev;
+}
+
+}  // namespace trocar::planners

@@ -1,0 +1,226 @@
+#pragma once
+/// @file
+/// The port-placement problem (design.md, "Port placement"): a decision vector — for each arm
+/// a port on one of the patient's candidate curves, plus the cart's pose on the floor — is turned
+/// into a placement (setup joints solved, instruments aimed), and scored term by term: target
+/// coverage, dexterity, approach angle, triangulation, the endoscope's view, port spacing and
+/// clearances. Each term is reported with its raw value and unit and a score in [0, 1]; the
+/// total is their weighted sum. Evaluation is a pure function of the decision (seeded solvers,
+/// no state carried between calls), so a plan is reproducible and any thread may evaluate it.
+
+#include <Eigen/Geometry>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "port_placement/arms.hpp"
+#include "port_placement/cart_placement.hpp"
+#include "robot/robot_model.hpp"
+#include "robot/robot_state.hpp"
+
+namespace trocar::patient {
+struct PatientModel;
+}
+namespace trocar::collision {
+class CollisionWorld;
+class CollisionChecker;
+class TriangleBvh;
+}  // namespace trocar::collision
+
+namespace trocar::planners {
+
+/// Weights of the score terms (they need not sum to 1; the total is divided by their sum).
+/// Defaults and their sources are in docs/plan-format.md ("Score terms").
+struct ScoreWeights {
+  double coverage = 0.35;   ///< reachability first: Sun & Yeung 2007, Xu et al. 2021
+  double dexterity = 0.10;  ///< Trejos et al. 2007, Azimian et al. 2010
+  double approach =
+      0.10;  ///< approach cones at the targets: Azimian et al. 2010 (thesis fig. 2.10)
+  double triangulation = 0.10;          ///< 60° ideal, 45–75° acceptable: Hanna et al. 1997
+  double endoscope = 0.15;              ///< the scope's view of the sites: Cannon et al. 2003
+  double spacing = 0.05;                ///< ports about 8 cm apart: da Vinci guidance
+  double clearance_arm_arm = 0.05;      ///< external arm clashes: SAGES 2016 survey, Xu et al. 2021
+  double clearance_arm_patient = 0.05;  ///< Xu et al. 2021
+  double clearance_instrument_rib = 0.05;  ///< mid-intercostal incision (thoracoscopy practice)
+  double sum() const;
+};
+
+struct ProblemOptions {
+  /// Arms to place, by name or RCM frame, in order; empty: every arm of the robot.
+  std::vector<std::string> arms;
+  /// Role overrides "NAME=instrument|endoscope" (FindArms).
+  std::vector<std::string> roles;
+  /// Target samples per target curve (evenly spaced by arc length; all points when fewer).
+  int samples_per_target = 8;
+  /// The tool tip stops this far out along the target's approach normal (m).
+  double standoff = 0.005;
+  /// The remote centre of motion sits this far inside the skin along the instrument's axis (m):
+  /// at the chest wall's intercostal level, where the shaft pivots between the ribs (the
+  /// cannula's remote-centre mark is set at the body wall), not on the skin.
+  double rcm_depth = 0.025;
+  /// Cart pose bounds, around the centre of the candidate curves: the direction the cart comes
+  /// from (any), its distance on the floor (m), and its heading off facing the centre (rad).
+  double cart_distance_min = 0.6, cart_distance_max = 1.5;
+  double cart_heading_offset_max = 60.0 * M_PI / 180.0;
+  /// Endoscope: half field of view (rad), working distances (m), the distance it is inserted to
+  /// from the targets' centroid.
+  double scope_half_fov = 35.0 * M_PI / 180.0;
+  double scope_min_distance = 0.02, scope_max_distance = 0.15, scope_working_distance = 0.07;
+  /// Spacing: no score at `spacing_min`, full score from `spacing_ideal` (m).
+  double spacing_min = 0.04, spacing_ideal = 0.08;
+  /// Clearances scoring full at these distances (m).
+  double clearance_scale = 0.05, rib_clearance_scale = 0.004;
+  /// Setup-joint solver effort while optimising (starts, iterations per start).
+  int suj_starts = 4, suj_iterations = 100;
+  /// Placements whose arms collide at the nominal pose are solved again from other setup-joint
+  /// starts, up to this many attempts in all.
+  int placement_attempts = 3;
+  /// Reach: inverse-kinematics iterations and success tolerance (m).
+  int ik_iterations = 80;
+  double ik_tolerance = 0.001;
+  ScoreWeights weights;
+  unsigned seed = 1;
+};
+
+/// A target sample: a point of a target with its approach normal, in the world.
+struct TargetSample {
+  int target = -1;          ///< index into the patient's targets
+  int point = -1;           ///< index of the point in the target's curve
+  double arc_length = 0.0;  ///< m from the curve's first point
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ();
+};
+
+/// A port site on a candidate curve.
+struct PortSite {
+  int candidate = -1;  ///< index into the patient's port candidates
+  double s = 0.0;      ///< position along it, 0..1 of its arc length
+  Eigen::Vector3d p_P = Eigen::Vector3d::Zero(), p_W = Eigen::Vector3d::Zero();  ///< on the skin
+  Eigen::Vector3d p_rcm_W =
+      Eigen::Vector3d::Zero();  ///< the pivot: rcm_depth inside, toward the targets
+};
+
+/// A placement: one site per arm (in the problem's arm order) and the cart's pose.
+struct Placement {
+  std::vector<PortSite> sites;
+  double cart_x = 0.0, cart_y = 0.0, cart_yaw = 0.0;  ///< world, m and rad
+  Eigen::Isometry3d X_WB() const;
+};
+
+/// One arm at one target sample.
+struct SampleReach {
+  int sample = -1;
+  int arm = -1;
+  bool reached = false;
+  std::string reason;      ///< why not: "insertion limit (240 mm) exceeded", "joint limit 'x'",
+                           ///< "collision: a - b", ...
+  Eigen::VectorXd q_arm;   ///< the arm's joint values (its q_indices) there
+  double tip_error = 0.0;  ///< m, tool tip to the aim point
+  double dexterity =
+      0.0;  ///< inverse condition number of the tool Jacobian (characteristic length 0.1 m)
+  double approach = 0.0;  ///< rad between the instrument axis and the approach normal
+  bool seen = false;      ///< endoscope arms: the sample is in view
+};
+
+struct ScoreTerm {
+  std::string name;    ///< "coverage", "dexterity", ...
+  std::string unit;    ///< of `value`
+  double value = 0.0;  ///< the raw measure (mean over samples, a distance, ...)
+  double score = 0.0;  ///< 0..1
+  double weight = 0.0;
+  std::string note;  ///< how the value was measured
+};
+
+struct Evaluation {
+  PlacementStatus status = PlacementStatus::kUnreachable;
+  std::string message;  ///< the placement's message
+  double score = -2.0;  ///< weighted term score in [0, 1]; < 0 when not placed (see .cpp)
+  std::vector<ScoreTerm> terms;
+  std::vector<SampleReach>
+      reaches;  ///< per instrument and endoscope arm and sample (detailed evaluations)
+  /// Per sample: every instrument reaches it and an endoscope sees it.
+  std::vector<bool> served;
+  Eigen::VectorXd joint_values;  ///< every movable joint of the robot at the nominal pose
+  Eigen::VectorXd q_nominal;     ///< q at the nominal pose (instruments aimed, inserted)
+  int collisions = 0;            ///< colliding pairs at the nominal pose
+  const ScoreTerm* Find(const std::string& name) const;
+};
+
+/// Per-evaluator scratch: robot state and collision checker. One per thread or per start.
+struct Workspace {
+  explicit Workspace(const class PortPlacementProblem& problem);
+  ~Workspace();
+  robot::RobotState state;
+  std::unique_ptr<collision::CollisionChecker> checker;
+};
+
+class PortPlacementProblem {
+ public:
+  /// @throws trocar::Error before any work for a patient with no targets or no candidate curves,
+  ///         a robot whose arms cannot be found, unknown arm names, bad options.
+  PortPlacementProblem(std::shared_ptr<const patient::PatientModel> patient,
+                       std::shared_ptr<const robot::RobotModel> robot,
+                       const ProblemOptions& options);
+  ~PortPlacementProblem();
+
+  const patient::PatientModel& patient() const { return *patient_; }
+  const robot::RobotModel& robot() const { return *robot_; }
+  std::shared_ptr<const robot::RobotModel> robot_ptr() const { return robot_; }
+  const std::shared_ptr<const collision::CollisionWorld>& world() const { return world_; }
+  const ProblemOptions& options() const { return options_; }
+  const std::vector<PlanArm>& arms() const { return arms_; }
+  const std::vector<TargetSample>& samples() const { return samples_; }
+  const Eigen::Vector3d& aim_W() const { return aim_W_; }
+
+  /// Decision vector: per arm (candidate coordinate in [0, candidates), position in [0, 1]),
+  /// then the cart (direction it comes from in [-pi, pi], distance, heading offset).
+  int dimension() const { return 2 * static_cast<int>(arms_.size()) + 3; }
+  std::vector<double> lower_bounds() const;
+  std::vector<double> upper_bounds() const;
+  Placement Decode(const std::vector<double>& x) const;
+  /// The decision vector of a placement (inverse of Decode up to the curve's rounding).
+  std::vector<double> Encode(const Placement& placement) const;
+  PortSite Site(int candidate, double s) const;
+
+  struct EvaluateOptions {
+    /// Keep per-sample results and name collision pairs (final plans); the optimiser leaves it off.
+    bool detailed = false;
+    /// The setup-joint solver's full effort (32 starts, 300 iterations) instead of the options'.
+    bool full_solver = false;
+    /// Other target samples (the robustness check moves them); null: the problem's.
+    const std::vector<TargetSample>* samples = nullptr;
+    /// Pair classes checked at each target sample. The robustness check leaves out
+    /// instrument–patient: the targets move, the meshes do not.
+    unsigned sample_mask = 0xffffffffu;
+  };
+  /// Scores a placement: placed and collision-free at the nominal pose, a score in [0, 1] (the
+  /// weighted mean of the terms); in collision, in [-1.5, -0.5]; not placed, below -2.
+  Evaluation Evaluate(const Placement& placement, Workspace* workspace,
+                      const EvaluateOptions& how) const;
+  Evaluation Evaluate(const Placement& placement, Workspace* workspace) const {
+    return Evaluate(placement, workspace, EvaluateOptions{});
+  }
+
+  /// The longest reach of an arm's tool from its RCM (m), insertion at its upper limit, for the
+  /// verdict ("insertion limit exceeded from every candidate port").
+  double MaxReach(int arm) const;
+
+  /// Puts the collision checker's ports (where instruments may touch the skin) at the sites'
+  /// skin points; call after every CollisionChecker::SetRobotState.
+  void SetPorts(const Placement& placement, collision::CollisionChecker* checker) const;
+
+ private:
+  std::vector<int> world_port_;  // per arm: index of its port in the collision world
+  std::shared_ptr<const patient::PatientModel> patient_;
+  std::shared_ptr<const robot::RobotModel> robot_;
+  ProblemOptions options_;
+  std::vector<PlanArm> arms_;
+  std::vector<TargetSample> samples_;
+  std::shared_ptr<const collision::CollisionWorld> world_;
+  std::unique_ptr<collision::TriangleBvh> ribs_;    // in P
+  std::vector<std::vector<double>> candidate_arc_;  // cumulative arc length per candidate
+  Eigen::Vector3d aim_W_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d centre_W_ = Eigen::Vector3d::Zero();  // of the candidate curves
+  std::vector<double> max_reach_;
+};
+
+}  // namespace trocar::planners
