@@ -289,7 +289,6 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
               << " full evaluations";
     result.grid = grid_text.str();
     archive.resize(xs.size());
-    std::vector<Workspace*> spaces(threads, nullptr);
 #pragma omp parallel num_threads(threads)
     {
       Workspace ws(problem);
