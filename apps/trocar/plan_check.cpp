@@ -11,6 +11,7 @@
 
 #include "apps/trocar/commands.hpp"
 #include "collision/collision_world.hpp"
+#include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
@@ -103,10 +104,14 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         world_options.shaft_ports.push_back(field(arm, "shaft_link"));
     }
     const auto world = collision::CollisionWorld::Build(&patient, robot, world_options);
+    std::unique_ptr<collision::TriangleBvh> skin_bvh;
+    if (const patient::Structure* skin = patient.Find("skin"); skin && !skin->mesh.triangles.empty())
+      skin_bvh = std::make_unique<collision::TriangleBvh>(skin->mesh);
     collision::CollisionChecker checker(world);
     const auto& bodies = world->bodies();
-    // Each arm's port in the world: RCM ports by frame, shaft ports after them in arm order. The
-    // skin may be touched around the port's skin point.
+    // Each arm's port in the world: RCM ports by frame, shaft ports after them in arm order. A
+    // shaft may touch the skin within its pivot's depth under the skin plus the port radius of
+    // the pivot (docs/plan-format.md, "Ports"), recomputed here from the skin mesh.
     std::vector<int> world_port;
     {
       int shaft = 0;
@@ -120,11 +125,21 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         world_port.push_back(index);
       }
     }
+    const Eigen::Isometry3d X_PW = patient.X_WP.inverse();
+    auto allowance = [&](const Eigen::Vector3d& pivot_W) {
+      double depth = 0.0;
+      if (skin_bvh) {
+        const auto c = skin_bvh->Closest(X_PW * pivot_W, X_PW * pivot_W);
+        if (c.found()) depth = c.distance;
+      }
+      return depth + world->options().port_radius;
+    };
     auto collisions = [&](const robot::RobotState& state,
-                          const std::vector<Eigen::Vector3d>& skin_ports) {
+                          const std::vector<Eigen::Vector3d>& pivots_W) {
       checker.SetRobotState(state);
-      for (std::size_t a = 0; a < world_port.size() && a < skin_ports.size(); ++a) {
-        if (world_port[a] >= 0) checker.SetPortPosition(world_port[a], skin_ports[a]);
+      for (std::size_t a = 0; a < world_port.size() && a < pivots_W.size(); ++a) {
+        if (world_port[a] >= 0)
+          checker.SetPortPosition(world_port[a], pivots_W[a], allowance(pivots_W[a]));
       }
       const collision::CollisionReport report = checker.Check();
       std::string text;
@@ -176,7 +191,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       if (!fk.ok) fail(tag + "nominal pose: " + fk.message);
       const robot::RobotState nominal = state;
       // Ports: on their candidate curve, RCMs at them.
-      std::vector<Eigen::Vector3d> ports_W, pivots;
+      std::vector<Eigen::Vector3d> pivots;
       const json& ports = field(plan, "ports");
       TROCAR_THROW_UNLESS(ports.size() == arms.size(), path << ": " << tag << ports.size()
                                                             << " ports for " << arms.size()
@@ -185,7 +200,6 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         const json& port = ports[a];
         const Eigen::Vector3d p_W = Vec(field(port, "p_W"), "ports[].p_W");
         const Eigen::Vector3d p_P = Vec(field(port, "p_P"), "ports[].p_P");
-        ports_W.push_back(p_W);
         const std::string arm_name = field(arms[a], "name").get<std::string>();
         claims += 2;
         if ((patient.X_WP * p_P - p_W).norm() > kSlack)
@@ -197,9 +211,20 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         }
         if (!curve) {
           fail(tag + arm_name + ": port candidate '" + candidate + "' is not one of the patient's");
-        } else if (DistanceToPolyline(p_P, curve->skin) > kPortTolerance) {
-          fail(tag + arm_name + ": port is " + Mm(DistanceToPolyline(p_P, curve->skin)) +
-               " off its curve " + candidate);
+        } else {
+          const Eigen::Vector3d curve_P = Vec(field(port, "curve_P"), "ports[].curve_P");
+          ++claims;
+          if (DistanceToPolyline(curve_P, curve->skin) > kPortTolerance)
+            fail(tag + arm_name + ": port site is " + Mm(DistanceToPolyline(curve_P, curve->skin)) +
+                 " off its curve " + candidate);
+          if ((curve_P - p_P).norm() > planners::kMaxIncisionOffset + kSlack)
+            fail(tag + arm_name + ": the incision is " + Mm((curve_P - p_P).norm()) +
+                 " from its site on " + candidate);
+        }
+        if (skin_bvh) {
+          ++claims;
+          const double off = skin_bvh->Closest(p_P, p_P).distance;
+          if (off > kPortTolerance) fail(tag + arm_name + ": the incision is " + Mm(off) + " off the skin");
         }
         const std::string rcm = field(arms[a], "rcm_frame").get<std::string>();
         const Eigen::Vector3d rcm_W = Vec(field(port, "rcm_W"), "ports[].rcm_W");
@@ -208,6 +233,11 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         if ((rcm_W - p_W).norm() > 0.1)
           fail(tag + arm_name + ": the pivot is " + Mm((rcm_W - p_W).norm()) +
                " from the skin port");
+        ++claims;
+        if (allowance(rcm_W) - world->options().port_radius > planners::kMaxPivotDepth + kSlack)
+          fail(tag + arm_name + ": the pivot is " +
+               Mm(allowance(rcm_W) - world->options().port_radius) + " under the skin (at most " +
+               Mm(planners::kMaxPivotDepth) + ")");
         if (rcm.empty()) continue;
         ++claims;
         const double off =
@@ -218,7 +248,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       // Nominal pose collision-free when the plan says "placed".
       if (field(plan, "status").get<std::string>() == "placed") {
         ++claims;
-        const auto [n, which] = collisions(nominal, ports_W);
+        const auto [n, which] = collisions(nominal, pivots);
         if (n > 0)
           fail(tag + "claims a collision-free placement, but " + std::to_string(n) +
                " pairs collide at the nominal pose: " + which);
@@ -280,7 +310,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           if (off > ik_tolerance + kSlack)
             fail(where + "the shaft passes " + Mm(off) + " from its pivot");
         }
-        const auto [n, which] = collisions(state, ports_W);
+        const auto [n, which] = collisions(state, pivots);
         if (n > 0)
           fail(where + "claimed reached, but " + std::to_string(n) + " pairs collide: " + which);
       }

@@ -26,6 +26,7 @@ using Convex = CollisionWorld::Impl::Convex;
 struct QueryData {
   const CollisionWorld::Impl* world = nullptr;
   const std::vector<Eigen::Vector3d>* port_W = nullptr;
+  const std::vector<double>* port_radius = nullptr;
   unsigned mask = 0;
   bool stop_at_first = false;
   bool want_contacts = false;
@@ -131,7 +132,7 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
   if (port >= 0) {
     // Touching the skin only within the port's radius is passing through the port.
     const Eigen::Vector3d& p_W = (*d.port_W)[port];
-    const double r = w.options.port_radius;
+    const double r = (*d.port_radius)[port];
     bool outside = false;
     for (std::size_t i = 0; i < result.numContacts() && !outside; ++i) {
       const auto& c = result.getContact(i);
@@ -243,6 +244,7 @@ struct CollisionChecker::State {
   fcl::DynamicAABBTreeCollisionManagerd robot_tree;
   const CollisionWorld::Impl* world = nullptr;
   std::vector<Eigen::Vector3d> port_W;
+  std::vector<double> port_radius;
   struct Candidate {
     double lower_bound;
     int r, f;
@@ -292,6 +294,7 @@ CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
     state_->robot_tree.setup();
   }
   state_->port_W.resize(w.ports.size(), Eigen::Vector3d::Zero());
+  state_->port_radius.assign(w.ports.size(), w.options.port_radius);
 }
 
 CollisionChecker::~CollisionChecker() = default;
@@ -319,7 +322,7 @@ void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
       const Eigen::Vector3d centre_M = port >= 0
                                            ? Eigen::Vector3d(w.X_pose[f].inverse() * port_W[port])
                                            : Eigen::Vector3d::Zero();
-      const double exclude = port >= 0 ? w.options.port_radius : -1.0;
+      const double exclude = port >= 0 ? port_radius[port] : -1.0;
       const SweptSphereContact hit =
           fast == Convex::Kind::kSweptSphere
               ? w.mesh[f]->Touches(shape.a_M, shape.b_M, w.convex[r].radius, centre_M, exclude)
@@ -432,13 +435,17 @@ void CollisionChecker::SetRobotState(const robot::RobotState& state) {
   }
 }
 
-void CollisionChecker::SetPortPosition(int port, const Eigen::Vector3d& p_W) {
+void CollisionChecker::SetPortPosition(int port, const Eigen::Vector3d& p_W, double radius) {
   TROCAR_THROW_UNLESS(port >= 0 && port < static_cast<int>(state_->port_W.size()),
                       "collision checker: port " << port << " does not exist ("
                                                  << state_->port_W.size() << " ports)");
   TROCAR_THROW_UNLESS(p_W.allFinite(), "collision checker: port position is not finite");
+  TROCAR_THROW_UNLESS(std::isfinite(radius), "collision checker: port radius is not finite");
   state_->port_W[port] = p_W;
+  if (radius >= 0.0) state_->port_radius[port] = radius;
 }
+
+double CollisionChecker::port_radius(int port) const { return state_->port_radius.at(port); }
 
 const Eigen::Vector3d& CollisionChecker::port_position(int port) const {
   return state_->port_W.at(port);
@@ -448,6 +455,7 @@ bool CollisionChecker::InCollision(unsigned mask) {
   QueryData d;
   d.world = &world_->impl();
   d.port_W = &state_->port_W;
+  d.port_radius = &state_->port_radius;
   d.mask = mask;
   d.stop_at_first = true;
   state_->Collide(d);
@@ -458,6 +466,7 @@ CollisionReport CollisionChecker::Check(unsigned mask) {
   QueryData d;
   d.world = &world_->impl();
   d.port_W = &state_->port_W;
+  d.port_radius = &state_->port_radius;
   d.mask = mask;
   d.want_contacts = true;
   state_->Collide(d);

@@ -204,9 +204,12 @@ class CollisionChecker {
   /// port follows its RCM frame (a shaft port keeps the position last set, or starts at its
   /// link's origin).
   void SetRobotState(const robot::RobotState& state);
-  /// Puts a port somewhere other than its RCM frame (until the next SetRobotState).
-  void SetPortPosition(int port, const Eigen::Vector3d& p_W);
+  /// Puts a port somewhere other than its RCM frame (until the next SetRobotState), and with
+  /// `radius` >= 0 sets how far from it an instrument may touch the skin (default
+  /// WorldOptions::port_radius; kept until set again: SetRobotState does not reset it).
+  void SetPortPosition(int port, const Eigen::Vector3d& p_W, double radius = -1.0);
   const Eigen::Vector3d& port_position(int port) const;
+  double port_radius(int port) const;
 
   /// Yes/no, stopping at the first collision among the classes in `mask`.
   bool InCollision(unsigned mask = kAllMovingPairs);

@@ -294,7 +294,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
     const YAML::Node ph = root["phantom"];
     y.ExpectMap(ph, "phantom",
                 {"seed", "body_width", "body_depth", "length", "ribs_per_side", "rib_spacing",
-                 "heart_scale", "voxel_size"});
+                 "heart_scale", "heart_offset", "voxel_size"});
     c.has_phantom = true;
     PhantomParameters& p = c.phantom;
     // Whole numbers in range before the casts (a cast of a negative or huge double is undefined).
@@ -313,6 +313,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
     p.ribs_per_side = static_cast<int>(whole("ribs_per_side", p.ribs_per_side, 2, 12));
     p.rib_spacing = y.NumberOr(ph, "rib_spacing", "phantom", p.rib_spacing);
     p.heart_scale = y.NumberOr(ph, "heart_scale", "phantom", p.heart_scale);
+    if (ph["heart_offset"]) p.heart_offset = y.Vector3(ph["heart_offset"], "phantom.heart_offset");
     p.voxel_size = y.NumberOr(ph, "voxel_size", "phantom", p.voxel_size);
   }
   if (root["units"]) {

@@ -87,20 +87,30 @@ CartPlacementResult PlaceCart(const robot::RobotModel& cart, const CartPlacement
     suj_options.starts = options.starts;
     suj_options.max_iterations = options.max_iterations;
     auto solved = kinematics::SolveSetupJoints(cart, *state, suj, suj_options);
-    if (!solved.solved() && suj.axis_W && solved.position_error < suj_options.position_tolerance) {
-      // The RCM reaches the port but the setup joints cannot also set the instrument's direction
-      // (the ECM's SUJ has four joints): the port alone is what the setup joints must give.
+    // The setup joints put the RCM at the port; pointing the instrument at the aim as well is
+    // best effort: an arm whose setup joints cannot turn its RCM that far (the ECM's SUJ has four
+    // joints, all but one vertical) keeps the nearest direction, and its own joints aim the rest.
+    const bool at_port = solved.position_error <= suj_options.position_tolerance;
+    if (!at_port && suj.axis_W) {
       auto position_only = suj;
       position_only.axis_W.reset();
       const auto retry = kinematics::SolveSetupJoints(cart, *state, position_only, suj_options);
-      if (retry.solved()) solved = retry;
+      if (retry.position_error < solved.position_error) solved = retry;
     }
+    const bool placed = solved.position_error <= suj_options.position_tolerance;
     for (std::size_t i = 0; i < solved.joints.size(); ++i) {
       kinematics::SetHeldJoint(cart, solved.joints[i], solved.values[i], state);
     }
     result.worst_position_error = std::max(result.worst_position_error, solved.position_error);
     result.worst_angle_error = std::max(result.worst_angle_error, solved.angle_error);
-    reached = reached && solved.solved();
+    reached = reached && placed;
+    if (placed && !solved.solved()) {
+      std::ostringstream m;
+      m << "frame '" << arm.rcm_frame << "' placed within " << solved.position_error * 1e3
+        << " mm; its axis " << solved.angle_error * 180.0 / M_PI
+        << " deg off the aim (the arm's joints aim the rest)";
+      solved.message = m.str();
+    }
     message << "  " << arm.rcm_frame << ": " << solved.message << "\n";
   }
   // Instruments inserted toward the aim; the arm's other joints point the shaft there (for an

@@ -346,6 +346,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     for (auto& a : archives) archive.insert(archive.end(), a.begin(), a.end());
   }
   result.global_evaluations = static_cast<int>(archive.size());
+  result.best_global_score = -std::numeric_limits<double>::infinity();
   for (const auto& s : archive)
     result.best_global_score = std::max(result.best_global_score, s.score);
   if (archive.empty()) result.best_global_score = -std::numeric_limits<double>::infinity();
@@ -433,18 +434,24 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
   for (int i = 0; i < static_cast<int>(finals.size()); ++i) {
     Workspace ws(problem);
     RankedPlan& plan = finals[i];
+    // Detailed, once with the setup-joint effort the optimiser scored it with (so that its score
+    // is reproduced) and once with the solver's full effort, which may land on another of the
+    // setup arms' redundant solutions; the better one is the plan.
     PortPlacementProblem::EvaluateOptions how;
     how.detailed = true;
-    how.full_solver = true;
     plan.evaluation = problem.Evaluate(plan.placement, &ws, how);
-    ++final_evaluations;
+    how.full_solver = true;
+    Evaluation full = problem.Evaluate(plan.placement, &ws, how);
+    final_evaluations += 2;
+    const bool use_full = full.score > plan.evaluation.score;
+    if (use_full) plan.evaluation = std::move(full);
     double sum = 0;
     for (const auto& d_P : shifts) {
       std::vector<TargetSample> moved = problem.samples();
       const Eigen::Vector3d d_W = problem.patient().X_WP.linear() * d_P;
       for (auto& s : moved) s.p_W += d_W;
       PortPlacementProblem::EvaluateOptions shifted;
-      shifted.full_solver = true;
+      shifted.full_solver = use_full;
       shifted.samples = &moved;
       shifted.sample_mask =
           collision::kAllMovingPairs & ~collision::Bit(collision::PairClass::kInstrumentPatient);
@@ -489,15 +496,24 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     std::ostringstream why;
     if (result.plans.empty()) {
       why << "no placement was evaluated (time limit " << options.time_limit << " s)";
+      verdict.summary = "not suitable: " + why.str();
     } else {
       why << "no placement of the cart puts every arm at a port "
           << (result.plans[0].evaluation.status == PlacementStatus::kInCollision
                   ? "without collisions"
-                  : "within the setup joints' reach")
-          << "; the best: " << result.plans[0].evaluation.message;
+                  : "within the setup joints' reach");
+      verdict.summary = "not suitable: " + why.str();
+      // The best attempt's message, one line: each arm's setup, then what collides.
+      std::istringstream lines(result.plans[0].evaluation.message);
+      std::string line, joined;
+      while (std::getline(lines, line)) {
+        const auto first = line.find_first_not_of(' ');
+        if (first == std::string::npos) continue;
+        joined += (joined.empty() ? "" : "; ") + line.substr(first);
+      }
+      why << "; the best: " << joined;
     }
     verdict.reasons.push_back(why.str());
-    verdict.summary = "not suitable: " + verdict.reasons.front();
   } else {
     const Evaluation& best = result.plans[0].evaluation;
     verdict.suitable = true;

@@ -193,9 +193,12 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
       ports.push_back({{"arm", problem.arms()[a].name},
                        {"candidate", patient.port_candidates[site.candidate].name},
                        {"s", site.s},
+                       {"curve_P", Vec(site.p_curve_P)},
                        {"p_P", Vec(site.p_P)},
                        {"p_W", Vec(site.p_W)},
-                       {"rcm_W", Vec(site.p_rcm_W)}});
+                       {"rcm_W", Vec(site.p_rcm_W)},
+                       {"skin_allowance", site.skin_allowance},
+                       {"pivot", site.in_gap ? "intercostal gap" : "rcm_depth toward the targets"}});
     }
     json setup = json::object();
     json nominal = json::object();

@@ -13,6 +13,7 @@
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/jacobian.hpp"
 #include "patient/patient_model.hpp"
+#include "port_placement/plan_io.hpp"
 
 namespace trocar::planners {
 
@@ -304,6 +305,9 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
     }
     ribs_ = std::make_unique<collision::TriangleBvh>(merged);
   }
+  if (const patient::Structure* skin = p.Find("skin"); skin && !skin->mesh.triangles.empty())
+    skin_ = std::make_unique<collision::TriangleBvh>(skin->mesh);
+  FindPivots();
 
   // Longest reach of each arm's tool from its RCM, insertion at the upper limit.
   for (const auto& arm : arms_) {
@@ -327,7 +331,9 @@ double PortPlacementProblem::MaxReach(int arm) const { return max_reach_.at(arm)
 void PortPlacementProblem::SetPorts(const Placement& placement,
                                     collision::CollisionChecker* checker) const {
   for (std::size_t a = 0; a < arms_.size() && a < placement.sites.size(); ++a) {
-    if (world_port_[a] >= 0) checker->SetPortPosition(world_port_[a], placement.sites[a].p_W);
+    if (world_port_[a] >= 0)
+      checker->SetPortPosition(world_port_[a], placement.sites[a].p_rcm_W,
+                               placement.sites[a].skin_allowance);
   }
 }
 
@@ -346,27 +352,152 @@ std::vector<double> PortPlacementProblem::upper_bounds() const {
   return ub;
 }
 
+namespace {
+
+// The middle of the intercostal gap under a skin point: going in along the skin's inward normal,
+// at each depth the point of the plane across the normal farthest from the ribs (a local ascent of
+// the distance to the rib meshes, which settles midway between the two neighbouring ribs); the
+// pivot is where that clearance is smallest — the gap's waist, at the ribs' depth. False when no
+// rib comes within `reach` of the line (no ribs there: the caller falls back).
+bool GapUnder(const collision::TriangleBvh& ribs, const Eigen::Vector3d& skin_P,
+              const Eigen::Vector3d& inward_P, double depth_max, Eigen::Vector3d* pivot_P) {
+  constexpr double kReach = 0.025;  // m: ribs farther than this from the line do not count
+  constexpr double kStep = 0.001;   // m: depth step
+  constexpr double kLateral = 0.015;  // m: how far across the normal the centre may move
+  double best = std::numeric_limits<double>::infinity();
+  Eigen::Vector3d lateral = Eigen::Vector3d::Zero();  // carried from depth to depth
+  for (double t = 0.0; t <= depth_max + 1e-12; t += kStep) {
+    const Eigen::Vector3d q0 = skin_P + t * inward_P;
+    Eigen::Vector3d q = q0 + lateral;
+    double step = 0.002, clearance = kReach;
+    Eigen::Vector3d previous = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 24; ++k) {
+      const auto c = ribs.Closest(q, q, kReach);
+      if (!c.found()) {
+        clearance = kReach;
+        break;
+      }
+      clearance = c.distance;
+      Eigen::Vector3d away = q - c.p_M_mesh;
+      away -= away.dot(inward_P) * inward_P;
+      if (away.norm() < 1e-9) break;
+      away.normalize();
+      if (away.dot(previous) < 0.0) step *= 0.5;
+      if (step < 5e-5) break;
+      previous = away;
+      Eigen::Vector3d next = q + step * away;
+      Eigen::Vector3d off = next - q0;
+      if (off.norm() > kLateral) next = q0 + off * (kLateral / off.norm());
+      q = next;
+    }
+    lateral = q - q0;
+    if (clearance < best) {
+      best = clearance;
+      *pivot_P = q;
+    }
+  }
+  return best < kReach;
+}
+
+// How far from its pivot a shaft may touch the skin: the pivot's depth under the skin plus the
+// port radius (docs/plan-format.md, "Ports").
+double PortSkinAllowance(const collision::TriangleBvh& skin_P, const Eigen::Vector3d& pivot_P,
+                         double port_radius) {
+  const auto c = skin_P.Closest(pivot_P, pivot_P);
+  return (c.found() ? c.distance : 0.0) + port_radius;
+}
+
+// Where the ray from `from_P` along `out_P` first leaves the skin (bisection on the segment's
+// contact with the skin mesh), within `length`; false when it does not.
+bool SkinCrossing(const collision::TriangleBvh& skin, const Eigen::Vector3d& from_P,
+                  const Eigen::Vector3d& out_P, double length, Eigen::Vector3d* crossing_P) {
+  auto touches = [&](double t) { return skin.Closest(from_P, from_P + t * out_P, 1e-9).found(); };
+  if (!touches(length)) return false;
+  double lo = 0.0, hi = length;
+  for (int i = 0; i < 30; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    (touches(mid) ? hi : lo) = mid;
+  }
+  *crossing_P = from_P + hi * out_P;
+  return true;
+}
+
+}  // namespace
+
+void PortPlacementProblem::FindPivots() {
+  const patient::PatientModel& p = *patient_;
+  const Eigen::Isometry3d X_PW = p.X_WP.inverse();
+  const Eigen::Vector3d aim_P = X_PW * aim_W_;
+  const patient::Structure* skin = p.Find("skin");
+  for (const auto& c : p.port_candidates) {
+    std::vector<Eigen::Vector3d> pivots;
+    std::vector<char> in_gap;
+    for (const Eigen::Vector3d& point : c.skin) {
+      Eigen::Vector3d pivot = point;
+      bool gap = false;
+      if (ribs_ && skin && !skin->mesh.vertices.empty()) {
+        Eigen::Vector3d inward = -patient::NearestSurfaceNormal(skin->mesh, point);
+        // A normal pointing away from the targets is the mesh's winding, not the body.
+        if (inward.dot(aim_P - point) < 0.0) inward = -inward;
+        gap = GapUnder(*ribs_, point, inward, options_.gap_search_depth, &pivot);
+      }
+      if (!gap) {
+        const Eigen::Vector3d toward = aim_P - point;
+        pivot = point + (toward.norm() > 1e-9 ? Eigen::Vector3d(options_.rcm_depth *
+                                                                toward.normalized())
+                                              : Eigen::Vector3d::Zero());
+      }
+      pivots.push_back(pivot);
+      in_gap.push_back(gap ? 1 : 0);
+    }
+    candidate_pivot_.push_back(std::move(pivots));
+    candidate_in_gap_.push_back(std::move(in_gap));
+  }
+}
+
 PortSite PortPlacementProblem::Site(int candidate, double s) const {
   const auto& curve = patient_->port_candidates.at(candidate).skin;
   const auto& arc = candidate_arc_.at(candidate);
+  const auto& pivot = candidate_pivot_.at(candidate);
+  const auto& in_gap = candidate_in_gap_.at(candidate);
   PortSite site;
   site.candidate = candidate;
   site.s = std::clamp(s, 0.0, 1.0);
-  if (curve.size() == 1 || arc.back() <= 0.0) {
-    site.p_P = curve.front();
-  } else {
+  std::size_t i = 0;
+  double f = 0.0;
+  if (curve.size() > 1 && arc.back() > 0.0) {
     const double want = site.s * arc.back();
-    std::size_t i = 1;
+    i = 1;
     while (i + 1 < arc.size() && arc[i] < want) ++i;
     const double span = arc[i] - arc[i - 1];
-    const double f = span > 0 ? std::clamp((want - arc[i - 1]) / span, 0.0, 1.0) : 0.0;
-    site.p_P = (1 - f) * curve[i - 1] + f * curve[i];
+    f = span > 0 ? std::clamp((want - arc[i - 1]) / span, 0.0, 1.0) : 0.0;
+    --i;
+  }
+  const std::size_t j = std::min(i + 1, curve.size() - 1);
+  site.p_curve_P = (1 - f) * curve[i] + f * curve[j];
+  const Eigen::Vector3d pivot_P = (1 - f) * pivot[i] + f * pivot[j];
+  site.p_rcm_W = patient_->X_WP * pivot_P;
+  site.in_gap = in_gap[i] && in_gap[j];
+  // The incision: where the line from the targets' centroid through the pivot leaves the skin,
+  // unless that is far from the site (an aim nearly along the chest wall): then the skin point
+  // nearest the curve point.
+  site.p_P = site.p_curve_P;
+  if (skin_) {
+    const auto nearest = skin_->Closest(site.p_curve_P, site.p_curve_P);
+    if (nearest.found()) site.p_P = nearest.p_M_mesh;
+    const Eigen::Vector3d out = pivot_P - patient_->X_WP.inverse() * aim_W_;
+    Eigen::Vector3d crossing;
+    if (site.in_gap && out.norm() > 1e-9 &&
+        SkinCrossing(*skin_, pivot_P, out.normalized(), 0.1, &crossing) &&
+        (crossing - site.p_curve_P).norm() <= kMaxIncisionOffset) {
+      site.p_P = crossing;
+    }
   }
   site.p_W = patient_->X_WP * site.p_P;
-  const Eigen::Vector3d toward = aim_W_ - site.p_W;
-  site.p_rcm_W =
-      site.p_W + (toward.norm() > 1e-9 ? Eigen::Vector3d(options_.rcm_depth * toward.normalized())
-                                       : Eigen::Vector3d::Zero());
+  site.skin_allowance =
+      skin_ ? PortSkinAllowance(*skin_, patient_->X_WP.inverse() * site.p_rcm_W,
+                                world_->options().port_radius)
+            : world_->options().port_radius;
   return site;
 }
 
@@ -521,7 +652,10 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
   }
   const robot::RobotState nominal_state = state;
 
-  // Per arm and sample: reach (instruments) or view (endoscopes).
+  // Per arm and sample: reach (instruments) or view (endoscopes). While optimising, a placement
+  // already in collision at its nominal pose is not taken further (its score is banded below
+  // every collision-free one, ranked by its geometric terms and its number of contacts).
+  const bool skip_reach = nominal.collision && !detailed;
   const int ns = static_cast<int>(samples.size());
   std::vector<std::vector<SampleReach>> reach(arms_.size(), std::vector<SampleReach>(ns));
   for (std::size_t a = 0; a < arms_.size(); ++a) {
@@ -566,6 +700,10 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
       SampleReach& r = reach[a][s];
       r.sample = s;
       r.arm = static_cast<int>(a);
+      if (skip_reach) {
+        r.reason = "the nominal pose is in collision";
+        continue;
+      }
       state = nominal_state;
       const Eigen::Vector3d p_aim = samples[s].p_W + options_.standoff * samples[s].n_W;
       const Eigen::Vector3d dir = (p_aim - port).normalized();

@@ -54,10 +54,14 @@ struct ProblemOptions {
   int samples_per_target = 8;
   /// The tool tip stops this far out along the target's approach normal (m).
   double standoff = 0.005;
-  /// The remote centre of motion sits this far inside the skin along the instrument's axis (m):
-  /// at the chest wall's intercostal level, where the shaft pivots between the ribs (the
-  /// cannula's remote-centre mark is set at the body wall), not on the skin.
+  /// The remote centre of motion (the pivot) is set in the chest wall, where the shaft passes
+  /// between the ribs (the cannula's remote-centre mark is set at the body wall), not on the
+  /// skin: under each candidate point, the middle of the intercostal gap at the ribs' depth
+  /// (found on the rib meshes, see PortSite). Where no rib lies within `gap_search_depth` under
+  /// the skin (or the patient has no ribs), the pivot is `rcm_depth` inside the skin toward the
+  /// targets (m).
   double rcm_depth = 0.025;
+  double gap_search_depth = 0.06;  ///< m, at most kMaxPivotDepth (plan_io.hpp)
   /// Cart pose bounds, around the centre of the candidate curves: the direction the cart comes
   /// from (any), its distance on the floor (m), and its heading off facing the centre (rad).
   double cart_distance_min = 0.6, cart_distance_max = 1.5;
@@ -90,13 +94,23 @@ struct TargetSample {
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ();
 };
 
-/// A port site on a candidate curve.
+/// A port site on a candidate curve: the point on the curve, the pivot in the chest wall under
+/// it (the middle of the intercostal gap at the ribs' depth), and the incision, where the line
+/// from the targets' centroid through the pivot leaves the skin (the trocar is inserted aimed at
+/// the targets; near the curve point, but not on it when the wall is thick and the aim oblique).
 struct PortSite {
   int candidate = -1;  ///< index into the patient's port candidates
   double s = 0.0;      ///< position along it, 0..1 of its arc length
-  Eigen::Vector3d p_P = Eigen::Vector3d::Zero(), p_W = Eigen::Vector3d::Zero();  ///< on the skin
-  Eigen::Vector3d p_rcm_W =
-      Eigen::Vector3d::Zero();  ///< the pivot: rcm_depth inside, toward the targets
+  Eigen::Vector3d p_curve_P = Eigen::Vector3d::Zero();  ///< on the candidate curve
+  /// The incision on the skin (the port): patient frame and world.
+  Eigen::Vector3d p_P = Eigen::Vector3d::Zero(), p_W = Eigen::Vector3d::Zero();
+  Eigen::Vector3d p_rcm_W = Eigen::Vector3d::Zero();  ///< the pivot
+  bool in_gap = false;  ///< the pivot was found between ribs (else rcm_depth toward the targets)
+  /// The shaft may touch the skin within this distance of the pivot (m): the pivot's depth under
+  /// the skin plus the world's port radius (the soft wall above the ribs yields around the
+  /// cannula; the ribs do not). docs/plan-format.md states the rule; `trocar check --plan`
+  /// recomputes it.
+  double skin_allowance = 0.0;
 };
 
 /// A placement: one site per arm (in the problem's arm order) and the cart's pose.
@@ -205,7 +219,7 @@ class PortPlacementProblem {
   double MaxReach(int arm) const;
 
   /// Puts the collision checker's ports (where instruments may touch the skin) at the sites'
-  /// skin points; call after every CollisionChecker::SetRobotState.
+  /// pivots with their skin allowances; call after every CollisionChecker::SetRobotState.
   void SetPorts(const Placement& placement, collision::CollisionChecker* checker) const;
 
  private:
@@ -217,7 +231,12 @@ class PortPlacementProblem {
   std::vector<TargetSample> samples_;
   std::shared_ptr<const collision::CollisionWorld> world_;
   std::unique_ptr<collision::TriangleBvh> ribs_;    // in P
+  std::unique_ptr<collision::TriangleBvh> skin_;    // in P
   std::vector<std::vector<double>> candidate_arc_;  // cumulative arc length per candidate
+  // Per candidate and curve point, in P: the pivot, whether it is in a gap.
+  std::vector<std::vector<Eigen::Vector3d>> candidate_pivot_;
+  std::vector<std::vector<char>> candidate_in_gap_;
+  void FindPivots();
   Eigen::Vector3d aim_W_ = Eigen::Vector3d::Zero();
   Eigen::Vector3d centre_W_ = Eigen::Vector3d::Zero();  // of the candidate curves
   std::vector<double> max_reach_;

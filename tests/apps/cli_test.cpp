@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <regex>
+#include <sstream>
 #include <string>
 
 #include "common/file_util.hpp"
@@ -307,6 +308,56 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   const CommandRun tampered = Trocar("check --plan " + out + "/tampered.json");
   EXPECT_EQ(tampered.exit_code, 3) << tampered.output;
   EXPECT_NE(tampered.output.find("from its pivot"), std::string::npos) << tampered.output;
+}
+
+// Whatever the planner writes, `trocar check --plan` (none of the optimiser's code) confirms:
+// on phantoms of other seeds and sizes (ribs, heart, width and depth jittered), each planned with
+// a small budget. A planner whose claims drift from the robot model, the joint limits or the
+// collision checker fails here.
+TEST(TrocarPlan, CheckConfirmsEveryPlanOnPhantomsOfManySeedsAndSizes) {
+  struct Size {
+    unsigned seed;
+    double width, depth, length;
+    int ribs;
+  };
+  for (const Size& size : {Size{2, 0.30, 0.22, 0.34, 9}, Size{3, 0.36, 0.25, 0.38, 10},
+                           Size{4, 0.33, 0.23, 0.32, 8}}) {
+    const std::string dir =
+        ::testing::TempDir() + "trocar_plan_phantom_" + std::to_string(size.seed);
+    std::filesystem::remove_all(dir);
+    std::filesystem::create_directories(dir);
+    std::ostringstream yaml;
+    yaml << "name: phantom-" << size.seed << "\nct: ct.nrrd\n"
+         << "phantom: {seed: " << size.seed << ", body_width: " << size.width
+         << ", body_depth: " << size.depth << ", length: " << size.length
+         << ", ribs_per_side: " << size.ribs << "}\n"
+         << "units: hounsfield\npose: {left_side_up: 25 deg}\ntargets:\n"
+         << "  - {name: LAD, markups: markups/LAD.mrk.json, surface: heart}\n"
+         << "  - {name: LIMA, markups: markups/LIMA.mrk.json, surface: skin, facing: inward}\n"
+         << "intercostal: {left: true}\n";
+    WriteFileAtomically(dir + "/patient.yaml", yaml.str());
+    const CommandRun plan = Trocar("plan " + dir + " --out " + dir + "/out --evaluations 120 " +
+                                   "--starts 2 --polish-evaluations 10 --top 2 --samples 4 " +
+                                   "--seed " + std::to_string(size.seed));
+    ASSERT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
+    const CommandRun check = Trocar("check --plan " + dir + "/out/plan.json");
+    EXPECT_EQ(check.exit_code, 0) << "seed " << size.seed << "\n" << check.output;
+    EXPECT_NE(check.output.find("all hold"), std::string::npos) << check.output;
+  }
+}
+
+// The real chest CT: ranked plans or a verdict, and every claim confirmed.
+TEST(TrocarPlan, Lidc2PlanIsConfirmedByCheck) {
+  if (!IsRegularFile(test::SharedDataPath("ct/lidc2/ct.nhdr"))) GTEST_SKIP() << "no LIDC2 data";
+  const std::string out = ::testing::TempDir() + "trocar_plan_lidc2";
+  std::filesystem::remove_all(out);
+  const CommandRun plan = Trocar("plan " + test::SourcePath("patients/lidc2") + " --out " + out +
+                                 " --evaluations 160 --starts 2 --polish-evaluations 10 --top 2");
+  ASSERT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
+  EXPECT_NE(plan.output.find("verdict: "), std::string::npos) << plan.output;
+  const CommandRun check = Trocar("check --plan " + out + "/plan.json");
+  EXPECT_EQ(check.exit_code, 0) << check.output;
+  EXPECT_NE(check.output.find("all hold"), std::string::npos) << check.output;
 }
 
 TEST(TrocarPlan, BadOptionsAreRefusedNamingThem) {
