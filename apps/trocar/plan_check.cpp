@@ -270,8 +270,37 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         ++claims;
         const robot::Frame& tool = robot->GetFrame(field(arms[a], "tool_frame").get<std::string>());
         if (scope) {
-          const Eigen::Vector3d tip = kinematics::FramePose(nominal, tool).translation();
-          const Eigen::Vector3d axis = (tip - pivots[a]).normalized();
+          // The camera the plan says the scope looks from, and its view axis in that frame: a
+          // frame of this arm (the tool, or one of its frames named like it), along a unit axis.
+          const robot::Frame* camera = &tool;
+          Eigen::Vector3d axis_F = Eigen::Vector3d::UnitZ();
+          bool have_view = false;
+          for (const auto& v : plan.value("views", json::array())) {
+            if (v.value("arm", "") != arm_name) continue;
+            const std::string frame = field(v, "frame").get<std::string>();
+            axis_F = Vec(field(v, "axis_F"), "views[].axis_F");
+            const std::string prefix = arm_name + "_";
+            TROCAR_THROW_UNLESS(frame == tool.name || frame.rfind(prefix, 0) == 0,
+                                path << ": view frame '" << frame << "' is not on arm "
+                                     << arm_name);
+            TROCAR_THROW_UNLESS(std::abs(axis_F.norm() - 1.0) < 1e-9 &&
+                                    axis_F.cwiseAbs().maxCoeff() > 1.0 - 1e-9,
+                                path << ": view axis of " << arm_name
+                                     << " is not a unit axis of its frame");
+            camera = &robot->GetFrame(frame);
+            have_view = true;
+          }
+          TROCAR_THROW_UNLESS(have_view, path << ": no view recorded for endoscope " << arm_name);
+          {
+            // The axis is the straight scope's: along the shaft in the tool frame.
+            const Eigen::Isometry3d X_WT = kinematics::FramePose(nominal, tool);
+            const Eigen::Vector3d shaft = (X_WT.translation() - pivots[a]).normalized();
+            if ((X_WT.linear() * axis_F).dot(shaft) < 0.99)
+              fail(where + "the view axis is not the scope's shaft axis in its tool frame");
+          }
+          const Eigen::Isometry3d X_WC = kinematics::FramePose(nominal, *camera);
+          const Eigen::Vector3d tip = X_WC.translation();
+          const Eigen::Vector3d axis = X_WC.linear() * axis_F;
           const Eigen::Vector3d d = sample_points[sample] - tip;
           const double angle = std::acos(std::clamp(axis.dot(d.normalized()), -1.0, 1.0));
           if (angle > half_fov + 1e-6 || d.norm() < scope_min - kSlack ||

@@ -113,6 +113,12 @@ std::vector<PlanArm> FindArms(const robot::RobotModel& robot,
         camera = true;
     }
     arm.role = camera ? ArmRole::kEndoscope : ArmRole::kInstrument;
+    arm.view_frames = {tool->name};
+    for (const auto& other : frames) {
+      if (other.name != tool->name && other.name.rfind(prefix, 0) == 0 &&
+          Contains(other.name.substr(prefix.size()), "camera"))
+        arm.view_frames.push_back(other.name);
+    }
     FindShaft(robot, tool->link, &arm);
     arms.push_back(std::move(arm));
   }
@@ -121,6 +127,7 @@ std::vector<PlanArm> FindArms(const robot::RobotModel& robot,
     arm.name = robot.name();
     arm.tool_frame = robot.tool_frame().name;
     arm.q_indices = ArmQIndices(robot, robot.tool_frame().link);
+    arm.view_frames = {arm.tool_frame};
     TROCAR_THROW_UNLESS(!arm.q_indices.empty(), "robot '" << robot.name() << "': its tool frame '"
                                                           << robot.tool_frame().name
                                                           << "' is moved by no active joint");

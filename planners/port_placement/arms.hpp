@@ -32,6 +32,9 @@ struct PlanArm {
   int shaft_link = -1;
   Eigen::Vector3d p_L_shaft_a = Eigen::Vector3d::Zero();
   Eigen::Vector3d p_L_shaft_b = Eigen::Vector3d::Zero();
+  /// Endoscopes: the frames the camera may look from — the tool frame (a straight scope) and the
+  /// arm's other frames named `*camera*` (angled scopes, e.g. 30° up and down), in that order.
+  std::vector<std::string> view_frames;
   bool has_rcm() const { return !rcm_frame.empty(); }
 };
 

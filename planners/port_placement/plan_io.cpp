@@ -247,6 +247,11 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
     }
     json served = json::array();
     for (bool b : ev.served) served.push_back(b);
+    json views = json::array();
+    for (const auto& v : ev.views) {
+      views.push_back(
+          {{"arm", problem.arms()[v.arm].name}, {"frame", v.frame}, {"axis_F", Vec(v.axis_F)}});
+    }
     const Eigen::Isometry3d X_WB = plan.placement.X_WB();
     plans.push_back({{"rank", k + 1},
                      {"status", ToString(ev.status)},
@@ -257,6 +262,7 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
                      {"collisions_at_nominal", ev.collisions},
                      {"message", ev.message},
                      {"ports", ports},
+                     {"views", views},
                      {"cart",
                       {{"x", plan.placement.cart_x},
                        {"y", plan.placement.cart_y},

@@ -650,22 +650,113 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
   } else {
     ev.status = PlacementStatus::kPlaced;
   }
-  const robot::RobotState nominal_state = state;
-
   // Per arm and sample: reach (instruments) or view (endoscopes). While optimising, a placement
   // already in collision at its nominal pose is not taken further (its score is banded below
   // every collision-free one, ranked by its geometric terms and its number of contacts).
   const bool skip_reach = nominal.collision && !detailed;
   const int ns = static_cast<int>(samples.size());
+
+  // Endoscopes: which camera (straight or angled scope) and which roll of the scope sees the most
+  // samples from the nominal pose. The straight scope looks along the shaft: its view axis is the
+  // tool frame's axis nearest the shaft; an angled camera frame looks along the same axis of its
+  // own frame. The roll is the arm's joint turning about the shaft.
+  auto count_seen = [&](const robot::RobotState& st, const std::string& frame,
+                        const Eigen::Vector3d& axis_F) {
+    const Eigen::Isometry3d X_WC = kinematics::FramePose(st, robot.GetFrame(frame));
+    const Eigen::Vector3d view = X_WC.linear() * axis_F;
+    int seen = 0;
+    for (int s = 0; s < ns; ++s) {
+      const Eigen::Vector3d d = samples[s].p_W - X_WC.translation();
+      const double dist = d.norm();
+      const double angle = std::acos(std::clamp(view.dot(d / std::max(dist, 1e-9)), -1.0, 1.0));
+      seen += angle <= options_.scope_half_fov && dist >= options_.scope_min_distance &&
+              dist <= options_.scope_max_distance;
+    }
+    return seen;
+  };
+  for (std::size_t a = 0; a < arms_.size(); ++a) {
+    const PlanArm& arm = arms_[a];
+    if (arm.role != ArmRole::kEndoscope) continue;
+    Evaluation::View view;
+    view.arm = static_cast<int>(a);
+    view.frame = arm.tool_frame;
+    const Eigen::Isometry3d X_WT = kinematics::FramePose(state, robot.GetFrame(arm.tool_frame));
+    const Eigen::Vector3d shaft = (X_WT.translation() - placement.sites[a].p_rcm_W).normalized();
+    int k = 0;
+    for (int c = 1; c < 3; ++c) {
+      if (std::abs(X_WT.linear().col(c).dot(shaft)) > std::abs(X_WT.linear().col(k).dot(shaft)))
+        k = c;
+    }
+    view.axis_F = Eigen::Vector3d::Unit(k) * (X_WT.linear().col(k).dot(shaft) < 0 ? -1.0 : 1.0);
+    if (!skip_reach && nominal_ok[a]) {
+      int roll = -1;
+      kinematics::Matrix6Xd J;
+      kinematics::ComputeFrameJacobian(robot, state, robot.GetFrame(arm.tool_frame), &J);
+      for (int i : arm.q_indices) {
+        const Eigen::Vector3d w = J.col(i).head<3>();
+        if (i != arm.insertion_q && w.norm() > 0.5 && std::abs(w.normalized().dot(shaft)) > 0.99)
+          roll = i;
+      }
+      std::vector<double> rolls = {0.0};  // no roll joint: one pass per frame
+      if (roll >= 0) {
+        rolls.clear();
+        const double lo = std::isfinite(robot.lower_limits()[roll]) ? robot.lower_limits()[roll]
+                                                                    : -M_PI;
+        const double hi = std::isfinite(robot.upper_limits()[roll]) ? robot.upper_limits()[roll]
+                                                                    : M_PI;
+        for (int r = 0; r <= 12; ++r) rolls.push_back(lo + (hi - lo) * r / 12.0);
+      }
+      const Eigen::VectorXd q0 = state.q;
+      int best = count_seen(state, view.frame, view.axis_F);
+      double best_roll = roll >= 0 ? q0[roll] : 0.0;
+      robot::RobotState trial = state;
+      for (const std::string& frame : arm.view_frames) {
+        for (double r : rolls) {
+          if (roll >= 0) trial.q[roll] = r;
+          if (!kinematics::ForwardKinematics(robot, trial.q, &trial).ok) continue;
+          const int seen = count_seen(trial, frame, view.axis_F);
+          if (seen > best) {
+            best = seen;
+            best_roll = roll >= 0 ? r : 0.0;
+            view.frame = frame;
+          }
+        }
+      }
+      if (roll >= 0 && best_roll != q0[roll]) {
+        trial.q = q0;
+        trial.q[roll] = best_roll;
+        kinematics::ForwardKinematics(robot, trial.q, &trial);
+        checker.SetRobotState(trial);
+        SetPorts(placement, &checker);
+        if (!checker.InCollision()) {
+          state = trial;
+        } else {
+          view.frame = arm.tool_frame;  // the rolled scope collides: keep the straight view
+        }
+      }
+    }
+    ev.views.push_back(view);
+  }
+  ev.q_nominal = state.q;
+  ev.joint_values = state.joint_values;
+  checker.SetRobotState(state);
+  SetPorts(placement, &checker);
+  const robot::RobotState nominal_state = state;
+
   std::vector<std::vector<SampleReach>> reach(arms_.size(), std::vector<SampleReach>(ns));
   for (std::size_t a = 0; a < arms_.size(); ++a) {
     const PlanArm& arm = arms_[a];
     const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
     if (arm.role == ArmRole::kEndoscope) {
       state = nominal_state;
-      const Eigen::Vector3d tip =
-          kinematics::FramePose(state, robot.GetFrame(arm.tool_frame)).translation();
-      const Eigen::Vector3d view = (tip - port).normalized();
+      const Evaluation::View* chosen = nullptr;
+      for (const auto& v : ev.views) {
+        if (v.arm == static_cast<int>(a)) chosen = &v;
+      }
+      const Eigen::Isometry3d X_WC = kinematics::FramePose(state, robot.GetFrame(chosen->frame));
+      const Eigen::Vector3d tip = X_WC.translation();
+      const Eigen::Vector3d view = X_WC.linear() * chosen->axis_F;
+      (void)port;
       for (int s = 0; s < ns; ++s) {
         SampleReach& r = reach[a][s];
         r.sample = s;

@@ -156,6 +156,14 @@ struct Evaluation {
   Eigen::VectorXd joint_values;  ///< every movable joint of the robot at the nominal pose
   Eigen::VectorXd q_nominal;     ///< q at the nominal pose (instruments aimed, inserted)
   int collisions = 0;            ///< colliding pairs at the nominal pose
+  /// Per endoscope arm: the camera it looks from (one of PlanArm::view_frames, the scope rolled
+  /// to the best of its range at the nominal pose) and its view axis in that frame.
+  struct View {
+    int arm = -1;
+    std::string frame;
+    Eigen::Vector3d axis_F = Eigen::Vector3d::UnitZ();
+  };
+  std::vector<View> views;
   const ScoreTerm* Find(const std::string& name) const;
 };
 

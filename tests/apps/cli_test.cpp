@@ -346,6 +346,27 @@ TEST(TrocarPlan, CheckConfirmsEveryPlanOnPhantomsOfManySeedsAndSizes) {
   }
 }
 
+// A generic robot: the PA10 holding an instrument through one port with a software RCM (no RCM
+// frame: its shaft is kept through the pivot by its own joints). One arm, one port, samples
+// reached, and every claim confirmed by check.
+TEST(TrocarPlan, APa10WithASoftwareRcmGetsAOnePortPlanThatCheckConfirms) {
+  const std::string out = ::testing::TempDir() + "trocar_plan_pa10";
+  std::filesystem::remove_all(out);
+  const CommandRun plan =
+      Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+             " --robot " + test::SourcePath("robots/pa10/pa10_instrument.yaml") +
+             " --evaluations 300 --starts 2 --polish-evaluations 20 --top 2");
+  ASSERT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
+  const std::string text = ReadTextFile(out + "/plan.json");
+  EXPECT_NE(text.find("\"name\": \"pa10_instrument\""), std::string::npos);
+  EXPECT_NE(text.find("\"rcm_frame\": \"\""), std::string::npos);             // a software RCM
+  EXPECT_FALSE(std::regex_search(text, std::regex("\"rcm_frame\": \"[^\"]")));  // and no other arm
+  EXPECT_NE(text.find("\"reached\": true"), std::string::npos);   // it reaches something
+  const CommandRun check = Trocar("check --plan " + out + "/plan.json");
+  EXPECT_EQ(check.exit_code, 0) << check.output;
+  EXPECT_NE(check.output.find("all hold"), std::string::npos) << check.output;
+}
+
 // The real chest CT: ranked plans or a verdict, and every claim confirmed.
 TEST(TrocarPlan, Lidc2PlanIsConfirmedByCheck) {
   if (!IsRegularFile(test::SharedDataPath("ct/lidc2/ct.nhdr"))) GTEST_SKIP() << "no LIDC2 data";
