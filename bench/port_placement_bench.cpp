@@ -73,8 +73,7 @@ int main(int argc, char** argv) {
     // 2. Per algorithm: the global stage and its polish only (top 1, no robustness).
     const std::vector<std::array<std::uint8_t, 3>> colours = {
         {31, 119, 180}, {214, 39, 40}, {44, 160, 44}, {148, 103, 189}, {0, 0, 0}};
-    PlotPanel panel{"Port placement: best score against evaluations (" + patient->name + ")",
-                    "evaluations", "best score", {}};
+    PlotPanel panel{"best score", "evaluations (" + patient->name + ", global stage)", "", {}};
     std::printf("\n%-10s %10s %10s %10s %10s %10s %12s %10s\n", "algorithm", "best@100",
                 "best@300", "best@600", "best@all", "final", "global s", "evals/s");
     std::string csv = "algorithm,evaluations,best_at_100,best_at_300,best_at_600,best_global,"
@@ -134,7 +133,7 @@ int main(int argc, char** argv) {
     csv += "exhaustive_final_score," + std::to_string(exhaustive_score) + "\n";
 
     const std::string png = out_dir + "/port_placement_convergence.png";
-    WritePlotPng(png, {panel});
+    WritePlotPng(png, {panel}, 1200, 360);
     const std::string table = out_dir + "/port_placement.csv";
     {
       std::FILE* f = std::fopen((table + ".tmp").c_str(), "w");

@@ -161,6 +161,7 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
                       {"clearance_instrument_rib", w.clearance_instrument_rib}}},
                     {"standoff_m", po.standoff},
                     {"rcm_depth_m", po.rcm_depth},
+                    {"gap_search_depth_m", po.gap_search_depth},
                     {"ik_tolerance_m", po.ik_tolerance},
                     {"scope_half_fov_deg", po.scope_half_fov * 180 / M_PI},
                     {"scope_min_distance_m", po.scope_min_distance},
