@@ -2,6 +2,9 @@
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
+#include <atomic>
+#include <thread>
+#include <iterator>
 #include <array>
 #include <cstdio>
 #include <filesystem>
@@ -379,6 +382,49 @@ TEST(TrocarPlan, Lidc2PlanIsConfirmedByCheck) {
   const CommandRun check = Trocar("check --plan " + out + "/plan.json");
   EXPECT_EQ(check.exit_code, 0) << check.output;
   EXPECT_NE(check.output.find("all hold"), std::string::npos) << check.output;
+}
+
+// A folder that already holds a plan: planning again into it, a reader polling plan.json the
+// whole time only ever sees the old plan or the new one whole (a plan written in place would be
+// seen truncated); a run refused for bad input leaves both files byte for byte; no temporary
+// file is left behind.
+TEST(TrocarPlan, AFolderHoldingAPlanIsNeverSeenHalfOverwritten) {
+  const std::string out = ::testing::TempDir() + "trocar_plan_atomic";
+  std::filesystem::remove_all(out);
+  const std::string base = "plan " + test::SourcePath("patients/phantom-default") + " --out " +
+                           out + " --evaluations 60 --starts 2 --polish-evaluations 4 --top 1 " +
+                           "--no-robustness --samples 2";
+  CommandRun first = Trocar(base + " --seed 1");
+  ASSERT_TRUE(first.exit_code == 0 || first.exit_code == 4) << first.output;
+  const std::string old_plan = ReadTextFile(out + "/plan.json");
+  const std::string old_ports = ReadTextFile(out + "/ports.mrk.json");
+
+  CommandRun refused = Trocar(base + " --seed 2 --time-limit -1");
+  EXPECT_EQ(refused.exit_code, 1) << refused.output;
+  EXPECT_EQ(ReadTextFile(out + "/plan.json"), old_plan);
+  EXPECT_EQ(ReadTextFile(out + "/ports.mrk.json"), old_ports);
+
+  std::atomic<bool> done{false};
+  CommandRun second;
+  std::thread writer([&] {
+    second = Trocar(base + " --seed 2");
+    done = true;
+  });
+  int reads = 0, torn = 0;
+  while (!done) {
+    std::ifstream in(out + "/plan.json", std::ios::binary);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    ++reads;
+    const auto last = text.find_last_not_of(" \n");
+    if (text != old_plan && (last == std::string::npos || text[last] != '}')) ++torn;
+  }
+  writer.join();
+  ASSERT_TRUE(second.exit_code == 0 || second.exit_code == 4) << second.output;
+  EXPECT_EQ(torn, 0) << "of " << reads << " reads";
+  EXPECT_NE(ReadTextFile(out + "/plan.json"), old_plan);  // the new seed's plan is in place
+  for (const auto& entry : std::filesystem::directory_iterator(out))
+    EXPECT_EQ(entry.path().filename().string().find(".tmp"), std::string::npos) << entry.path();
+  RecordProperty("reads_while_writing", reads);
 }
 
 TEST(TrocarPlan, BadOptionsAreRefusedNamingThem) {
