@@ -429,6 +429,11 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
         shifts.push_back(sign * options.robustness_shift * Eigen::Vector3d::Unit(axis));
     }
   }
+  // One collision world per shift, the organs the targets lie on moved with them.
+  std::vector<std::shared_ptr<const collision::CollisionWorld>> shifted_worlds(shifts.size());
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+  for (int k = 0; k < static_cast<int>(shifts.size()); ++k)
+    shifted_worlds[k] = problem.WorldWithTargetsMoved(shifts[k]);
   int final_evaluations = 0;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(+ : final_evaluations)
   for (int i = 0; i < static_cast<int>(finals.size()); ++i) {
@@ -446,16 +451,16 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     const bool use_full = full.score > plan.evaluation.score;
     if (use_full) plan.evaluation = std::move(full);
     double sum = 0;
-    for (const auto& d_P : shifts) {
+    for (std::size_t k = 0; k < shifts.size(); ++k) {
+      const Eigen::Vector3d& d_P = shifts[k];
+      Workspace moved_ws(problem, shifted_worlds[k]);
       std::vector<TargetSample> moved = problem.samples();
       const Eigen::Vector3d d_W = problem.patient().X_WP.linear() * d_P;
       for (auto& s : moved) s.p_W += d_W;
       PortPlacementProblem::EvaluateOptions shifted;
       shifted.full_solver = use_full;
       shifted.samples = &moved;
-      shifted.sample_mask =
-          collision::kAllMovingPairs & ~collision::Bit(collision::PairClass::kInstrumentPatient);
-      const Evaluation ev = problem.Evaluate(plan.placement, &ws, shifted);
+      const Evaluation ev = problem.Evaluate(plan.placement, &moved_ws, shifted);
       ++final_evaluations;
       Shift shift;
       shift.d_P = d_P;

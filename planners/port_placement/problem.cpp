@@ -183,6 +183,9 @@ const ScoreTerm* Evaluation::Find(const std::string& name) const {
 Workspace::Workspace(const PortPlacementProblem& problem)
     : state(problem.robot()),
       checker(std::make_unique<collision::CollisionChecker>(problem.world())) {}
+Workspace::Workspace(const PortPlacementProblem& problem,
+                     std::shared_ptr<const collision::CollisionWorld> world)
+    : state(problem.robot()), checker(std::make_unique<collision::CollisionChecker>(world)) {}
 Workspace::~Workspace() = default;
 
 PortPlacementProblem::~PortPlacementProblem() = default;
@@ -268,11 +271,10 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
   }
   centre_W_ = Centroid(points);
 
-  collision::WorldOptions world_options;
   for (const auto& arm : arms_) {
-    if (!arm.has_rcm()) world_options.shaft_ports.push_back(robot_->link(arm.shaft_link).name);
+    if (!arm.has_rcm()) world_options_.shaft_ports.push_back(robot_->link(arm.shaft_link).name);
   }
-  world_ = collision::CollisionWorld::Build(patient_.get(), robot_, world_options);
+  world_ = collision::CollisionWorld::Build(patient_.get(), robot_, world_options_);
   {
     // RCM ports by frame; shaft ports follow them in arm order.
     const auto& ports = world_->ports();
@@ -327,6 +329,42 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
 }
 
 double PortPlacementProblem::MaxReach(int arm) const { return max_reach_.at(arm); }
+
+std::vector<std::string> PortPlacementProblem::MovingStructures() const {
+  // An organ carries a target when the target's points lie on it: their median distance to its
+  // surface under 1 cm. The skin and bones never move with the targets.
+  constexpr double kOnSurface = 0.01;
+  std::vector<std::string> names;
+  for (const auto& s : patient_->structures) {
+    const bool fixed = s.name == "skin" || s.name.rfind("rib", 0) == 0 || s.name == "sternum" ||
+                       s.name == "spine";
+    if (fixed || s.mesh.triangles.empty()) continue;
+    const collision::TriangleBvh bvh(s.mesh);
+    for (const auto& t : patient_->targets) {
+      std::vector<double> d;
+      for (const auto& p : t.points) d.push_back(bvh.Closest(p, p).distance);
+      if (d.empty()) continue;
+      std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+      if (d[d.size() / 2] < kOnSurface) {
+        names.push_back(s.name);
+        break;
+      }
+    }
+  }
+  return names;
+}
+
+std::shared_ptr<const collision::CollisionWorld> PortPlacementProblem::WorldWithTargetsMoved(
+    const Eigen::Vector3d& d_P) const {
+  const std::vector<std::string> moving = MovingStructures();
+  if (moving.empty()) return world_;
+  patient::PatientModel moved = *patient_;
+  for (auto& s : moved.structures) {
+    if (std::find(moving.begin(), moving.end(), s.name) == moving.end()) continue;
+    for (auto& v : s.mesh.vertices) v += d_P;
+  }
+  return collision::CollisionWorld::Build(&moved, robot_, world_options_);
+}
 
 void PortPlacementProblem::SetPorts(const Placement& placement,
                                     collision::CollisionChecker* checker) const {

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "port_placement/arms.hpp"
+#include "collision/collision_world.hpp"
 #include "port_placement/cart_placement.hpp"
 #include "robot/robot_model.hpp"
 #include "robot/robot_state.hpp"
@@ -170,6 +171,9 @@ struct Evaluation {
 /// Per-evaluator scratch: robot state and collision checker. One per thread or per start.
 struct Workspace {
   explicit Workspace(const class PortPlacementProblem& problem);
+  /// With another collision world of the same robot and patient structures (robustness).
+  Workspace(const class PortPlacementProblem& problem,
+            std::shared_ptr<const collision::CollisionWorld> world);
   ~Workspace();
   robot::RobotState state;
   std::unique_ptr<collision::CollisionChecker> checker;
@@ -222,6 +226,15 @@ class PortPlacementProblem {
     return Evaluate(placement, workspace, EvaluateOptions{});
   }
 
+  /// The structures that move with the targets: the organs some target lies on (median distance
+  /// of its points to the surface under 1 cm), but never the skin or bones (ribs, sternum, spine).
+  /// On the bundled cases: the heart, under the LAD.
+  std::vector<std::string> MovingStructures() const;
+  /// The collision world with the MovingStructures translated by d_P (patient frame, m): the
+  /// robustness check moves the organ with its targets.
+  std::shared_ptr<const collision::CollisionWorld> WorldWithTargetsMoved(
+      const Eigen::Vector3d& d_P) const;
+
   /// The longest reach of an arm's tool from its RCM (m), insertion at its upper limit, for the
   /// verdict ("insertion limit exceeded from every candidate port").
   double MaxReach(int arm) const;
@@ -238,6 +251,7 @@ class PortPlacementProblem {
   std::vector<PlanArm> arms_;
   std::vector<TargetSample> samples_;
   std::shared_ptr<const collision::CollisionWorld> world_;
+  collision::WorldOptions world_options_;
   std::unique_ptr<collision::TriangleBvh> ribs_;    // in P
   std::unique_ptr<collision::TriangleBvh> skin_;    // in P
   std::vector<std::vector<double>> candidate_arc_;  // cumulative arc length per candidate

@@ -202,6 +202,23 @@ TEST(PortPlacementProblem, PivotsLieMidGapBetweenTheRibsAndIncisionsOnTheSkinAlo
   EXPECT_GT(sites, 50);
 }
 
+// Robustness moves the organ the targets lie on with them (the heart under the LAD), never the
+// skin or bones (the LIMA lies in the chest wall); without such an organ the world is unchanged.
+TEST(PortPlacementProblem, TheOrganUnderTheTargetsMovesWithThemInTheRobustnessCheck) {
+  const PortPlacementProblem problem(Phantom(), Cart(), {});
+  EXPECT_EQ(problem.MovingStructures(), std::vector<std::string>{"heart"});
+  const auto moved = problem.WorldWithTargetsMoved(Eigen::Vector3d(0, 0.02, 0));
+  EXPECT_NE(moved.get(), problem.world().get());
+  EXPECT_EQ(moved->bodies().size(), problem.world()->bodies().size());
+  // Targets away from every organ (the LAD 4 cm out from the heart): nothing moves.
+  auto off_organ = std::make_shared<patient::PatientModel>(*Phantom());
+  for (auto& p : off_organ->targets[0].points) p += 0.04 * Eigen::Vector3d(0, -1, 0);
+  const PortPlacementProblem skin_only(off_organ, Cart(), {});
+  EXPECT_TRUE(skin_only.MovingStructures().empty());
+  EXPECT_EQ(skin_only.WorldWithTargetsMoved(Eigen::Vector3d(0, 0.02, 0)).get(),
+            skin_only.world().get());
+}
+
 // Each evaluation is a pure function of the placement: the same placement scores the same,
 // whatever was evaluated before it in the same workspace.
 TEST(PortPlacementProblem, EvaluationIsAPureFunctionOfThePlacement) {
