@@ -5,6 +5,7 @@
 /// RAS by negating x and y; millimetres to metres).
 
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -21,6 +22,10 @@ struct Volume {
   bool hounsfield = false;     ///< values are Hounsfield units (else raw, e.g. 8-bit windowed)
   std::string source;          ///< file (or DICOM folder) it came from
   std::vector<std::string> files;  ///< every file read (header, detached data, DICOM slices)
+  /// Metadata a label map carries its names in: NIfTI-1 header extensions (ecode, content) and
+  /// NRRD key/value pairs (`key:=value`, e.g. a 3D Slicer segmentation's Segment0_Name).
+  std::vector<std::pair<int, std::string>> extensions;
+  std::vector<std::pair<std::string, std::string>> key_values;
 
   long voxel_count() const { return static_cast<long>(size.x()) * size.y() * size.z(); }
   long Index(int i, int j, int k) const {

@@ -195,6 +195,7 @@ Volume LoadNrrd(const std::string& path) {
   TROCAR_THROW_UNLESS(text.rfind("NRRD000", 0) == 0,
                       path << ": not a NRRD file (it must start with NRRD000x)");
   std::map<std::string, std::string> fields;
+  std::vector<std::pair<std::string, std::string>> key_values;
   std::size_t at = text.find('\n') + 1;
   std::size_t data_start = std::string::npos;
   while (at < text.size()) {
@@ -207,7 +208,10 @@ Volume LoadNrrd(const std::string& path) {
       break;
     }
     if (line[0] == '#') continue;
-    if (line.find(":=") != std::string::npos) continue;  // key/value pairs: not geometry
+    if (const auto kv = line.find(":="); kv != std::string::npos) {  // key/value pairs
+      key_values.emplace_back(line.substr(0, kv), line.substr(kv + 2));
+      continue;
+    }
     const std::size_t colon = line.find(": ");
     TROCAR_THROW_UNLESS(colon != std::string::npos,
                         path << ": header line '" << Trim(line) << "' is not 'field: value'");
@@ -224,6 +228,7 @@ Volume LoadNrrd(const std::string& path) {
                       path << ": field 'dimension': " << field("dimension")
                            << " (only 3-D volumes are supported)");
   Volume v;
+  v.key_values = std::move(key_values);
   v.source = path;
   {
     std::istringstream in(field("sizes"));
@@ -387,6 +392,26 @@ Volume LoadNifti(const std::string& path) {
   // Convert() assumes little-endian bytes after our own swap of the header only: voxel data
   // follow the header's byte order.
   const bool big_endian = swap;
+  // Header extensions (a label map's names, e.g. TotalSegmentator's Caret XML label table):
+  // records of (size, code, content) from byte 352 up to the voxels.
+  if (bytes[348] != 0) {
+    std::size_t pos = 352;
+    auto i32 = [&](std::size_t o) {
+      std::int32_t x;
+      std::memcpy(&x, read(o, 4).data(), 4);
+      return x;
+    };
+    while (pos + 8 <= static_cast<std::size_t>(vox_offset)) {
+      const std::int32_t esize = i32(pos), ecode = i32(pos + 4);
+      if (esize < 16 || esize % 16 != 0 || pos + esize > static_cast<std::size_t>(vox_offset)) {
+        break;  // not an extension record: the rest is padding
+      }
+      std::string content = bytes.substr(pos + 8, static_cast<std::size_t>(esize) - 8);
+      content.erase(std::find(content.begin(), content.end(), '\0'), content.end());
+      v.extensions.emplace_back(ecode, std::move(content));
+      pos += static_cast<std::size_t>(esize);
+    }
+  }
   v.values = Convert(bytes, static_cast<std::size_t>(vox_offset), type, big_endian,
                      v.voxel_count(), slope, intercept, path);
   v.hounsfield = LooksLikeHounsfield(type, v.values);
