@@ -1,15 +1,32 @@
-// DICOM series: a small reader and writer for classic single-frame CT slices in uncompressed
-// little-endian transfer syntaxes (implicit and explicit VR), the form in which scanners, PACS
-// exports and TCIA collections deliver CT. Compressed (encapsulated) syntaxes are refused by name.
+// DICOM series. Reading goes through GDCM (Debian's libgdcm): it parses every encoding (implicit
+// and explicit VR, little and big endian, deflated) and decodes every compressed pixel syntax it
+// was built with (JPEG baseline/extended/lossless, JPEG-LS, JPEG 2000, RLE). What trocar adds on
+// top is what GDCM leaves to the caller: the geometry is required, not defaulted (GDCM's image
+// helper puts a missing origin at 0 and a missing spacing at 1 mm, silently), slices are sorted
+// and their spacing checked, series are told apart, and every error names the file and element.
+// Enhanced multi-frame CT is read frame by frame from its functional groups. The writer (classic
+// CT slices, uncompressed little endian) stays hand-written: it is small, deterministic (UIDs
+// derive from the content) and tested against VTK's independent reader.
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <map>
+#include <memory>
 #include <sstream>
 
 #include <unistd.h>
+#include <zlib.h>
+
+#include <gdcmDataSet.h>
+#include <gdcmImage.h>
+#include <gdcmImageReader.h>
+#include <gdcmMediaStorage.h>
+#include <gdcmSequenceOfItems.h>
+#include <gdcmTrace.h>
+#include <gdcmTransferSyntax.h>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
@@ -19,50 +36,29 @@ namespace trocar::patient {
 namespace {
 
 constexpr double kMillimetre = 1e-3;
-constexpr std::uint32_t kUndefinedLength = 0xFFFFFFFFu;
-constexpr int kMaxSequenceDepth = 16;
-
-constexpr std::uint32_t Tag(std::uint16_t group, std::uint16_t element) {
-  return (static_cast<std::uint32_t>(group) << 16) | element;
-}
-constexpr std::uint32_t kTransferSyntax = Tag(0x0002, 0x0010);
-constexpr std::uint32_t kModality = Tag(0x0008, 0x0060);
-constexpr std::uint32_t kSopClass = Tag(0x0008, 0x0016);
-constexpr std::uint32_t kSeriesUid = Tag(0x0020, 0x000E);
-constexpr std::uint32_t kInstanceNumber = Tag(0x0020, 0x0013);
-constexpr std::uint32_t kPosition = Tag(0x0020, 0x0032);
-constexpr std::uint32_t kOrientation = Tag(0x0020, 0x0037);
-constexpr std::uint32_t kSamplesPerPixel = Tag(0x0028, 0x0002);
-constexpr std::uint32_t kPhotometric = Tag(0x0028, 0x0004);
-constexpr std::uint32_t kFrames = Tag(0x0028, 0x0008);
-constexpr std::uint32_t kRows = Tag(0x0028, 0x0010);
-constexpr std::uint32_t kColumns = Tag(0x0028, 0x0011);
-constexpr std::uint32_t kPixelSpacing = Tag(0x0028, 0x0030);
-constexpr std::uint32_t kBitsAllocated = Tag(0x0028, 0x0100);
-constexpr std::uint32_t kBitsStored = Tag(0x0028, 0x0101);
-constexpr std::uint32_t kPixelRepresentation = Tag(0x0028, 0x0103);
-constexpr std::uint32_t kRescaleIntercept = Tag(0x0028, 0x1052);
-constexpr std::uint32_t kRescaleSlope = Tag(0x0028, 0x1053);
-constexpr std::uint32_t kPixelData = Tag(0x7FE0, 0x0010);
-
 constexpr const char* kImplicitLittle = "1.2.840.10008.1.2";
 constexpr const char* kExplicitLittle = "1.2.840.10008.1.2.1";
 constexpr const char* kCtImageStorage = "1.2.840.10008.5.1.4.1.1.2";
+/// A DICOM file larger than this is refused before it is read (a 512 x 512 enhanced CT of 2000
+/// 16-bit frames is 1 GiB).
+constexpr std::uintmax_t kMaxDicomFileBytes = std::uintmax_t{2} << 30;
 
-std::string TagName(std::uint32_t tag) {
+std::string TagName(const gdcm::Tag& tag) {
   std::ostringstream s;
   s << "(" << std::hex << std::uppercase;
   s.width(4);
   s.fill('0');
-  s << (tag >> 16) << ",";
+  s << tag.GetGroup() << ",";
   s.width(4);
-  s << (tag & 0xFFFF) << ")";
+  s << tag.GetElement() << ")";
   return s.str();
 }
 
-// What a transfer syntax UID is called, for the refusal message.
+// What a transfer syntax UID is called, for messages.
 std::string TransferSyntaxName(const std::string& uid) {
   static const std::map<std::string, std::string> names = {
+      {"1.2.840.10008.1.2", "Implicit VR Little Endian"},
+      {"1.2.840.10008.1.2.1", "Explicit VR Little Endian"},
       {"1.2.840.10008.1.2.1.99", "Deflated Explicit VR Little Endian"},
       {"1.2.840.10008.1.2.2", "Explicit VR Big Endian"},
       {"1.2.840.10008.1.2.4.50", "JPEG Baseline"},
@@ -74,6 +70,7 @@ std::string TransferSyntaxName(const std::string& uid) {
       {"1.2.840.10008.1.2.4.90", "JPEG 2000 Lossless"},
       {"1.2.840.10008.1.2.4.91", "JPEG 2000"},
       {"1.2.840.10008.1.2.4.201", "HTJ2K Lossless"},
+      {"1.2.840.10008.1.2.4.202", "HTJ2K Lossless RPCL"},
       {"1.2.840.10008.1.2.4.203", "HTJ2K"},
       {"1.2.840.10008.1.2.5", "RLE Lossless"},
   };
@@ -81,6 +78,7 @@ std::string TransferSyntaxName(const std::string& uid) {
   return it == names.end() ? "unknown transfer syntax" : it->second;
 }
 
+// Value representations with a 4-byte length in explicit VR (for the writer).
 bool HasLongLength(const char vr[2]) {
   static const char* kLong[] = {"OB", "OD", "OF", "OL", "OV", "OW", "SQ",
                                 "UC", "UN", "UR", "UT", "SV", "UV"};
@@ -90,108 +88,34 @@ bool HasLongLength(const char vr[2]) {
   return false;
 }
 
-// Top-level elements of one file: their byte ranges in the file.
-struct Range {
-  std::size_t offset = 0;
-  std::uint32_t length = 0;
-};
-
-class Parser {
- public:
-  Parser(const std::string& bytes, const std::string& file) : bytes_(bytes), file_(file) {}
-
-  std::uint16_t U16(std::size_t at) const {
-    Need(at, 2);
-    return static_cast<std::uint16_t>(Byte(at) | (Byte(at + 1) << 8));
+// The value representations of DICOM (PS3.5 6.2).
+bool KnownVr(const char vr[2]) {
+  static const char* kAll[] = {"AE", "AS", "AT", "CS", "DA", "DS", "DT", "FL", "FD", "IS", "LO",
+                               "LT", "OB", "OD", "OF", "OL", "OV", "OW", "PN", "SH", "SL", "SQ",
+                               "SS", "ST", "SV", "TM", "UC", "UI", "UL", "UN", "UR", "US", "UT", "UV"};
+  for (const char* k : kAll) {
+    if (vr[0] == k[0] && vr[1] == k[1]) return true;
   }
-  std::uint32_t U32(std::size_t at) const {
-    Need(at, 4);
-    return static_cast<std::uint32_t>(Byte(at)) | (static_cast<std::uint32_t>(Byte(at + 1)) << 8) |
-           (static_cast<std::uint32_t>(Byte(at + 2)) << 16) |
-           (static_cast<std::uint32_t>(Byte(at + 3)) << 24);
-  }
+  return false;
+}
 
-  // Reads the element header at `pos`; returns its tag, sets the value's range and moves `pos`
-  // to the value.
-  std::uint32_t Header(std::size_t& pos, bool explicit_vr, Range& value) const {
-    const std::uint32_t tag = Tag(U16(pos), U16(pos + 2));
-    pos += 4;
-    if ((tag >> 16) == 0xFFFE || !explicit_vr) {  // items and delimiters never carry a VR
-      value.length = U32(pos);
-      pos += 4;
-    } else {
-      Need(pos, 2);
-      const char vr[2] = {bytes_[pos], bytes_[pos + 1]};
-      TROCAR_THROW_UNLESS(std::isupper(static_cast<unsigned char>(vr[0])) &&
-                              std::isupper(static_cast<unsigned char>(vr[1])),
-                          file_ << ": element " << TagName(tag) << " at byte " << pos - 4
-                                << " has no value representation (garbled or not explicit VR)");
-      if (HasLongLength(vr)) {
-        value.length = U32(pos + 4);
-        pos += 8;
-      } else {
-        value.length = U16(pos + 2);
-        pos += 4;
-      }
-    }
-    value.offset = pos;
-    return tag;
-  }
-
-  // Skips a value of undefined length (a sequence) starting at `pos`.
-  void SkipSequence(std::size_t& pos, bool explicit_vr, int depth) const {
-    TROCAR_THROW_UNLESS(depth < kMaxSequenceDepth, file_ << ": sequences nested deeper than "
-                                                         << kMaxSequenceDepth << " (garbled file)");
-    for (;;) {
-      Range item;
-      const std::uint32_t tag = Header(pos, false, item);
-      if (tag == Tag(0xFFFE, 0xE0DD)) return;  // sequence delimiter
-      TROCAR_THROW_UNLESS(tag == Tag(0xFFFE, 0xE000), file_ << ": expected a sequence item at byte "
-                                                            << pos - 8 << ", found "
-                                                            << TagName(tag));
-      if (item.length != kUndefinedLength) {
-        Skip(pos, item.length);
-        continue;
-      }
-      for (;;) {  // item of undefined length: elements up to the item delimiter
-        Range value;
-        const std::uint32_t inner = Header(pos, explicit_vr, value);
-        if (inner == Tag(0xFFFE, 0xE00D)) break;
-        if (value.length == kUndefinedLength) {
-          SkipSequence(pos, explicit_vr, depth + 1);
-        } else {
-          Skip(pos, value.length);
-        }
-      }
-    }
-  }
-
-  void Skip(std::size_t& pos, std::uint32_t length) const {
-    Need(pos, length);
-    pos += length;
-  }
-
-  bool Has(std::size_t at, std::size_t n) const {
-    return at <= bytes_.size() && bytes_.size() - at >= n;
-  }
-
- private:
-  unsigned Byte(std::size_t at) const { return static_cast<unsigned char>(bytes_[at]); }
-  void Need(std::size_t at, std::size_t n) const {
-    TROCAR_THROW_UNLESS(Has(at, n), file_ << ": truncated: needs " << n << " bytes at byte " << at
-                                          << " but the file has " << bytes_.size());
-  }
-
-  const std::string& bytes_;
-  const std::string& file_;
-};
+// GDCM reports through its own trace streams; trocar reports through its errors.
+void QuietGdcm() {
+  static const bool once = [] {
+    gdcm::Trace::SetDebug(false);
+    gdcm::Trace::SetWarning(false);
+    gdcm::Trace::SetError(false);
+    return true;
+  }();
+  (void)once;
+}
 
 struct Slice {
   std::string file;
-  std::string series_uid;
-  std::string modality;
+  int frame = 0;    // within a multi-frame file
+  int frames = 1;   // of that file
+  std::string series_uid, modality, description;
   int rows = 0, columns = 0;
-  int bits_allocated = 0, bits_stored = 0;
   bool is_signed = false;
   double slope = 1.0, intercept = 0.0;
   Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();
@@ -199,14 +123,44 @@ struct Slice {
   Eigen::Vector3d column_direction = Eigen::Vector3d::UnitY();  // along increasing row index
   Eigen::Vector2d spacing_mm = Eigen::Vector2d::Ones();         // between rows, between columns
   int instance = 0;
-  std::string pixels;  // raw pixel bytes
+  std::shared_ptr<const std::vector<float>> values;  // the file's frames, rescaled
+  std::string where() const {
+    return frames > 1 ? file + " (frame " + std::to_string(frame + 1) + ")" : file;
+  }
 };
 
-std::string Text(const std::string& bytes, const Range& r) {
-  std::string s = bytes.substr(r.offset, r.length);
+// The text of a string element (trailing spaces and NULs cut), empty when absent.
+std::string Text(const gdcm::DataSet& ds, const gdcm::Tag& tag) {
+  if (!ds.FindDataElement(tag)) return {};
+  const gdcm::DataElement& de = ds.GetDataElement(tag);
+  const gdcm::ByteValue* bv = de.GetByteValue();
+  if (bv == nullptr || bv->GetPointer() == nullptr) return {};
+  std::string s(bv->GetPointer(), bv->GetLength());
   while (!s.empty() && (s.back() == ' ' || s.back() == '\0')) s.pop_back();
   const auto b = s.find_first_not_of(' ');
   return b == std::string::npos ? "" : s.substr(b);
+}
+
+// An element of a functional group item: the groups hold one macro sequence per attribute
+// family (plane position, plane orientation, pixel measures, pixel value transformation), each
+// with one item; the element is looked for in each.
+std::string GroupText(const gdcm::DataSet* item, const gdcm::Tag& tag) {
+  if (item == nullptr) return {};
+  for (const gdcm::DataElement& de : item->GetDES()) {
+    const gdcm::SmartPointer<gdcm::SequenceOfItems> sq = de.GetValueAsSQ();
+    if (!sq || sq->GetNumberOfItems() == 0) continue;
+    const std::string t = Text(sq->GetItem(1).GetNestedDataSet(), tag);
+    if (!t.empty()) return t;
+  }
+  return {};
+}
+
+// Item `index` (0-based) of a sequence, or null.
+const gdcm::DataSet* SequenceItem(const gdcm::DataSet& ds, const gdcm::Tag& tag, std::size_t index) {
+  if (!ds.FindDataElement(tag)) return nullptr;
+  const gdcm::SmartPointer<gdcm::SequenceOfItems> sq = ds.GetDataElement(tag).GetValueAsSQ();
+  if (!sq || index >= sq->GetNumberOfItems()) return nullptr;
+  return &sq->GetItem(index + 1).GetNestedDataSet();
 }
 
 std::vector<double> Numbers(const std::string& text, std::size_t expected, const std::string& file,
@@ -227,173 +181,428 @@ std::vector<double> Numbers(const std::string& text, std::size_t expected, const
   return out;
 }
 
-// Reads one file. Returns false when it is not DICOM at all (no "DICM" magic and no plausible
-// dataset start), so that folders may hold a README or a DICOMDIR beside the slices.
-bool ReadSlice(const std::string& file, Slice& s) {
-  const std::string bytes = ReadTextFile(file);
-  Parser parser(bytes, file);
-  std::size_t pos = 0;
-  std::string transfer_syntax;
-  if (bytes.size() >= 132 && bytes.compare(128, 4, "DICM") == 0) {
-    pos = 132;
-    // File meta information: always explicit VR little endian, group 0002.
-    while (parser.Has(pos, 2) && parser.U16(pos) == 0x0002) {
-      Range value;
-      const std::uint32_t tag = parser.Header(pos, true, value);
-      parser.Skip(pos, value.length);
-      if (tag == kTransferSyntax) transfer_syntax = Text(bytes, value);
-    }
-    TROCAR_THROW_UNLESS(!transfer_syntax.empty(), file << ": file meta information has no transfer "
-                                                          "syntax (0002,0010)");
-  } else if (bytes.size() >= 8 && (bytes[0] == 0x08 && bytes[1] == 0x00)) {
-    // A bare dataset without preamble (old ACR-NEMA style): implicit VR little endian.
-    transfer_syntax = kImplicitLittle;
-  } else {
-    return false;
-  }
-  TROCAR_THROW_UNLESS(transfer_syntax == kImplicitLittle || transfer_syntax == kExplicitLittle,
-                      file << ": transfer syntax " << transfer_syntax << " ("
-                           << TransferSyntaxName(transfer_syntax)
-                           << ") is not supported; trocar reads uncompressed little-endian DICOM. "
-                              "Decompress the series first (e.g. `gdcmconv --raw` or `dcmdjpeg`)");
-  const bool explicit_vr = transfer_syntax == kExplicitLittle;
+// Whether a file looks like DICOM from its first bytes: the "DICM" magic after the 128-byte
+// preamble, or a bare dataset (old ACR-NEMA style) starting with group 0008 or 0002. Other files
+// (a README, a 3 GB video beside the slices) are skipped without being read.
+enum class Sniff { kNotDicom, kDicom, kBare };
+Sniff SniffFile(const std::string& file) {
+  std::ifstream in(file, std::ios::binary);
+  char head[132] = {};
+  in.read(head, sizeof head);
+  const std::streamsize n = in.gcount();
+  if (n == 132 && std::memcmp(head + 128, "DICM", 4) == 0) return Sniff::kDicom;
+  if (n >= 8 && (head[0] == 0x08 || head[0] == 0x02) && head[1] == 0x00) return Sniff::kBare;
+  return Sniff::kNotDicom;
+}
 
-  std::map<std::uint32_t, Range> elements;
-  bool has_pixels = false;
-  while (parser.Has(pos, 1)) {
-    Range value;
-    const std::uint32_t tag = parser.Header(pos, explicit_vr, value);
-    if (tag == kPixelData) {
-      TROCAR_THROW_UNLESS(value.length != kUndefinedLength,
-                          file << ": pixel data (7FE0,0010) is encapsulated (compressed) although "
-                                  "the transfer syntax says uncompressed");
-      TROCAR_THROW_UNLESS(parser.Has(value.offset, value.length),
-                          file << ": pixel data (7FE0,0010) is truncated: " << value.length
-                               << " bytes declared, " << bytes.size() - value.offset << " present");
-      elements[tag] = value;
-      has_pixels = true;
-      break;
-    }
-    if (value.length == kUndefinedLength) {
-      parser.SkipSequence(pos, explicit_vr, 0);
+// ---- Structure check before GDCM ---------------------------------------------------------------
+// Debian's GDCM is built with assertions on: some damaged files (a truncated header, a garbled
+// length) abort the whole process inside gdcm::Reader instead of failing the read. So every
+// file's element structure is walked here first, bounded, and only a file whose every element,
+// sequence, item and pixel fragment lies inside it is handed to GDCM. This walk is the part of the
+// former hand-written reader that stays (docs/decisions.md, "DICOM through GDCM").
+
+constexpr std::uint32_t kUndefinedLength = 0xFFFFFFFFu;
+constexpr int kMaxSequenceDepth = 16;
+constexpr std::uint32_t Tag32(std::uint16_t group, std::uint16_t element) {
+  return (static_cast<std::uint32_t>(group) << 16) | element;
+}
+
+std::string TagName32(std::uint32_t tag) {
+  return TagName(gdcm::Tag(static_cast<std::uint16_t>(tag >> 16), static_cast<std::uint16_t>(tag & 0xFFFF)));
+}
+
+struct Range {
+  std::size_t offset = 0;
+  std::uint32_t length = 0;
+};
+
+class Walker {
+ public:
+  Walker(const std::string& bytes, const std::string& file, bool big_endian)
+      : bytes_(bytes), file_(file), big_(big_endian) {}
+
+  std::uint16_t U16(std::size_t at) const {
+    Need(at, 2);
+    return big_ ? static_cast<std::uint16_t>((Byte(at) << 8) | Byte(at + 1))
+                : static_cast<std::uint16_t>(Byte(at) | (Byte(at + 1) << 8));
+  }
+  std::uint32_t U32(std::size_t at) const {
+    const std::uint32_t a = U16(at), b = U16(at + 2);
+    return big_ ? (a << 16) | b : a | (b << 16);
+  }
+  std::uint32_t Header(std::size_t& pos, bool explicit_vr, Range& value) const {
+    const std::uint32_t tag = Tag32(U16(pos), U16(pos + 2));
+    pos += 4;
+    if ((tag >> 16) == 0xFFFE || !explicit_vr) {  // items and delimiters never carry a VR
+      value.length = U32(pos);
+      pos += 4;
     } else {
-      parser.Skip(pos, value.length);
-      elements[tag] = value;
+      Need(pos, 2);
+      const char vr[2] = {bytes_[pos], bytes_[pos + 1]};
+      TROCAR_THROW_UNLESS(KnownVr(vr), file_ << ": element " << TagName32(tag) << " at byte " << pos - 4
+                                             << " has no known value representation (garbled or "
+                                                "not explicit VR)");
+      if (HasLongLength(vr)) {
+        value.length = U32(pos + 4);
+        pos += 8;
+      } else {
+        value.length = U16(pos + 2);
+        pos += 4;
+      }
+    }
+    value.offset = pos;
+    return tag;
+  }
+  // A value of undefined length: a sequence of items, or encapsulated pixel fragments.
+  void SkipSequence(std::size_t& pos, bool explicit_vr, int depth) const {
+    TROCAR_THROW_UNLESS(depth < kMaxSequenceDepth, file_ << ": sequences nested deeper than "
+                                                         << kMaxSequenceDepth << " (garbled file)");
+    for (;;) {
+      Range item;
+      const std::uint32_t tag = Header(pos, false, item);
+      if (tag == Tag32(0xFFFE, 0xE0DD)) return;  // sequence delimiter
+      TROCAR_THROW_UNLESS(tag == Tag32(0xFFFE, 0xE000), file_ << ": expected a sequence item at byte "
+                                                              << pos - 8 << ", found " << TagName32(tag));
+      if (item.length != kUndefinedLength) {
+        Skip(pos, item.length);
+        continue;
+      }
+      for (;;) {  // item of undefined length: elements up to the item delimiter
+        Range value;
+        const std::uint32_t inner = Header(pos, explicit_vr, value);
+        if (inner == Tag32(0xFFFE, 0xE00D)) break;
+        if (value.length == kUndefinedLength) {
+          SkipSequence(pos, explicit_vr, depth + 1);
+        } else {
+          Skip(pos, value.length);
+        }
+      }
     }
   }
-  s.file = file;
-  auto text = [&](std::uint32_t tag) {
-    const auto it = elements.find(tag);
-    return it == elements.end() ? std::string() : Text(bytes, it->second);
+  void Skip(std::size_t& pos, std::uint32_t length) const {
+    Need(pos, length);
+    pos += length;
+  }
+  bool Has(std::size_t at, std::size_t n) const { return at <= bytes_.size() && bytes_.size() - at >= n; }
+  // The rest of the file from `pos` is zero padding.
+  bool OnlyZerosFrom(std::size_t pos) const {
+    return std::all_of(bytes_.begin() + static_cast<long>(std::min(pos, bytes_.size())), bytes_.end(),
+                       [](char c) { return c == 0; });
+  }
+
+ private:
+  unsigned Byte(std::size_t at) const { return static_cast<unsigned char>(bytes_[at]); }
+  void Need(std::size_t at, std::size_t n) const {
+    TROCAR_THROW_UNLESS(Has(at, n), file_ << ": truncated: needs " << n << " bytes at byte " << at
+                                          << " but the data has " << bytes_.size());
+  }
+  const std::string& bytes_;
+  const std::string& file_;
+  bool big_;
+};
+
+// Raw deflate (a deflated transfer syntax's dataset), bounded.
+std::string InflateRaw(const std::string& data, const std::string& file) {
+  z_stream stream{};
+  TROCAR_THROW_UNLESS(inflateInit2(&stream, -15) == Z_OK, file << ": cannot start decompression");
+  std::string out;
+  char buffer[1 << 16];
+  stream.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
+  stream.avail_in = static_cast<uInt>(std::min<std::size_t>(data.size(), 0xFFFFFFFFu));
+  int status = Z_OK;
+  while (status == Z_OK) {
+    stream.next_out = reinterpret_cast<Bytef*>(buffer);
+    stream.avail_out = sizeof buffer;
+    status = inflate(&stream, Z_NO_FLUSH);
+    out.append(buffer, sizeof buffer - stream.avail_out);
+    if (out.size() > kMaxDicomFileBytes) status = Z_MEM_ERROR;
+  }
+  inflateEnd(&stream);
+  TROCAR_THROW_UNLESS(status == Z_STREAM_END,
+                      file << ": the deflated dataset does not inflate"
+                           << (out.size() > kMaxDicomFileBytes ? " within the size limit" : " (damaged)"));
+  return out;
+}
+
+// Walks every element of a file (meta group, then the dataset in its transfer syntax's encoding).
+// @throws trocar::Error naming the file and where the structure breaks.
+void CheckStructure(const std::string& bytes, const std::string& file, Sniff sniff) {
+  std::size_t pos = 0;
+  std::string ts = "1.2.840.10008.1.2";  // a bare dataset: implicit VR little endian
+  if (sniff == Sniff::kDicom) {
+    const Walker meta(bytes, file, false);
+    pos = 132;
+    ts.clear();
+    while (meta.Has(pos, 2) && meta.U16(pos) == 0x0002) {
+      Range value;
+      const std::uint32_t tag = meta.Header(pos, true, value);
+      meta.Skip(pos, value.length);
+      if (tag == Tag32(0x0002, 0x0010)) {
+        ts = bytes.substr(value.offset, value.length);
+        while (!ts.empty() && (ts.back() == ' ' || ts.back() == '\0')) ts.pop_back();
+      }
+    }
+    TROCAR_THROW_UNLESS(!ts.empty(), file << ": file meta information has no transfer syntax (0002,0010)");
+  }
+  std::string inflated;
+  const bool deflated = ts == "1.2.840.10008.1.2.1.99";
+  if (deflated) inflated = InflateRaw(bytes.substr(pos), file);
+  const std::string& data = deflated ? inflated : bytes;
+  std::size_t at = deflated ? 0 : pos;
+  const Walker walker(data, file, ts == "1.2.840.10008.1.2.2");
+  const bool explicit_vr = ts != "1.2.840.10008.1.2";
+  std::map<std::uint32_t, Range> top;  // top-level elements of defined length
+  while (walker.Has(at, 1)) {
+    if (walker.OnlyZerosFrom(at)) break;  // trailing padding
+    Range value;
+    const std::uint32_t tag = walker.Header(at, explicit_vr, value);
+    if (value.length == kUndefinedLength) {
+      walker.SkipSequence(at, explicit_vr, 0);
+    } else {
+      walker.Skip(at, value.length);
+      top[tag] = value;
+    }
+  }
+  // The image pixel module, which GDCM asserts on rather than checks: values in range here.
+  auto us = [&](std::uint16_t element, const char* name, int fallback) {
+    const auto it = top.find(Tag32(0x0028, element));
+    if (it == top.end()) return fallback;
+    TROCAR_THROW_UNLESS(it->second.length == 2, file << ": " << name << " " << TagName32(it->first)
+                                                     << " has " << it->second.length
+                                                     << " bytes, expected 2 (US)");
+    return static_cast<int>(walker.U16(it->second.offset));
   };
-  auto require = [&](std::uint32_t tag, const char* name) {
-    TROCAR_THROW_UNLESS(elements.count(tag), file << ": missing " << name << " " << TagName(tag));
-    return elements.at(tag);
+  const int samples = us(0x0002, "samples per pixel", 1);
+  TROCAR_THROW_UNLESS(samples == 1, file << ": samples per pixel (0028,0002) is " << samples
+                                         << ", expected 1 (a grey-level CT)");
+  const int allocated = us(0x0100, "bits allocated", 16);
+  TROCAR_THROW_UNLESS(allocated == 8 || allocated == 16 || allocated == 32,
+                      file << ": bits allocated (0028,0100) is " << allocated << ", expected 8, 16 or 32");
+  const int stored = us(0x0101, "bits stored", allocated);
+  TROCAR_THROW_UNLESS(stored >= 1 && stored <= allocated, file << ": bits stored (0028,0101) is " << stored
+                                                                << ", expected 1 to " << allocated);
+  const int high = us(0x0102, "high bit", stored - 1);
+  TROCAR_THROW_UNLESS(high == stored - 1, file << ": high bit (0028,0102) is " << high << ", expected "
+                                                << stored - 1 << " (bits stored - 1)");
+  const int representation = us(0x0103, "pixel representation", 0);
+  TROCAR_THROW_UNLESS(representation == 0 || representation == 1,
+                      file << ": pixel representation (0028,0103) is " << representation
+                           << ", expected 0 (unsigned) or 1 (signed)");
+  const int planar = us(0x0006, "planar configuration", 0);
+  TROCAR_THROW_UNLESS(planar == 0 || planar == 1, file << ": planar configuration (0028,0006) is " << planar);
+  const int rows = us(0x0010, "rows", 1), columns = us(0x0011, "columns", 1);
+  TROCAR_THROW_UNLESS(rows > 0 && columns > 0, file << ": image is " << rows << " x " << columns << " pixels");
+  auto text = [&](std::uint16_t group, std::uint16_t element) {
+    const auto it = top.find(Tag32(group, element));
+    if (it == top.end()) return std::string();
+    std::string t = data.substr(it->second.offset, it->second.length);
+    while (!t.empty() && (t.back() == ' ' || t.back() == '\0')) t.pop_back();
+    return t;
   };
-  auto unsigned_short = [&](std::uint32_t tag, const char* name) {
-    const Range r = require(tag, name);
-    TROCAR_THROW_UNLESS(r.length == 2, file << ": " << name << " " << TagName(tag) << " has "
-                                            << r.length << " bytes, expected 2 (US)");
-    return static_cast<int>(parser.U16(r.offset));
-  };
-  s.series_uid = text(kSeriesUid);
-  s.modality = text(kModality);
-  if (!has_pixels) {
-    // A DICOMDIR, a structured report, a presentation state: not an image slice. A file with
-    // image attributes but no pixel data was cut short.
-    TROCAR_THROW_UNLESS(!elements.count(kRows), file << ": image with no pixel data (7FE0,0010) "
-                                                        "(truncated?)");
+  const std::string photometric = text(0x0028, 0x0004);
+  TROCAR_THROW_UNLESS(photometric.empty() || photometric == "MONOCHROME2" || photometric == "MONOCHROME1",
+                      file << ": photometric interpretation (0028,0004) '" << photometric
+                           << "', expected MONOCHROME2");
+  if (const std::string frames = text(0x0028, 0x0008); !frames.empty()) {
+    char* end = nullptr;
+    const long n = std::strtol(frames.c_str(), &end, 10);
+    TROCAR_THROW_UNLESS(end && *end == '\0' && n >= 1 && n <= 65535,
+                        file << ": number of frames (0028,0008) '" << frames << "', expected 1 to 65535");
+  }
+}
+
+// Reads one file into its slices (one, or one per frame). Returns false when it is not a DICOM
+// image (not DICOM, or a DICOMDIR, a report, a presentation state), so that folders may hold
+// such files beside the slices.
+bool ReadFile(const std::string& file, std::vector<Slice>* out) {
+  QuietGdcm();
+  const Sniff sniff = SniffFile(file);
+  if (sniff == Sniff::kNotDicom) return false;
+  std::error_code ec;
+  const std::uintmax_t bytes = std::filesystem::file_size(file, ec);
+  TROCAR_THROW_UNLESS(!ec, file << ": cannot read its size: " << ec.message());
+  TROCAR_THROW_UNLESS(bytes <= kMaxDicomFileBytes,
+                      file << ": " << bytes << " bytes, more than the " << kMaxDicomFileBytes
+                           << " a DICOM image file may have here");
+  const std::string bytes_read = ReadTextFile(file);
+  CheckStructure(bytes_read, file, sniff);
+  std::istringstream stream(bytes_read);
+  gdcm::ImageReader reader;
+  reader.SetStream(stream);
+  const bool read = reader.Read();
+  const gdcm::File& f = reader.GetFile();
+  const gdcm::DataSet& ds = f.GetDataSet();
+  const gdcm::Tag kPixelData(0x7fe0, 0x0010), kRows(0x0028, 0x0010);
+  const std::string ts_uid =
+      f.GetHeader().GetDataSetTransferSyntax().IsValid()
+          ? gdcm::TransferSyntax::GetTSString(f.GetHeader().GetDataSetTransferSyntax())
+          : Text(f.GetHeader(), gdcm::Tag(0x0002, 0x0010));
+  const std::string ts_text =
+      "transfer syntax " + (ts_uid.empty() ? std::string("(none)") : ts_uid) + " (" +
+      TransferSyntaxName(ts_uid) + ")";
+  if (!read) {
+    gdcm::MediaStorage ms;
+    ms.SetFromFile(f);
+    const bool image_like = ds.FindDataElement(kPixelData) || ds.FindDataElement(kRows);
+    // A readable non-image object (DICOMDIR, report) and a bare file that is not DICOM are
+    // skipped; a file that looks like an image and fails is an error.
+    if (!image_like && (sniff == Sniff::kBare || (ms != gdcm::MediaStorage::MS_END && !gdcm::MediaStorage::IsImage(ms))))
+      return false;
+    TROCAR_THROW_UNLESS(image_like || sniff == Sniff::kDicom, file << ": not DICOM");
+    TROCAR_THROW(file << ": GDCM cannot read it (" << ts_text
+                      << "): truncated, damaged, or an encoding GDCM does not know");
+  }
+  if (!ds.FindDataElement(kPixelData)) {
+    TROCAR_THROW_UNLESS(!ds.FindDataElement(kRows),
+                        file << ": image with no pixel data (7FE0,0010) (truncated?)");
     return false;
   }
-  const std::string frames = text(kFrames);
-  TROCAR_THROW_UNLESS(frames.empty() || frames == "1",
-                      file << ": multi-frame image (" << frames << " frames, number of frames "
-                           << TagName(kFrames)
-                           << "); trocar reads classic one-slice-per-file series");
-  const int samples =
-      elements.count(kSamplesPerPixel) ? unsigned_short(kSamplesPerPixel, "samples per pixel") : 1;
-  TROCAR_THROW_UNLESS(samples == 1, file << ": samples per pixel " << TagName(kSamplesPerPixel)
-                                         << " is " << samples << ", expected 1 (a grey-level CT)");
-  const std::string photometric = text(kPhotometric);
-  TROCAR_THROW_UNLESS(
-      photometric.empty() || photometric == "MONOCHROME2" || photometric == "MONOCHROME1",
-      file << ": photometric interpretation " << TagName(kPhotometric) << " '" << photometric
-           << "', expected MONOCHROME2");
-  s.rows = unsigned_short(kRows, "rows");
-  s.columns = unsigned_short(kColumns, "columns");
-  TROCAR_THROW_UNLESS(s.rows > 0 && s.columns > 0,
-                      file << ": image is " << s.rows << " x " << s.columns << " pixels");
-  s.bits_allocated = unsigned_short(kBitsAllocated, "bits allocated");
-  TROCAR_THROW_UNLESS(s.bits_allocated == 8 || s.bits_allocated == 16 || s.bits_allocated == 32,
-                      file << ": bits allocated " << TagName(kBitsAllocated) << " is "
-                           << s.bits_allocated << ", expected 8, 16 or 32");
-  s.bits_stored =
-      elements.count(kBitsStored) ? unsigned_short(kBitsStored, "bits stored") : s.bits_allocated;
-  TROCAR_THROW_UNLESS(s.bits_stored >= 1 && s.bits_stored <= s.bits_allocated,
-                      file << ": bits stored " << TagName(kBitsStored) << " is " << s.bits_stored
-                           << ", expected 1 to " << s.bits_allocated);
-  s.is_signed = unsigned_short(kPixelRepresentation, "pixel representation") == 1;
-  if (elements.count(kRescaleSlope))
-    s.slope = Numbers(text(kRescaleSlope), 1, file, "rescale slope (0028,1053)")[0];
-  if (elements.count(kRescaleIntercept)) {
-    s.intercept = Numbers(text(kRescaleIntercept), 1, file, "rescale intercept (0028,1052)")[0];
+  const gdcm::Image& image = reader.GetImage();
+  const gdcm::PixelFormat& pf = image.GetPixelFormat();
+  TROCAR_THROW_UNLESS(pf.GetSamplesPerPixel() == 1,
+                      file << ": samples per pixel (0028,0002) is " << pf.GetSamplesPerPixel()
+                           << ", expected 1 (a grey-level CT)");
+  const auto pi = image.GetPhotometricInterpretation();
+  TROCAR_THROW_UNLESS(pi == gdcm::PhotometricInterpretation::MONOCHROME2 ||
+                          pi == gdcm::PhotometricInterpretation::MONOCHROME1,
+                      file << ": photometric interpretation (0028,0004) '"
+                           << (pi.GetString() ? pi.GetString() : "?") << "', expected MONOCHROME2");
+  const int bits_allocated = pf.GetBitsAllocated(), bits_stored = pf.GetBitsStored();
+  TROCAR_THROW_UNLESS(bits_allocated == 8 || bits_allocated == 16 || bits_allocated == 32,
+                      file << ": bits allocated (0028,0100) is " << bits_allocated
+                           << ", expected 8, 16 or 32");
+  TROCAR_THROW_UNLESS(bits_stored >= 1 && bits_stored <= bits_allocated,
+                      file << ": bits stored (0028,0101) is " << bits_stored << ", expected 1 to "
+                           << bits_allocated);
+  const unsigned* dims = image.GetDimensions();
+  Slice s;
+  s.file = file;
+  s.columns = static_cast<int>(dims[0]);
+  s.rows = static_cast<int>(dims[1]);
+  s.frames = image.GetNumberOfDimensions() >= 3 ? static_cast<int>(dims[2]) : 1;
+  TROCAR_THROW_UNLESS(s.rows > 0 && s.columns > 0 && s.frames > 0 && s.rows <= 65535 &&
+                          s.columns <= 65535,
+                      file << ": image is " << s.rows << " x " << s.columns << " pixels, "
+                           << s.frames << " frame(s)");
+  s.is_signed = pf.GetPixelRepresentation() == 1;
+  s.series_uid = Text(ds, gdcm::Tag(0x0020, 0x000e));
+  s.modality = Text(ds, gdcm::Tag(0x0008, 0x0060));
+  s.description = Text(ds, gdcm::Tag(0x0008, 0x103e));
+  if (const std::string n = Text(ds, gdcm::Tag(0x0020, 0x0013)); !n.empty()) {
+    s.instance = static_cast<int>(std::clamp(Numbers(n, 1, file, "instance number (0020,0013)")[0], -1e9, 1e9));
   }
-  TROCAR_THROW_UNLESS(s.slope != 0.0, file << ": rescale slope (0028,1053) is 0");
-  require(kPosition, "image position (patient)");
-  require(kOrientation, "image orientation (patient)");
-  require(kPixelSpacing, "pixel spacing");
-  const auto p = Numbers(text(kPosition), 3, file, "image position (patient) (0020,0032)");
-  s.position_mm = Eigen::Vector3d(p[0], p[1], p[2]);
-  const auto o = Numbers(text(kOrientation), 6, file, "image orientation (patient) (0020,0037)");
+
+  // Geometry and rescale: top level for classic images; the functional groups (per frame, then
+  // shared) for enhanced multi-frame images.
+  const gdcm::DataSet* shared = SequenceItem(ds, gdcm::Tag(0x5200, 0x9229), 0);
+  auto field = [&](const gdcm::Tag& tag, int frame) {
+    std::string t = Text(ds, tag);
+    if (t.empty()) t = GroupText(SequenceItem(ds, gdcm::Tag(0x5200, 0x9230), frame), tag);
+    if (t.empty()) t = GroupText(shared, tag);
+    return t;
+  };
+  auto require = [&](const gdcm::Tag& tag, int frame, const char* name) {
+    const std::string t = field(tag, frame);
+    TROCAR_THROW_UNLESS(!t.empty(), file << ": missing " << name << " " << TagName(tag)
+                                         << (s.frames > 1 ? " for frame " + std::to_string(frame + 1)
+                                                          : std::string()));
+    return t;
+  };
+  const gdcm::Tag kPosition(0x0020, 0x0032), kOrientation(0x0020, 0x0037),
+      kSpacing(0x0028, 0x0030), kSlope(0x0028, 0x1053), kIntercept(0x0028, 0x1052);
+  const std::string orientation = require(kOrientation, 0, "image orientation (patient)");
+  const auto o = Numbers(orientation, 6, file, "image orientation (patient) (0020,0037)");
   s.row_direction = Eigen::Vector3d(o[0], o[1], o[2]);
   s.column_direction = Eigen::Vector3d(o[3], o[4], o[5]);
   TROCAR_THROW_UNLESS(std::abs(s.row_direction.norm() - 1) < 1e-3 &&
                           std::abs(s.column_direction.norm() - 1) < 1e-3 &&
                           std::abs(s.row_direction.dot(s.column_direction)) < 1e-3,
-                      file << ": image orientation (patient) (0020,0037) '" << text(kOrientation)
+                      file << ": image orientation (patient) (0020,0037) '" << orientation
                            << "' is not two orthogonal unit vectors");
   s.row_direction.normalize();
   s.column_direction.normalize();
-  const auto sp = Numbers(text(kPixelSpacing), 2, file, "pixel spacing (0028,0030)");
+  const std::string spacing = require(kSpacing, 0, "pixel spacing");
+  const auto sp = Numbers(spacing, 2, file, "pixel spacing (0028,0030)");
   s.spacing_mm = Eigen::Vector2d(sp[0], sp[1]);
-  TROCAR_THROW_UNLESS((s.spacing_mm.array() > 0).all(), file << ": pixel spacing (0028,0030) '"
-                                                             << text(kPixelSpacing)
-                                                             << "' must be positive");
-  if (elements.count(kInstanceNumber)) {
-    const auto n = Numbers(text(kInstanceNumber), 1, file, "instance number (0020,0013)");
-    s.instance = static_cast<int>(std::clamp(n[0], -1e9, 1e9));
-  }
-  const Range px = elements.at(kPixelData);
-  const std::size_t needed = static_cast<std::size_t>(s.rows) * s.columns * (s.bits_allocated / 8);
-  TROCAR_THROW_UNLESS(px.length >= needed, file << ": pixel data (7FE0,0010) has " << px.length
-                                                << " bytes, expected " << needed << " for "
-                                                << s.rows << " x " << s.columns << " pixels of "
-                                                << s.bits_allocated << " bits");
-  s.pixels = bytes.substr(px.offset, needed);
-  return true;
-}
+  TROCAR_THROW_UNLESS((s.spacing_mm.array() > 0).all(),
+                      file << ": pixel spacing (0028,0030) '" << spacing << "' must be positive");
 
-void ConvertPixels(const Slice& s, float* out, long& bad) {
-  const int bytes = s.bits_allocated / 8;
-  const long n = static_cast<long>(s.rows) * s.columns;
-  const auto* p = reinterpret_cast<const unsigned char*>(s.pixels.data());
-  const std::uint32_t mask = s.bits_stored == 32 ? 0xFFFFFFFFu : ((1u << s.bits_stored) - 1u);
-  const std::uint32_t sign = 1u << (s.bits_stored - 1);
-  for (long v = 0; v < n; ++v, p += bytes) {
-    std::uint32_t raw = 0;
-    for (int b = 0; b < bytes; ++b) raw |= static_cast<std::uint32_t>(p[b]) << (8 * b);
-    raw &= mask;
-    double x = 0;
-    if (s.is_signed && (raw & sign)) {
-      x = static_cast<double>(static_cast<std::int64_t>(raw) -
-                              (static_cast<std::int64_t>(mask) + 1));
-    } else {
-      x = static_cast<double>(raw);
+  // Pixels, decoded by GDCM whatever the transfer syntax.
+  const std::size_t bytes_per = static_cast<std::size_t>(bits_allocated / 8);
+  const std::size_t per_frame = static_cast<std::size_t>(s.rows) * s.columns;
+  const std::size_t expected = per_frame * s.frames * bytes_per;
+  TROCAR_THROW_UNLESS(image.GetBufferLength() == expected,
+                      file << ": GDCM gives " << image.GetBufferLength() << " bytes of pixels, expected "
+                           << expected << " for " << s.frames << " frame(s) of " << s.rows << " x "
+                           << s.columns << " pixels of " << bits_allocated << " bits");
+  std::vector<char> raw(expected);
+  TROCAR_THROW_UNLESS(
+      image.GetBuffer(raw.data()),
+      file << ": " << ts_text
+           << ": GDCM cannot decode its pixel data (damaged, or a codec this GDCM was built "
+              "without). Convert the series to uncompressed DICOM with a tool that decodes it "
+              "(e.g. dcmtk's dcmdjpeg, dcmdjpls or dcmdrle), or export it as NIfTI");
+  auto values = std::make_shared<std::vector<float>>(per_frame * s.frames);
+  const std::uint32_t mask = bits_stored == 32 ? 0xFFFFFFFFu : ((1u << bits_stored) - 1u);
+  const std::uint32_t sign = 1u << (bits_stored - 1);
+  long bad = 0;
+  for (int frame = 0; frame < s.frames; ++frame) {
+    double slope = 1.0, intercept = 0.0;
+    if (const std::string t = field(kSlope, frame); !t.empty())
+      slope = Numbers(t, 1, file, "rescale slope (0028,1053)")[0];
+    if (const std::string t = field(kIntercept, frame); !t.empty())
+      intercept = Numbers(t, 1, file, "rescale intercept (0028,1052)")[0];
+    TROCAR_THROW_UNLESS(slope != 0.0, file << ": rescale slope (0028,1053) is 0");
+    if (frame == 0) {
+      s.slope = slope;
+      s.intercept = intercept;
     }
-    x = s.slope * x + s.intercept;
-    if (!std::isfinite(x)) ++bad;
-    out[v] = static_cast<float>(x);
+    const auto* p = reinterpret_cast<const unsigned char*>(raw.data()) + per_frame * frame * bytes_per;
+    float* v = values->data() + per_frame * frame;
+    for (std::size_t n = 0; n < per_frame; ++n, p += bytes_per) {
+      std::uint32_t word = 0;  // GDCM hands the buffer over in the machine's (little-endian) order
+      for (std::size_t b = 0; b < bytes_per; ++b) word |= static_cast<std::uint32_t>(p[b]) << (8 * b);
+      word &= mask;
+      const double x = s.is_signed && (word & sign)
+                           ? static_cast<double>(static_cast<std::int64_t>(word) -
+                                                 (static_cast<std::int64_t>(mask) + 1))
+                           : static_cast<double>(word);
+      const double y = slope * x + intercept;
+      if (!std::isfinite(y)) ++bad;
+      v[n] = static_cast<float>(y);
+    }
   }
+  TROCAR_THROW_UNLESS(bad == 0, file << ": " << bad << " voxels are not finite after rescaling");
+  s.values = values;
+
+  // One slice per frame, each at its own position.
+  const Eigen::Vector3d normal = s.row_direction.cross(s.column_direction);
+  double between = 0.0;
+  if (s.frames > 1 && field(kPosition, 1).empty()) {
+    // A multi-frame image without per-frame positions: frames evenly spaced along the normal.
+    const std::string t = Text(ds, gdcm::Tag(0x0018, 0x0088));
+    TROCAR_THROW_UNLESS(!t.empty(), file << ": " << s.frames
+                                         << " frames but neither per-frame positions (plane "
+                                            "position sequence (0020,9113)) nor spacing between "
+                                            "slices (0018,0088)");
+    between = Numbers(t, 1, file, "spacing between slices (0018,0088)")[0];
+  }
+  const auto p0 = Numbers(require(kPosition, 0, "image position (patient)"), 3, file,
+                          "image position (patient) (0020,0032)");
+  for (int frame = 0; frame < s.frames; ++frame) {
+    Slice fs = s;
+    fs.frame = frame;
+    if (frame == 0 || between != 0.0) {
+      fs.position_mm = Eigen::Vector3d(p0[0], p0[1], p0[2]) + frame * between * normal;
+    } else {
+      const auto p = Numbers(require(kPosition, frame, "image position (patient)"), 3, file,
+                             "image position (patient) (0020,0032)");
+      fs.position_mm = Eigen::Vector3d(p[0], p[1], p[2]);
+    }
+    out->push_back(std::move(fs));
+  }
+  return true;
 }
 
 // Decimal string of at most 16 characters (the DS limit), as precise as fits.
@@ -465,27 +674,32 @@ Volume LoadDicomSeries(const std::string& path) {
   const std::string folder = is_folder ? path : ParentDirectory(path);
   TROCAR_THROW_UNLESS(is_folder || IsRegularFile(path), path << ": DICOM series not found");
   std::string wanted_series;
-  if (!is_folder) {
-    Slice chosen;
-    TROCAR_THROW_UNLESS(ReadSlice(path, chosen), path << ": not a DICOM file (no DICM header)");
-    wanted_series = chosen.series_uid;
-  }
   std::vector<std::string> files;
-  for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
-    if (it->is_regular_file(ec)) files.push_back(it->path().string());
+  if (!is_folder) {
+    std::vector<Slice> chosen;
+    TROCAR_THROW_UNLESS(ReadFile(path, &chosen), path << ": not a DICOM image file");
+    wanted_series = chosen.front().series_uid;
+    // A multi-frame file is a whole series by itself.
+    if (chosen.size() > 1) files.push_back(path);
   }
-  TROCAR_THROW_UNLESS(!ec, folder << ": cannot list the DICOM folder: " << ec.message());
+  if (files.empty()) {
+    for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
+      if (it->is_regular_file(ec)) files.push_back(it->path().string());
+    }
+    TROCAR_THROW_UNLESS(!ec, folder << ": cannot list the DICOM folder: " << ec.message());
+  }
   std::sort(files.begin(), files.end());
   std::map<std::string, std::vector<Slice>> series;
   int skipped = 0;
   for (const auto& f : files) {
-    Slice s;
-    if (!ReadSlice(f, s)) {
+    std::vector<Slice> slices;
+    if (!ReadFile(f, &slices)) {
       ++skipped;
       continue;
     }
-    if (!wanted_series.empty() && s.series_uid != wanted_series) continue;
-    series[s.series_uid].push_back(std::move(s));
+    if (!wanted_series.empty() && slices.front().series_uid != wanted_series) continue;
+    auto& list = series[slices.front().series_uid];
+    for (auto& s : slices) list.push_back(std::move(s));
   }
   TROCAR_THROW_UNLESS(!series.empty(), folder << ": no DICOM image slices among its "
                                               << files.size() << " files (" << skipped
@@ -494,7 +708,9 @@ Volume LoadDicomSeries(const std::string& path) {
     std::ostringstream list;
     for (const auto& [uid, slices] : series) {
       list << "\n  " << (uid.empty() ? "(no series UID)" : uid) << ": " << slices.size()
-           << " slices, e.g. " << slices.front().file;
+           << " slices" << (slices.front().description.empty() ? "" : ", '" + slices.front().description + "'")
+           << (slices.front().modality.empty() ? "" : ", " + slices.front().modality)
+           << ", e.g. " << slices.front().file;
     }
     TROCAR_THROW(
         folder << ": holds " << series.size()
@@ -507,15 +723,15 @@ Volume LoadDicomSeries(const std::string& path) {
   const Slice& first = slices.front();
   for (const Slice& s : slices) {
     TROCAR_THROW_UNLESS(s.rows == first.rows && s.columns == first.columns,
-                        s.file << ": " << s.rows << " x " << s.columns << " pixels, but "
-                               << first.file << " has " << first.rows << " x " << first.columns);
+                        s.where() << ": " << s.rows << " x " << s.columns << " pixels, but "
+                                  << first.where() << " has " << first.rows << " x " << first.columns);
     TROCAR_THROW_UNLESS((s.row_direction - first.row_direction).norm() < 1e-4 &&
                             (s.column_direction - first.column_direction).norm() < 1e-4,
-                        s.file << ": image orientation (0020,0037) differs from " << first.file
-                               << "'s; the series is not one volume");
+                        s.where() << ": image orientation (0020,0037) differs from " << first.where()
+                                  << "'s; the series is not one volume");
     TROCAR_THROW_UNLESS(
         (s.spacing_mm - first.spacing_mm).norm() < 1e-4 * first.spacing_mm.norm(),
-        s.file << ": pixel spacing (0028,0030) differs from " << first.file << "'s");
+        s.where() << ": pixel spacing (0028,0030) differs from " << first.where() << "'s");
   }
   // Slices sorted along the normal; the step between them is the third voxel axis (a gantry
   // tilt makes it oblique to the normal, which the volume's geometry keeps).
@@ -528,8 +744,8 @@ Volume LoadDicomSeries(const std::string& path) {
   for (int k = 1; k < n; ++k) {
     const Eigen::Vector3d d = slices[k].position_mm - slices[k - 1].position_mm;
     TROCAR_THROW_UNLESS(d.dot(normal) > 1e-6,
-                        slices[k].file << ": same position as " << slices[k - 1].file
-                                       << " (a duplicate slice, or two series with one UID)");
+                        slices[k].where() << ": same position as " << slices[k - 1].where()
+                                          << " (a duplicate slice, or two series with one UID)");
     steps.push_back(d);
   }
   // The typical step (median along the normal) judges each gap, so that the message names the
@@ -543,10 +759,10 @@ Volume LoadDicomSeries(const std::string& path) {
   for (int k = 1; k < n; ++k) {
     const Eigen::Vector3d& d = steps[k - 1];
     TROCAR_THROW_UNLESS((d - typical_mm).norm() <= 0.01 * typical_mm.norm() + 1e-3,
-                        slices[k].file << ": " << d.norm() << " mm from the previous slice ("
-                                       << slices[k - 1].file << ") where the series steps "
-                                       << typical_mm.norm()
-                                       << " mm: a missing slice or uneven spacing");
+                        slices[k].where() << ": " << d.norm() << " mm from the previous slice ("
+                                          << slices[k - 1].where() << ") where the series steps "
+                                          << typical_mm.norm()
+                                          << " mm: a missing slice or uneven spacing");
   }
   const Eigen::Vector3d step_mm =
       (slices.back().position_mm - slices.front().position_mm) / (n - 1);
@@ -559,12 +775,13 @@ Volume LoadDicomSeries(const std::string& path) {
   v.source = is_folder ? path : folder;
   const long per_slice = static_cast<long>(first.rows) * first.columns;
   v.values.resize(static_cast<std::size_t>(per_slice) * n);
-  long bad = 0;
   for (int k = 0; k < n; ++k) {
-    ConvertPixels(slices[k], v.values.data() + per_slice * k, bad);
-    v.files.push_back(slices[k].file);
+    const Slice& s = slices[k];
+    std::copy_n(s.values->begin() + per_slice * s.frame, per_slice, v.values.begin() + per_slice * k);
+    if (v.files.empty() || v.files.back() != s.file) v.files.push_back(s.file);
   }
-  TROCAR_THROW_UNLESS(bad == 0, folder << ": " << bad << " voxels are not finite after rescaling");
+  std::sort(v.files.begin(), v.files.end());
+  v.files.erase(std::unique(v.files.begin(), v.files.end()), v.files.end());
   const bool ct = first.modality == "CT";
   v.hounsfield =
       ct || (!v.values.empty() && *std::min_element(v.values.begin(), v.values.end()) <= -500.0f &&

@@ -59,13 +59,16 @@ SliceImage RenderSlice(const Volume& volume, int axis, int index, double level, 
 ///         unknown type, wrong sizes, truncated or garbled data, missing data file, NaN values.
 Volume LoadVolume(const std::string& path);
 
-/// Reads a DICOM series: `path` is a folder holding one series, or one file of the series to
-/// pick (its folder may hold others). Classic single-frame slices in implicit or explicit VR
-/// little endian; slices are sorted along the orientation's normal and must be evenly spaced
-/// (a gantry tilt gives an oblique third axis, kept); rescale slope and intercept are applied
-/// per slice (Hounsfield units for CT). Non-DICOM files in the folder are skipped.
-/// @throws trocar::Error naming the file and the element: compressed transfer syntaxes (by
-///         name), multi-frame images, mixed sizes or orientations, duplicate or missing slices,
+/// Reads a DICOM series through GDCM: `path` is a folder holding one series, or one file of the
+/// series to pick (its folder may hold others). Every transfer syntax GDCM decodes (implicit or
+/// explicit VR, big endian, deflated, JPEG, JPEG-LS, JPEG 2000, RLE); classic single-frame slices
+/// or enhanced multi-frame files (frames from the functional groups). Each file's structure is
+/// walked and its pixel module checked before GDCM reads it (docs/decisions.md). Slices are sorted
+/// along the orientation's normal and must be evenly spaced (a gantry tilt gives an oblique third
+/// axis, kept); rescale slope and intercept are applied per slice or frame (Hounsfield units for
+/// CT). Non-DICOM files in the folder are skipped unread.
+/// @throws trocar::Error naming the file and the element: missing geometry, a syntax GDCM cannot
+///         decode (by name), mixed sizes or orientations, duplicate or missing slices, damaged or
 ///         truncated files, several series in the folder (listed).
 Volume LoadDicomSeries(const std::string& path);
 

@@ -1,9 +1,15 @@
 #include <gtest/gtest.h>
+#include <gdcmImage.h>
+#include <gdcmImageWriter.h>
+#include <gdcmMediaStorage.h>
 #include <vtkDICOMImageReader.h>
 #include <vtkImageData.h>
 #include <vtkNew.h>
 
 #include <algorithm>
+#include <cctype>
+#include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <random>
 
@@ -143,6 +149,178 @@ TEST(DicomSeries, PhantomAsDicomImportsToTheNrrdGeometryAndValues) {
   EXPECT_EQ(by_file.values, r.values);
 }
 
+// Runs a command; its exit status.
+int RunQuiet(const std::string& command) { return std::system((command + " >/dev/null 2>&1").c_str()); }
+
+// Each slice of `from` through gdcmconv with `options` into `to`.
+void Gdcmconv(const std::string& from, const std::string& to, const std::string& options) {
+  fs::create_directories(to);
+  for (const auto& f : SliceFiles(from)) {
+    const std::string out = to + "/" + fs::path(f).filename().string();
+    ASSERT_EQ(RunQuiet("gdcmconv " + options + " '" + f + "' '" + out + "'"), 0) << options << " " << f;
+  }
+}
+
+// The transfer syntax UID a file's meta header names.
+std::string TransferSyntaxOf(const std::string& file) {
+  const std::string bytes = ReadTextFile(file);
+  for (const char* uid : {"1.2.840.10008.1.2.4.70", "1.2.840.10008.1.2.4.57", "1.2.840.10008.1.2.4.80",
+                          "1.2.840.10008.1.2.4.90", "1.2.840.10008.1.2.5", "1.2.840.10008.1.2.1.99"}) {
+    for (auto at = bytes.find(uid); at != std::string::npos; at = bytes.find(uid, at + 1)) {
+      const char next = bytes[at + std::strlen(uid)];
+      if (next != '.' && !std::isdigit(static_cast<unsigned char>(next))) return uid;
+    }
+  }
+  return "uncompressed";
+}
+
+// The phantom's series compressed by GDCM's own tool in each lossless syntax imports voxel for
+// voxel as the uncompressed one: the decoding is GDCM's, the geometry and order trocar's.
+TEST(DicomSeries, CompressedSyntaxesImportVoxelForVoxel) {
+  ASSERT_EQ(RunQuiet("gdcmconv --version"), 0) << "gdcmconv (libgdcm-tools) is missing";
+  patient::PhantomParameters p;
+  p.seed = 3;
+  p.voxel_size = 0.005;
+  const patient::Phantom ph = patient::GeneratePhantom(p);
+  const std::string dir = Scratch("compress_src");
+  patient::WriteDicomSeries(ph.ct, dir);
+  const Volume plain = LoadVolume(dir);
+  ASSERT_EQ(plain.size, ph.ct.size);
+  struct Syntax {
+    const char* options;
+    const char* uid;
+  };
+  for (const Syntax& syntax : {Syntax{"--jpeg", "1.2.840.10008.1.2.4.70"},
+                               Syntax{"--jpegls", "1.2.840.10008.1.2.4.80"},
+                               Syntax{"--j2k", "1.2.840.10008.1.2.4.90"},
+                               Syntax{"--rle", "1.2.840.10008.1.2.5"},
+                               Syntax{"--deflated", "1.2.840.10008.1.2.1.99"}}) {
+    SCOPED_TRACE(syntax.options);
+    const std::string out = Scratch(std::string("compress") + syntax.options);
+    Gdcmconv(dir, out, syntax.options);
+    ASSERT_EQ(TransferSyntaxOf(SliceFiles(out)[1]), syntax.uid);  // really compressed
+    const Volume r = LoadVolume(out);
+    ExpectSameGeometry(plain, r);
+    EXPECT_EQ(r.values, plain.values);
+    EXPECT_TRUE(r.hounsfield);
+    if (std::string(syntax.options) == "--j2k") {
+      // A codestream without its start markers: GDCM cannot decode it, and the error says which
+      // file and which syntax.
+      const std::string file = SliceFiles(out)[2];
+      std::string bytes = ReadTextFile(file);
+      const auto at = bytes.find(std::string("\xFF\x4F\xFF\x51", 4));
+      ASSERT_NE(at, std::string::npos);
+      bytes.replace(at, 4, std::string(4, '\0'));
+      WriteFileAtomically(file, bytes);
+      const std::string m = LoadError(out);
+      EXPECT_NE(m.find(file + ": transfer syntax 1.2.840.10008.1.2.4.90 (JPEG 2000 Lossless)"),
+                std::string::npos)
+          << m;
+      EXPECT_NE(m.find("cannot decode"), std::string::npos) << m;
+    }
+    fs::remove_all(out);
+  }
+  fs::remove_all(dir);
+}
+
+// An enhanced multi-frame CT (one file, positions in per-frame functional groups, geometry and
+// rescale in the shared ones), written by GDCM's own writer: the same volume, frame by frame.
+TEST(DicomSeries, EnhancedMultiFrameCtImportsFrameByFrame) {
+  for (unsigned seed = 0; seed < 4; ++seed) {
+    SCOPED_TRACE(seed);
+    Volume v = RandomVolume(seed);
+    Eigen::Matrix3d axes;
+    axes.col(0) = v.index_to_P.col(0).normalized();
+    axes.col(1) = v.index_to_P.col(1).normalized();
+    axes.col(2) = axes.col(0).cross(axes.col(1));
+    const Eigen::Vector3d spacing(0.0007 + 0.0001 * seed, 0.0008, 0.0025);
+    v.index_to_P = axes * spacing.asDiagonal();  // no tilt: frames along the normal
+    const std::string dir = Scratch("enhanced" + std::to_string(seed));
+    fs::create_directories(dir);
+    gdcm::ImageWriter writer;
+    gdcm::Image& image = writer.GetImage();
+    image.SetNumberOfDimensions(3);
+    const unsigned dims[3] = {unsigned(v.size.x()), unsigned(v.size.y()), unsigned(v.size.z())};
+    image.SetDimensions(dims);
+    image.SetPixelFormat(gdcm::PixelFormat::INT16);
+    image.SetPhotometricInterpretation(gdcm::PhotometricInterpretation::MONOCHROME2);
+    const Eigen::Vector3d origin_mm = v.origin_P * 1e3;
+    image.SetOrigin(origin_mm.data());
+    const double spacing_mm[3] = {spacing.x() * 1e3, spacing.y() * 1e3, spacing.z() * 1e3};
+    image.SetSpacing(spacing_mm);
+    const double cosines[6] = {axes(0, 0), axes(1, 0), axes(2, 0), axes(0, 1), axes(1, 1), axes(2, 1)};
+    image.SetDirectionCosines(cosines);
+    image.SetIntercept(-24);
+    image.SetSlope(1);
+    std::vector<std::int16_t> stored(v.values.size());
+    for (std::size_t n = 0; n < stored.size(); ++n) stored[n] = static_cast<std::int16_t>(v.values[n] + 24);
+    gdcm::DataElement pixels(gdcm::Tag(0x7fe0, 0x0010));
+    pixels.SetByteValue(reinterpret_cast<const char*>(stored.data()),
+                        static_cast<std::uint32_t>(stored.size() * 2));
+    image.SetDataElement(pixels);
+    const gdcm::MediaStorage ms(gdcm::MediaStorage::EnhancedCTImageStorage);
+    gdcm::DataElement sop(gdcm::Tag(0x0008, 0x0016));
+    sop.SetByteValue(ms.GetString(), static_cast<std::uint32_t>(std::strlen(ms.GetString())));
+    writer.GetFile().GetDataSet().Insert(sop);
+    const std::string file = dir + "/enhanced.dcm";
+    writer.SetFileName(file.c_str());
+    ASSERT_TRUE(writer.Write());
+    ASSERT_NE(ReadTextFile(file).find(std::string("\x00\x52\x29\x92", 4)), std::string::npos)
+        << "no shared functional groups (5200,9229)";
+    const Volume r = LoadVolume(dir);
+    EXPECT_EQ(r.size, v.size);
+    EXPECT_TRUE(test::CompareMatrices(r.index_to_P, v.index_to_P, 1e-9)) << r.index_to_P;
+    EXPECT_TRUE(test::CompareMatrices(r.origin_P, v.origin_P, 1e-9));
+    EXPECT_EQ(r.values, v.values);
+    EXPECT_EQ(r.files, std::vector<std::string>{file});
+    // The file named alone is the whole series too.
+    EXPECT_EQ(LoadVolume(file).values, v.values);
+    fs::remove_all(dir);
+  }
+}
+
+// A real series stored as JPEG 2000 lossless (TotalSegmentator's example): read through GDCM onto
+// the grid of the label map TotalSegmentator made from it, with the body in Hounsfield units.
+TEST(DicomSeries, RealJpeg2000SeriesImportsOnItsLabelMapsGrid) {
+  const std::string dicom = test::SharedDataPath("ct/totalseg-dicom-j2k/dicom");
+  const std::string labels = test::SharedDataPath("ct/totalseg-dicom-j2k/example_seg_dicom.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(labels);
+  const Volume ct = LoadVolume(dicom);
+  EXPECT_EQ(ct.size, Eigen::Vector3i(512, 512, 20));
+  EXPECT_TRUE(ct.hounsfield);
+  const Eigen::Vector3d spacing = ct.spacing();
+  EXPECT_NEAR(spacing.x(), 0.000977, 2e-6);
+  EXPECT_NEAR(spacing.z(), 0.002, 1e-6);
+  const Volume seg = LoadVolume(labels);
+  ASSERT_EQ(seg.size, ct.size);
+  // Every CT voxel centre is a label map voxel centre (the two files may order their axes
+  // differently: TotalSegmentator's NIfTI runs the rows the other way).
+  long labelled_n = 0;
+  double labelled = 0, corner = 0;
+  double worst = 0;
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const Eigen::Vector3d q = seg.IndexOf(ct.PatientPoint(i, j, k));
+        const Eigen::Vector3d r = q.array().round();
+        worst = std::max(worst, (q - r).cwiseAbs().maxCoeff());
+        ASSERT_TRUE((r.array() >= 0).all() && (r.array() < seg.size.cast<double>().array()).all())
+            << i << " " << j << " " << k;
+        if (seg.at(int(r.x()), int(r.y()), int(r.z())) > 0) {
+          labelled += ct.at(i, j, k);
+          ++labelled_n;
+        }
+      }
+    }
+  }
+  EXPECT_LT(worst, 0.05);
+  const long n_labelled = labelled_n;
+  corner = ct.at(2, 2, 10);
+  ASSERT_GT(n_labelled, 10000);
+  EXPECT_GT(labelled / n_labelled, -100.0);
+  EXPECT_LT(corner, -900.0);
+}
+
 // The real chest, written as a series and read back: same grid, same values, still raw 8-bit.
 TEST(DicomSeries, Lidc2ChestRoundTrips) {
   const std::string path = test::SharedDataPath("ct/lidc2/ct.nhdr");
@@ -203,7 +381,8 @@ TEST(DicomSeries, BadSeriesAreClearErrorsNamingTheFile) {
     EXPECT_NE(m.find("slice_0002.dcm"), std::string::npos) << m;
     EXPECT_NE(m.find("truncated"), std::string::npos) << m;
   }
-  {  // A compressed transfer syntax (RLE has a UID of the same length as explicit VR LE).
+  {  // A transfer syntax that lies (RLE announced, plain pixels stored; the same UID length):
+     // GDCM reads the pixel data for what it is, an uncompressed value of defined length.
     const std::string dir = fresh("compressed");
     std::string bytes = ReadTextFile(dir + "/slice_0001.dcm");
     const std::string from("1.2.840.10008.1.2.1\0", 20), to("1.2.840.10008.1.2.5\0", 20);
@@ -211,10 +390,18 @@ TEST(DicomSeries, BadSeriesAreClearErrorsNamingTheFile) {
     ASSERT_NE(at, std::string::npos);
     bytes.replace(at, from.size(), to);
     WriteFileAtomically(dir + "/slice_0001.dcm", bytes);
+    EXPECT_EQ(LoadVolume(dir).values, v.values);
+  }
+  {  // A bits-allocated value GDCM would assert on is an error naming the element.
+    const std::string dir = fresh("bits");
+    std::string bytes = ReadTextFile(dir + "/slice_0001.dcm");
+    const std::string from("\x28\x00\x00\x01US\x02\x00\x10\x00", 10);
+    const auto at = bytes.find(from);
+    ASSERT_NE(at, std::string::npos);
+    bytes[at + 8] = 12;
+    WriteFileAtomically(dir + "/slice_0001.dcm", bytes);
     const std::string m = LoadError(dir);
-    EXPECT_NE(m.find("slice_0001.dcm: transfer syntax 1.2.840.10008.1.2.5 (RLE Lossless)"),
-              std::string::npos)
-        << m;
+    EXPECT_NE(m.find("slice_0001.dcm: bits allocated (0028,0100) is 12"), std::string::npos) << m;
   }
   {  // Only one slice.
     const std::string dir = fresh("single");
