@@ -1,5 +1,6 @@
 #include "patient/patient_model.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -11,6 +12,7 @@
 #include "common/file_util.hpp"
 #include "common/yaml_util.hpp"
 #include "patient/intercostal.hpp"
+#include "patient/label_map.hpp"
 #include "patient/markups.hpp"
 #include "patient/segmentation.hpp"
 #include "patient/surface.hpp"
@@ -247,7 +249,7 @@ std::uint64_t Fnv1a(std::uint64_t h, const std::string& bytes) {
 }
 
 struct Budgets {
-  int skin = 30000, ribs = 40000, sternum = 4000, spine = 12000, heart = 15000;
+  int skin = 30000, ribs = 40000, sternum = 4000, spine = 12000, heart = 15000, vessels = 8000;
 };
 
 struct TargetSpec {
@@ -264,6 +266,7 @@ struct CaseSpec {
   SegmentationOptions seg;
   std::string heart_mask;
   double heart_mask_threshold = 0.5;
+  std::string labels, label_names;  // a label map (file or folder of masks) and its names' sidecar
   bool heart_contrast = true;
   HeartOptions heart;
   double left_side_up = 0.0;
@@ -286,7 +289,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
   const YAML::Node& root = y.root();
   y.ExpectMap(root, "patient.yaml",
               {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
-               "port_candidates", "intercostal", "surfaces", "plan"});  // plan: read by trocar plan
+               "port_candidates", "intercostal", "surfaces", "plan", "labels"});  // plan: read by trocar plan
   c.name = root["name"] ? y.String(root["name"], "name")
                         : std::filesystem::path(case_dir).filename().string();
   c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
@@ -347,6 +350,23 @@ CaseSpec ReadCase(const std::string& case_dir) {
     if (h["blood"]) c.heart.blood_hu = c.heart.raw_blood = y.Number(h["blood"], "heart.blood");
     if (h["soft"]) c.heart.soft_hu = c.heart.raw_soft = y.Number(h["soft"], "heart.soft");
     c.heart.opening_radius = y.NumberOr(h, "opening_radius", "heart", c.heart.opening_radius);
+  }
+  if (root["labels"]) {
+    // A label map: `labels: seg.nii.gz`, or `labels: {file: seg.nii.gz, names: seg.json}`.
+    const YAML::Node l = root["labels"];
+    if (l.IsMap()) {
+      y.ExpectMap(l, "labels", {"file", "names"});
+      c.labels = JoinPath(case_dir, y.String(y.Require(l, "file", "labels"), "labels.file"));
+      if (l["names"]) {
+        c.label_names = JoinPath(case_dir, y.String(l["names"], "labels.names"));
+        TROCAR_THROW_UNLESS(IsRegularFile(c.label_names), y.Where(l["names"], "labels.names")
+                                                              << ": file " << c.label_names << " not found");
+      }
+    } else {
+      c.labels = JoinPath(case_dir, y.String(l, "labels"));
+    }
+    TROCAR_THROW_UNLESS(std::filesystem::exists(c.labels),
+                        y.Where(l, "labels") << ": " << c.labels << " not found (a label map file or a folder of masks)");
   }
   if (root["pose"]) {
     const YAML::Node p = root["pose"];
@@ -426,7 +446,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
   }
   if (root["surfaces"]) {
     const YAML::Node s = root["surfaces"];
-    y.ExpectMap(s, "surfaces", {"skin", "ribs", "sternum", "spine", "heart", "smoothing"});
+    y.ExpectMap(s, "surfaces", {"skin", "ribs", "sternum", "spine", "heart", "vessels", "smoothing"});
     auto budget = [&](const char* key, int* v) {
       if (!s[key]) return;
       const double n = y.Number(s[key], std::string("surfaces.") + key);
@@ -440,6 +460,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
     budget("sternum", &c.budgets.sternum);
     budget("spine", &c.budgets.spine);
     budget("heart", &c.budgets.heart);
+    budget("vessels", &c.budgets.vessels);
     if (s["smoothing"]) {
       const double n = y.Number(s["smoothing"], "surfaces.smoothing");
       TROCAR_THROW_UNLESS(n == std::floor(n) && n >= 0 && n <= 500,
@@ -456,13 +477,26 @@ std::vector<std::string> InputFiles(const CaseSpec& c, const Volume& ct) {
   std::vector<std::string> files = {c.file};
   files.insert(files.end(), ct.files.begin(), ct.files.end());
   if (!c.heart_mask.empty()) files.push_back(c.heart_mask);
+  if (!c.labels.empty()) {
+    if (std::filesystem::is_directory(c.labels)) {
+      std::vector<std::string> masks;
+      for (const auto& e : std::filesystem::directory_iterator(c.labels)) {
+        if (e.is_regular_file()) masks.push_back(e.path().string());
+      }
+      std::sort(masks.begin(), masks.end());
+      files.insert(files.end(), masks.begin(), masks.end());
+    } else {
+      files.push_back(c.labels);
+      if (!c.label_names.empty()) files.push_back(c.label_names);
+    }
+  }
   for (const auto& t : c.targets) files.push_back(t.markups);
   files.insert(files.end(), c.port_markups.begin(), c.port_markups.end());
   return files;
 }
 
 std::uint64_t CacheKey(const std::vector<std::string>& files) {
-  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v1");
+  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v2");
   for (const auto& f : files) {
     h = Fnv1a(h, std::filesystem::path(f).filename().string());
     h = Fnv1a(h, ReadTextFile(f));
@@ -560,6 +594,15 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   m.left_side_up = c.left_side_up;
   Segmentation seg;
   stage("segment body and bone", [&] { seg = Segment(ct, c.seg); });
+  LabelledAnatomy labelled;
+  const bool have_labels = !c.labels.empty();
+  if (have_labels) {
+    // Bones, heart and vessels from the label map; the body (skin) stays the CT's own.
+    stage("label map", [&] {
+      labelled = AnatomyFromLabels(LoadLabelMap(c.labels, c.label_names), ct);
+      seg.bones = labelled.bones;
+    });
+  }
   m.body_min_P = seg.body_min_P;
   m.body_max_P = seg.body_max_P;
   Mask heart;
@@ -568,6 +611,9 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     if (!c.heart_mask.empty()) {
       heart = ResampleMask(LoadVolume(c.heart_mask), ct, c.heart_mask_threshold);
       TROCAR_THROW_UNLESS(heart.count() > 0, c.heart_mask << ": the heart mask is empty on the CT");
+      have_heart = true;
+    } else if (have_labels && labelled.heart.count() > 0) {
+      heart = labelled.heart;
       have_heart = true;
     } else if (c.heart_contrast) {
       heart = SegmentHeartFromContrast(ct, seg, c.heart);
@@ -594,6 +640,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     add("sternum", LabelMask(ct, seg.bones.labels, {&seg.bones.sternum}), c.budgets.sternum);
     add("spine", LabelMask(ct, seg.bones.labels, {&seg.bones.spine}), c.budgets.spine);
     if (have_heart) add("heart", heart, c.budgets.heart);
+    if (have_labels) add("vessels", labelled.vessels, c.budgets.vessels);
   });
   stage("targets", [&] {
     for (const auto& spec : c.targets) {
@@ -634,9 +681,16 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     }
     if (m.port_candidates.empty()) {
       for (const auto& space : FindIntercostalSpaces(ct, seg, c.intercostal)) {
-        m.port_candidates.push_back(
-            {std::string(space.side > 0 ? "ICS-L" : "ICS-R") + std::to_string(space.upper_rib + 1),
-             space.skin, "intercostal"});
+        const auto& ribs = space.side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
+        int number = space.upper_rib + 1;  // by order, top to bottom
+        if (seg.bones.numbered) {
+          // The space below rib N is the Nth; ribs whose numbers are not consecutive (one not
+          // labelled) bound no space that can be named.
+          number = ribs[space.upper_rib].number;
+          if (ribs[space.upper_rib + 1].number != number + 1) continue;
+        }
+        m.port_candidates.push_back({std::string(space.side > 0 ? "ICS-L" : "ICS-R") + std::to_string(number),
+                                     space.skin, seg.bones.numbered ? "intercostal:labels" : "intercostal"});
       }
     }
   });

@@ -27,6 +27,7 @@ struct Component {
   double volume = 0.0;     ///< m³
   Eigen::Vector3d centroid_P = Eigen::Vector3d::Zero();
   Eigen::Vector3d min_P = Eigen::Vector3d::Zero(), max_P = Eigen::Vector3d::Zero();  ///< bounds
+  int number = 0;          ///< anatomical rib number (1 = under the collarbone) when known, else 0
 };
 
 /// 26-connected components of a mask, largest first; labels[i] is 0 outside, else the label.
@@ -55,6 +56,8 @@ struct BoneParts {
   std::vector<Component> ribs_left, ribs_right;  ///< top to bottom
   std::vector<Component> spine, sternum;         ///< midline pieces
   std::vector<int> labels;                       ///< component labels on the grid
+  /// Ribs carry their anatomical numbers (from a label map): spaces are named by them.
+  bool numbered = false;
 };
 
 struct Segmentation {
