@@ -496,10 +496,15 @@ bool ReadFile(const std::string& file, std::vector<Slice>* out) {
   // Geometry and rescale: top level for classic images; the functional groups (per frame, then
   // shared) for enhanced multi-frame images.
   const gdcm::DataSet* shared = SequenceItem(ds, gdcm::Tag(0x5200, 0x9229), 0);
+  // A frame's own functional group first: a multi-frame file may also carry a top-level value
+  // (e.g. the first frame's position), which must not stand for every frame.
+  auto frame_text = [&](const gdcm::Tag& tag, int frame) {
+    return GroupText(SequenceItem(ds, gdcm::Tag(0x5200, 0x9230), frame), tag);
+  };
   auto field = [&](const gdcm::Tag& tag, int frame) {
-    std::string t = Text(ds, tag);
-    if (t.empty()) t = GroupText(SequenceItem(ds, gdcm::Tag(0x5200, 0x9230), frame), tag);
+    std::string t = frame_text(tag, frame);
     if (t.empty()) t = GroupText(shared, tag);
+    if (t.empty()) t = Text(ds, tag);
     return t;
   };
   auto require = [&](const gdcm::Tag& tag, int frame, const char* name) {
@@ -579,7 +584,7 @@ bool ReadFile(const std::string& file, std::vector<Slice>* out) {
   // One slice per frame, each at its own position.
   const Eigen::Vector3d normal = s.row_direction.cross(s.column_direction);
   double between = 0.0;
-  if (s.frames > 1 && field(kPosition, 1).empty()) {
+  if (s.frames > 1 && frame_text(kPosition, 1).empty()) {
     // A multi-frame image without per-frame positions: frames evenly spaced along the normal.
     const std::string t = Text(ds, gdcm::Tag(0x0018, 0x0088));
     TROCAR_THROW_UNLESS(!t.empty(), file << ": " << s.frames

@@ -480,9 +480,11 @@ std::vector<std::string> InputFiles(const CaseSpec& c, const Volume& ct) {
   if (!c.labels.empty()) {
     if (std::filesystem::is_directory(c.labels)) {
       std::vector<std::string> masks;
-      for (const auto& e : std::filesystem::directory_iterator(c.labels)) {
-        if (e.is_regular_file()) masks.push_back(e.path().string());
+      std::error_code ec;
+      for (std::filesystem::directory_iterator it(c.labels, ec), end; !ec && it != end; it.increment(ec)) {
+        if (it->is_regular_file(ec)) masks.push_back(it->path().string());
       }
+      TROCAR_THROW_UNLESS(!ec, c.labels << ": cannot list the label folder: " << ec.message());
       std::sort(masks.begin(), masks.end());
       files.insert(files.end(), masks.begin(), masks.end());
     } else {
