@@ -49,7 +49,7 @@ void RunPhantom(const PhantomOptions& o) {
   WritePreview(ph, JoinPath(o.out, "preview.png"));
   const Eigen::Vector3d spacing = ph.ct.spacing() * 1e3;
   std::cout << "phantom (seed " << o.p.seed << "): " << ph.ct.size.x() << " x " << ph.ct.size.y()
-            << " x " << ph.ct.size.z() << " voxels of " << spacing.x() << " mm, HU; "
+            << " x " << ph.ct.size.z() << " voxels of " << spacing.x() << " x " << spacing.y() << " x " << spacing.z() << " mm, HU; "
             << ph.truth.ribs.size() << " ribs, " << ph.truth.intercostal_spaces.size()
             << " intercostal spaces, LAD " << ph.truth.lad.size() << " points, LIMA "
             << ph.truth.lima.size() << " points\n";
@@ -136,6 +136,8 @@ void AddPatientCommands(CLI::App* app) {
   cmd->add_option("--rib-spacing", o->p.rib_spacing, "distance between ribs at the back (m)")->capture_default_str();
   cmd->add_option("--heart-scale", o->p.heart_scale, "heart size factor")->capture_default_str();
   cmd->add_option("--voxel", o->p.voxel_size, "voxel size (m)")->capture_default_str();
+  cmd->add_option("--slice", o->p.slice_spacing, "axial slice spacing (m; 0: the voxel size)")->capture_default_str();
+  cmd->add_option("--fov", o->p.field_of_view, "square in-plane field of view (m; 0: the body and 2 cm around it)")->capture_default_str();
   cmd->add_flag("--ras", o->ras, "write the CT with a RAS header (default LPS)");
   cmd->add_flag("--dicom", o->dicom, "write the CT as a DICOM series folder ct/ instead of ct.nrrd")
       ->excludes("--ras");

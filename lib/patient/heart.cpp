@@ -70,24 +70,52 @@ std::vector<float> SquaredDistanceToMask(const Volume& grid, const Mask& mask) {
     d[n] = mask.inside[n] ? 0.f : std::numeric_limits<float>::infinity();
   }
   const int nmax = grid.size.maxCoeff();
-  std::vector<float> line(nmax), out(nmax);
-  std::vector<int> v(nmax);
-  std::vector<double> z(nmax + 1);
   const Eigen::Vector3i& s = grid.size;
   const long stride[3] = {1, s.x(), static_cast<long>(s.x()) * s.y()};
   for (int axis = 0; axis < 3; ++axis) {
     const int a = axis == 0 ? 1 : 0, b = axis == 2 ? 1 : 2;
-    for (int ib = 0; ib < s[b]; ++ib) {
-      for (int ia = 0; ia < s[a]; ++ia) {
-        const long base = ia * stride[a] + ib * stride[b];
-        for (int q = 0; q < s[axis]; ++q) line[q] = d[base + q * stride[axis]];
-        Transform1D(line.data(), s[axis], h[axis], out.data(), v, z);
-        for (int q = 0; q < s[axis]; ++q) d[base + q * stride[axis]] = out[q];
+    // Lines along the axis are independent: split them over threads (exact, so the result does
+    // not depend on the thread count).
+    // Lines across x (y and z) are gathered kTile at a time from contiguous runs of x, which
+    // keeps the strided reads in cache.
+    constexpr int kTile = 16;
+    const int tile = axis == 0 ? 1 : kTile;
+#pragma omp parallel
+    {
+      std::vector<float> lines(static_cast<std::size_t>(kTile) * nmax), out(nmax);
+      std::vector<int> v(nmax);
+      std::vector<double> z(nmax + 1);
+#pragma omp for schedule(static)
+      for (int ib = 0; ib < s[b]; ++ib) {
+        for (int ia0 = 0; ia0 < s[a]; ia0 += tile) {
+          const int width = std::min(tile, s[a] - ia0);
+          const long base = ia0 * stride[a] + ib * stride[b];
+          for (int q = 0; q < s[axis]; ++q) {
+            const float* from = &d[base + q * stride[axis]];
+            for (int t = 0; t < width; ++t) lines[t * static_cast<std::size_t>(nmax) + q] = from[t * stride[a]];
+          }
+          for (int t = 0; t < width; ++t) {
+            float* line = &lines[t * static_cast<std::size_t>(nmax)];
+            Transform1D(line, s[axis], h[axis], out.data(), v, z);
+            std::copy(out.begin(), out.begin() + s[axis], line);
+          }
+          for (int q = 0; q < s[axis]; ++q) {
+            float* to = &d[base + q * stride[axis]];
+            for (int t = 0; t < width; ++t) to[t * stride[a]] = lines[t * static_cast<std::size_t>(nmax) + q];
+          }
+        }
       }
     }
   }
   return d;
 }
+
+namespace {
+template <typename T>
+void ReleaseMemory(std::vector<T>* v) {
+  std::vector<T>().swap(*v);
+}
+}  // namespace
 
 Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg, const HeartOptions& o) {
   const double blood = ct.hounsfield ? o.blood_hu : o.raw_blood;
@@ -115,12 +143,14 @@ Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg, const H
   // Opening: the blood voxels deeper than the radius inside the pool...
   Mask not_pool = pool;
   for (auto& x : not_pool.inside) x = !x;
-  const std::vector<float> depth2 = SquaredDistanceToMask(ct, not_pool);
+  std::vector<float> depth2 = SquaredDistanceToMask(ct, not_pool);
   const float r2 = static_cast<float>(o.opening_radius * o.opening_radius);
   Mask core;
   core.size = ct.size;
   core.inside.assign(ct.values.size(), 0);
   for (std::size_t n = 0; n < depth2.size(); ++n) core.inside[n] = depth2[n] > r2;
+  ReleaseMemory(&depth2);  // a 512×512×300 CT: each of these whole-volume arrays is 300 MB
+  ReleaseMemory(&not_pool.inside);
   std::vector<int> labels;
   const auto blobs = ConnectedComponents(ct, core, &labels);
   // ...whose largest blob in the chest (between the body's sides, in front of its back third)
@@ -156,12 +186,16 @@ Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg, const H
   chambers.size = ct.size;
   chambers.inside.assign(ct.values.size(), 0);
   for (std::size_t n = 0; n < labels.size(); ++n) chambers.inside[n] = labels[n] > 0 && keep[labels[n]];
+  ReleaseMemory(&labels);
+  ReleaseMemory(&core.inside);
   // Grow back within the pool (the closing half of the opening), then the wall into soft tissue.
-  const std::vector<float> from_core2 = SquaredDistanceToMask(ct, chambers);
+  std::vector<float> from_core2 = SquaredDistanceToMask(ct, chambers);
   Mask heart_blood = chambers;
   for (std::size_t n = 0; n < from_core2.size(); ++n) {
     heart_blood.inside[n] = pool.inside[n] && from_core2[n] <= r2 * 1.0001f;
   }
+  ReleaseMemory(&from_core2);
+  ReleaseMemory(&chambers.inside);
   const std::vector<float> from_blood2 = SquaredDistanceToMask(ct, heart_blood);
   const float w2 = static_cast<float>(o.wall_thickness * o.wall_thickness);
   Mask heart = heart_blood;

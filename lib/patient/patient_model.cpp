@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <sstream>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
@@ -252,6 +253,15 @@ struct Budgets {
   int skin = 30000, ribs = 40000, sternum = 4000, spine = 12000, heart = 15000, vessels = 8000;
 };
 
+// The coarsest grid a structure is contoured on (m): thin bone keeps 2 mm, the skin and the heart
+// are smooth and large (their triangles, at the budgets above, are 5-8 mm across anyway).
+double MaxWorkingSpacing(const std::string& structure) {
+  if (structure == "skin") return 0.006;
+  if (structure == "heart") return 0.004;
+  if (structure == "spine") return 0.003;
+  return 0.002;
+}
+
 struct TargetSpec {
   std::string name, markups, surface = "heart";
   bool inward = false;
@@ -297,7 +307,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
     const YAML::Node ph = root["phantom"];
     y.ExpectMap(ph, "phantom",
                 {"seed", "body_width", "body_depth", "length", "ribs_per_side", "rib_spacing",
-                 "heart_scale", "heart_offset", "voxel_size"});
+                 "heart_scale", "heart_offset", "voxel_size", "slice_spacing", "field_of_view"});
     c.has_phantom = true;
     PhantomParameters& p = c.phantom;
     // Whole numbers in range before the casts (a cast of a negative or huge double is undefined).
@@ -318,6 +328,8 @@ CaseSpec ReadCase(const std::string& case_dir) {
     p.heart_scale = y.NumberOr(ph, "heart_scale", "phantom", p.heart_scale);
     if (ph["heart_offset"]) p.heart_offset = y.Vector3(ph["heart_offset"], "phantom.heart_offset");
     p.voxel_size = y.NumberOr(ph, "voxel_size", "phantom", p.voxel_size);
+    p.slice_spacing = y.NumberOr(ph, "slice_spacing", "phantom", p.slice_spacing);
+    p.field_of_view = y.NumberOr(ph, "field_of_view", "phantom", p.field_of_view);
   }
   if (root["units"]) {
     const std::string u = y.String(root["units"], "units");
@@ -472,20 +484,32 @@ CaseSpec ReadCase(const std::string& case_dir) {
   return c;
 }
 
-// Every file the model depends on, for the cache key.
-std::vector<std::string> InputFiles(const CaseSpec& c, const Volume& ct) {
+// The files of a folder (a DICOM series', a label map's), sorted.
+std::vector<std::string> FolderFiles(const std::string& dir) {
+  std::vector<std::string> files;
+  std::error_code ec;
+  for (std::filesystem::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    if (it->is_regular_file(ec)) files.push_back(it->path().string());
+  }
+  TROCAR_THROW_UNLESS(!ec, dir << ": cannot list the folder: " << ec.message());
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
+// Every file the model depends on, for the cache key: the case file, the CT's files (`ct_files`:
+// what the CT reader read, a detached data file or a series' slices too), masks, label maps and
+// markups. A CT folder's whole listing counts as well (a slice added to it changes the key).
+std::vector<std::string> InputFiles(const CaseSpec& c, const std::vector<std::string>& ct_files) {
   std::vector<std::string> files = {c.file};
-  files.insert(files.end(), ct.files.begin(), ct.files.end());
+  files.insert(files.end(), ct_files.begin(), ct_files.end());
+  if (std::filesystem::is_directory(c.ct)) {
+    const auto listing = FolderFiles(c.ct);
+    files.insert(files.end(), listing.begin(), listing.end());
+  }
   if (!c.heart_mask.empty()) files.push_back(c.heart_mask);
   if (!c.labels.empty()) {
     if (std::filesystem::is_directory(c.labels)) {
-      std::vector<std::string> masks;
-      std::error_code ec;
-      for (std::filesystem::directory_iterator it(c.labels, ec), end; !ec && it != end; it.increment(ec)) {
-        if (it->is_regular_file(ec)) masks.push_back(it->path().string());
-      }
-      TROCAR_THROW_UNLESS(!ec, c.labels << ": cannot list the label folder: " << ec.message());
-      std::sort(masks.begin(), masks.end());
+      const auto masks = FolderFiles(c.labels);
       files.insert(files.end(), masks.begin(), masks.end());
     } else {
       files.push_back(c.labels);
@@ -498,12 +522,38 @@ std::vector<std::string> InputFiles(const CaseSpec& c, const Volume& ct) {
 }
 
 std::uint64_t CacheKey(const std::vector<std::string>& files) {
-  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v2");
+  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v3");
   for (const auto& f : files) {
     h = Fnv1a(h, std::filesystem::path(f).filename().string());
     h = Fnv1a(h, ReadTextFile(f));
   }
   return h;
+}
+
+// cache/ct_files.txt: the CT's files as the last build read them (absolute paths), so that a
+// cached load keys the model without decoding the CT. Empty when absent, damaged or naming a file
+// that is gone (the caller then reads the CT).
+constexpr char kCtFilesHeader[] = "trocar ct files v1";
+
+std::vector<std::string> ReadCtFiles(const std::string& cache_dir) {
+  const std::string path = JoinPath(cache_dir, "ct_files.txt");
+  if (!IsRegularFile(path)) return {};
+  std::istringstream in(ReadTextFile(path));
+  std::string line;
+  if (!std::getline(in, line) || line != kCtFilesHeader) return {};
+  std::vector<std::string> files;
+  while (std::getline(in, line)) {
+    if (line.empty()) continue;
+    if (!IsRegularFile(line)) return {};
+    files.push_back(line);
+  }
+  return files;
+}
+
+std::string CtFilesText(const std::vector<std::string>& files) {
+  std::string text = std::string(kCtFilesHeader) + "\n";
+  for (const auto& f : files) text += std::filesystem::absolute(f).lexically_normal().string() + "\n";
+  return text;
 }
 
 Mask LabelMask(const Volume& ct, const std::vector<int>& labels,
@@ -524,7 +574,8 @@ Mask LabelMask(const Volume& ct, const std::vector<int>& labels,
   return m;
 }
 
-void WriteCacheFiles(const PatientModel& m, const std::string& cache_dir, std::uint64_t key) {
+void WriteCacheFiles(const PatientModel& m, const std::string& cache_dir, std::uint64_t key,
+                     const std::vector<std::string>& ct_files) {
   std::error_code ec;
   std::filesystem::create_directories(cache_dir, ec);
   TROCAR_THROW_UNLESS(!ec, cache_dir << ": cannot create the cache folder: " << ec.message());
@@ -547,6 +598,7 @@ void WriteCacheFiles(const PatientModel& m, const std::string& cache_dir, std::u
   }
   if (!targets.empty()) WriteMarkups(targets, JoinPath(cache_dir, "targets.mrk.json"));
   if (!ports.empty()) WriteMarkups(ports, JoinPath(cache_dir, "port_candidates.mrk.json"));
+  WriteFileAtomically(JoinPath(cache_dir, "ct_files.txt"), CtFilesText(ct_files));
   // model.bin last: its presence with a matching key means the whole cache is written.
   WriteFileAtomically(JoinPath(cache_dir, "model.bin"), SerializeModel(m, key));
 }
@@ -568,22 +620,35 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
                        /*write_patient_yaml=*/false);
     });
   }
-  // The key needs the CT's files (a detached data file too): read the header cheaply by loading.
+  const std::string cache_dir = JoinPath(case_dir, "cache");
+  const std::string model_bin = JoinPath(cache_dir, "model.bin");
+  auto load_cache = [&](std::uint64_t key, PatientModel* cached) {
+    const auto t0 = Clock::now();
+    if (!DeserializeModel(ReadTextFile(model_bin), key, cached)) return false;
+    cached->case_dir = case_dir;
+    cached->from_cache = true;
+    cached->timings = timings;
+    cached->timings.emplace_back("load cache", std::chrono::duration<double>(Clock::now() - t0).count());
+    return true;
+  };
+  const bool cache_exists = options.use_cache && IsRegularFile(model_bin);
+  if (cache_exists) {
+    // Keyed by the CT files the last build read, without decoding the CT (a clinical CT takes a
+    // second to decode; the whole cached load must take less).
+    const std::vector<std::string> last_ct_files = ReadCtFiles(cache_dir);
+    PatientModel cached;
+    if (!last_ct_files.empty()) {
+      std::uint64_t key = 0;
+      stage("key inputs", [&] { key = CacheKey(InputFiles(c, last_ct_files)); });
+      if (load_cache(key, &cached)) return cached;
+    }
+  }
   Volume ct;
   stage("load CT", [&] { ct = LoadVolume(c.ct); });
-  const std::string cache_dir = JoinPath(case_dir, "cache");
-  const std::uint64_t key = CacheKey(InputFiles(c, ct));
-  if (options.use_cache && IsRegularFile(JoinPath(cache_dir, "model.bin"))) {
+  const std::uint64_t key = CacheKey(InputFiles(c, ct.files));
+  if (cache_exists) {
     PatientModel cached;
-    const auto t0 = Clock::now();
-    if (DeserializeModel(ReadTextFile(JoinPath(cache_dir, "model.bin")), key, &cached)) {
-      cached.case_dir = case_dir;
-      cached.from_cache = true;
-      cached.timings = timings;
-      cached.timings.emplace_back("load cache",
-                                  std::chrono::duration<double>(Clock::now() - t0).count());
-      return cached;
-    }
+    if (load_cache(key, &cached)) return cached;
   }
   if (c.units == 1) ct.hounsfield = true;
   if (c.units == 2) ct.hounsfield = false;
@@ -627,6 +692,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     if (mask.count() == 0) return;
     SurfaceOptions o = c.surface;
     o.max_triangles = budget;
+    o.max_working_spacing = MaxWorkingSpacing(name);
     SurfaceReport report;
     Structure s;
     s.name = name;
@@ -701,7 +767,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     // A case folder one cannot write to (a read-only checkout) still gives its model.
     stage("write cache", [&] {
       try {
-        WriteCacheFiles(m, cache_dir, key);
+        WriteCacheFiles(m, cache_dir, key, ct.files);
       } catch (const Error& e) {
         m.cache_error = e.what();
       }

@@ -78,6 +78,9 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   Check(in.rib_drop, 0.0, 0.12, "rib_drop");
   Check(in.heart_scale, 0.6, 1.5, "heart_scale");
   Check(in.voxel_size, 0.0005, 0.005, "voxel_size");
+  TROCAR_THROW_UNLESS(in.slice_spacing == 0.0 || (std::isfinite(in.slice_spacing) && in.slice_spacing >= 0.0005 &&
+                                                  in.slice_spacing <= 0.006),
+                      "phantom: slice_spacing " << in.slice_spacing << " outside 0.0005..0.006 m (or 0: the voxel size)");
   TROCAR_THROW_UNLESS(in.heart_offset.allFinite() && in.heart_offset.norm() < 0.05,
                       "phantom: heart_offset " << in.heart_offset.transpose()
                                                << " must be finite and under 0.05 m");
@@ -115,12 +118,19 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
 
   Volume& v = out.ct;
   const double h = in.voxel_size;
+  const double hz = in.slice_spacing > 0.0 ? in.slice_spacing : h;
   const double margin = 0.02;
-  v.size = Eigen::Vector3i(static_cast<int>(std::ceil((2 * a + 2 * margin) / h)),
-                           static_cast<int>(std::ceil((2 * b + 2 * margin) / h)),
-                           static_cast<int>(std::ceil(in.length / h)));
-  v.index_to_P = Eigen::Matrix3d::Identity() * h;
-  v.origin_P = Eigen::Vector3d(-a - margin, -b - margin, 0.0);
+  TROCAR_THROW_UNLESS(in.field_of_view == 0.0 ||
+                          (std::isfinite(in.field_of_view) && in.field_of_view >= 2 * a + 0.01 &&
+                           in.field_of_view >= 2 * b + 0.01 && in.field_of_view <= 1.0),
+                      "phantom: field_of_view " << in.field_of_view << " m must hold the body ("
+                                                << 2 * a << " x " << 2 * b << " m) and be at most 1 m");
+  const double fov_x = in.field_of_view > 0.0 ? in.field_of_view : 2 * a + 2 * margin;
+  const double fov_y = in.field_of_view > 0.0 ? in.field_of_view : 2 * b + 2 * margin;
+  v.size = Eigen::Vector3i(static_cast<int>(std::ceil(fov_x / h - 1e-9)), static_cast<int>(std::ceil(fov_y / h - 1e-9)),
+                           static_cast<int>(std::ceil(in.length / hz)));
+  v.index_to_P = Eigen::Vector3d(h, h, hz).asDiagonal();
+  v.origin_P = Eigen::Vector3d(-0.5 * fov_x, -0.5 * fov_y, 0.0);
   v.values.assign(static_cast<std::size_t>(v.voxel_count()), PhantomHu::kAir);
   v.hounsfield = true;
   v.source = "phantom seed " + std::to_string(in.seed);
@@ -278,7 +288,10 @@ void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat f
        << "phantom: {seed: " << p.seed << ", body_width: " << p.body_width << ", body_depth: "
        << p.body_depth << ", length: " << p.length << ", ribs_per_side: " << p.ribs_per_side
        << ", rib_spacing: " << p.rib_spacing << ", heart_scale: " << p.heart_scale
-       << ", voxel_size: " << p.voxel_size << "}\n";
+       << ", voxel_size: " << p.voxel_size
+       << (p.slice_spacing > 0.0 ? ", slice_spacing: " + std::to_string(p.slice_spacing) : std::string())
+       << (p.field_of_view > 0.0 ? ", field_of_view: " + std::to_string(p.field_of_view) : std::string())
+       << "}\n";
   WriteFileAtomically(JoinPath(dir, "patient.yaml"), yaml.str());
 }
 

@@ -26,7 +26,11 @@ struct PhantomParameters {
   double rib_drop = 0.05;         ///< m, how much lower a rib's front end is than its back
   double heart_scale = 1.0;       ///< scales the heart's semi-axes (0.065, 0.055, 0.07) m
   Eigen::Vector3d heart_offset = Eigen::Vector3d::Zero();  ///< m, added to the heart centre
-  double voxel_size = 0.002;      ///< m
+  double voxel_size = 0.002;      ///< m, in-plane (x, y)
+  double slice_spacing = 0.0;     ///< m, between axial slices (0: the voxel size; clinical CT 1-3 mm)
+  /// m, the square in-plane extent of the scan centred on the body, as a clinical reconstruction's
+  /// field of view (0: the body and 2 cm of air around it).
+  double field_of_view = 0.0;
 };
 
 /// A polyline in the patient frame (m).

@@ -250,6 +250,8 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
   s.body.size = ct.size;
   s.body.inside.resize(labels.size());
   for (std::size_t i = 0; i < labels.size(); ++i) s.body.inside[i] = labels[i] == 1;
+  std::vector<int>().swap(labels);  // 4 bytes a voxel: not held while the bone is labelled
+  std::vector<std::uint8_t>().swap(above.inside);
   if (ct.hounsfield ? o.body_convex_fill : o.raw_body_convex_fill) {
     FillConvexPerSlice(ct, &s.body);
   } else {

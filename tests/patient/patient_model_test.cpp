@@ -1,5 +1,7 @@
 #include "patient/patient_model.hpp"
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -97,6 +99,26 @@ TEST(PatientModel, CacheIsReusedAndInvalidatedWhenAnInputChanges) {
   }
   EXPECT_EQ(warm.targets[0].normals, cold.targets[0].normals);
   EXPECT_TRUE(warm.X_WP.isApprox(cold.X_WP, 0.0));
+  // A cached load keys the model by the CT's files without decoding the CT.
+  for (const auto& [stage, seconds] : warm.timings) EXPECT_NE(stage, "load CT");
+  // The CT changes (another phantom written over it): rebuilt from the new CT.
+  long rebuilt_triangles = 0;
+  {
+    patient::PhantomParameters p;
+    p.voxel_size = 0.004;
+    p.seed = 7;
+    const std::string ct_dir = testing::TempDir() + "/trocar-cache-ct7";
+    patient::WritePhantomCase(patient::GeneratePhantom(p), ct_dir);
+    fs::copy_file(JoinPath(ct_dir, "ct.nrrd"), JoinPath(dir, "ct.nrrd"), fs::copy_options::overwrite_existing);
+    const patient::PatientModel other = patient::ImportPatient(dir);
+    EXPECT_FALSE(other.from_cache);
+    EXPECT_NE(other.Find("skin")->volume, cold.Find("skin")->volume);
+    rebuilt_triangles = other.triangle_count();
+    EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  }
+  // A damaged list of the CT's files: the CT is read and keys the model as before.
+  std::ofstream(JoinPath(dir, "cache/ct_files.txt"), std::ios::trunc) << "garbage\n";
+  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
   // An annotation changes: rebuilt.
   std::ofstream(JoinPath(dir, "markups/LIMA.mrk.json"), std::ios::app) << "\n";
   EXPECT_FALSE(patient::ImportPatient(dir).from_cache);
@@ -108,8 +130,48 @@ TEST(PatientModel, CacheIsReusedAndInvalidatedWhenAnInputChanges) {
     std::ofstream(bin, std::ios::binary | std::ios::trunc) << bytes.substr(0, cut);
     const patient::PatientModel again = patient::ImportPatient(dir);
     EXPECT_FALSE(again.from_cache);
-    EXPECT_EQ(again.triangle_count(), cold.triangle_count());
+    EXPECT_EQ(again.triangle_count(), rebuilt_triangles);
   }
+}
+
+// A DICOM series folder: its cache is keyed by the folder's files, so a slice removed (or added)
+// rebuilds the model although the files the last build read are all still there.
+TEST(PatientModel, DicomFolderCacheFollowsTheFolder) {
+  const std::string dir = testing::TempDir() + "/trocar-dicom-cache";
+  fs::remove_all(dir);
+  patient::PhantomParameters p;
+  p.voxel_size = 0.005;
+  patient::WritePhantomCase(patient::GeneratePhantom(p), dir, patient::CtFormat::kDicom);
+  std::ofstream(JoinPath(dir, "patient.yaml"))
+      << "name: dicom-cache\nct: ct\nunits: hounsfield\nsurfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
+  const patient::PatientModel cold = patient::ImportPatient(dir);
+  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  // A stray file added to the folder: the folder changed, rebuilt (the series is the same).
+  std::ofstream(JoinPath(dir, "ct/README.txt")) << "notes\n";
+  EXPECT_FALSE(patient::ImportPatient(dir).from_cache);
+  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  // The top slice removed: rebuilt, on one slice fewer.
+  std::vector<std::string> slices;
+  for (const auto& e : fs::directory_iterator(JoinPath(dir, "ct"))) {
+    if (e.path().extension() == ".dcm") slices.push_back(e.path().string());
+  }
+  ASSERT_GT(slices.size(), 10u);
+  std::sort(slices.begin(), slices.end());
+  const patient::Volume before = patient::LoadVolume(JoinPath(dir, "ct"));
+  double top = -HUGE_VAL;
+  std::string top_file;
+  for (const auto& f : slices) {
+    const double z = patient::LoadVolume(f).origin_P.z();
+    if (z > top) {
+      top = z;
+      top_file = f;
+    }
+  }
+  fs::remove(top_file);
+  const patient::PatientModel after = patient::ImportPatient(dir);
+  EXPECT_FALSE(after.from_cache);
+  EXPECT_LT(after.body_max_P.z(), cold.body_max_P.z() + 1e-9);
+  EXPECT_EQ(patient::LoadVolume(JoinPath(dir, "ct")).size.z(), before.size.z() - 1);
 }
 
 TEST(PatientModel, AnUnwritableCacheStillGivesTheModelAndSaysWhy) {

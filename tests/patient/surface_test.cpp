@@ -76,6 +76,50 @@ TEST(Surface, BallOnAnyGridIsAClosedOutwardSphereWithinTheBudget) {
   }
 }
 
+// A small budget on a fine grid: the mask is contoured on a coarsened grid (block fractions), and
+// the surface stays where it was: centred (a coarse voxel's centre is its fine voxels' centre),
+// the ball's radius and volume, closed and outward.
+TEST(Surface, CoarsenedContourKeepsTheSurfaceInPlace) {
+  for (unsigned seed = 1; seed <= 6; ++seed) {
+    SCOPED_TRACE(seed);
+    const BallCase c = MakeBall(seed);
+    patient::SurfaceOptions options;
+    options.max_triangles = 400;
+    options.max_working_spacing = 0.004;
+    patient::SurfaceReport report;
+    const TriangleMesh mesh = patient::ExtractSurface(c.grid, c.mask, "ball", options, &report);
+    EXPECT_GE(report.coarsening.maxCoeff(), 2) << report.coarsening.transpose();
+    // About contour_budget_factor × the budget: far fewer than at full resolution.
+    EXPECT_LE(report.contoured_triangles, 3 * options.contour_budget_factor * options.max_triangles);
+    patient::SurfaceOptions full = options;
+    full.contour_budget_factor = 0.0;
+    patient::SurfaceReport full_report;
+    patient::ExtractSurface(c.grid, c.mask, "ball", full, &full_report);
+    EXPECT_EQ(full_report.coarsening, Eigen::Vector3i::Ones());
+    EXPECT_GT(full_report.contoured_triangles, 2 * report.contoured_triangles);
+
+    EXPECT_NO_THROW(ValidateMesh(mesh, "ball"));
+    const EdgeCounts edges = CountEdges(mesh);
+    EXPECT_EQ(edges.boundary, 0);
+    EXPECT_EQ(edges.non_manifold, 0);
+    const double truth = 4.0 / 3.0 * M_PI * std::pow(c.radius, 3);
+    EXPECT_NEAR(MeshSignedVolume(mesh) / truth, 1.0, 0.06);
+    const double fine = c.grid.spacing().maxCoeff();
+    for (const auto& v : mesh.vertices) ASSERT_NEAR((v - c.centre_P).norm(), c.radius, 1.2 * fine);
+    // The enclosed volume's centroid (tetrahedra from the true centre) is the ball's centre.
+    Eigen::Vector3d moment = Eigen::Vector3d::Zero();
+    double volume = 0.0;
+    for (const auto& t : mesh.triangles) {
+      const Eigen::Vector3d a = mesh.vertices[t[0]] - c.centre_P, b = mesh.vertices[t[1]] - c.centre_P,
+                            d = mesh.vertices[t[2]] - c.centre_P;
+      const double v = a.dot(b.cross(d)) / 6.0;
+      volume += v;
+      moment += v * (a + b + d) / 4.0;
+    }
+    EXPECT_LT((moment / volume).norm(), 0.1 * fine);
+  }
+}
+
 TEST(Surface, EmptyOrMismatchedMasksAreErrorsNamingTheStructure) {
   BallCase c = MakeBall(2);
   patient::Mask empty = c.mask;

@@ -272,7 +272,9 @@ TEST(OptimizePorts, APatientNoPlanCanServeGetsAVerdictWithTheReason) {
   // Nothing is claimed reached.
   for (const auto& plan : result.plans) {
     for (const auto& r : plan.evaluation.reaches) {
-      if (problem.arms()[r.arm].role == ArmRole::kInstrument) EXPECT_FALSE(r.reached);
+      if (problem.arms()[r.arm].role == ArmRole::kInstrument) {
+        EXPECT_FALSE(r.reached);
+      }
     }
   }
 }
