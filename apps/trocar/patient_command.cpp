@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "apps/trocar/commands.hpp"
+#include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "common/plot.hpp"
 #include "patient/patient_model.hpp"
@@ -94,6 +95,8 @@ void RunImport(const ImportCommandOptions& o) {
   if (!m.port_candidates.empty()) std::cout << " (" << m.port_candidates.front().source << ")";
   std::cout << "\n";
   for (const auto& c : m.port_candidates) std::cout << "    " << c.name << ": " << c.skin.size() << " points\n";
+  for (const auto& line : m.checks) std::cout << "  check: " << line << "\n";
+  for (const auto& line : m.warnings) std::cout << "  warning: " << line << "\n";
   std::cout << "  pose: left side up " << m.left_side_up * 180.0 / M_PI << " deg, table top at "
             << m.table.height * 1e3 << " mm\n";
   std::cout << std::setprecision(3) << "  timings (s):";
@@ -107,6 +110,13 @@ void RunImport(const ImportCommandOptions& o) {
     std::cout << "  cache: not written: " << m.cache_error << "\n";
   } else if (!o.no_cache) {
     std::cout << "  cache: " << JoinPath(m.case_dir, "cache") << "\n";
+  }
+  // A model without port candidates cannot be planned on: say why, and exit non-zero.
+  if (m.port_candidates.empty()) {
+    for (const auto& w : m.warnings) {
+      if (w.rfind("no port candidates", 0) == 0) throw trocar::Error(JoinPath(m.case_dir, "patient.yaml") + ": " + w);
+    }
+    throw trocar::Error(JoinPath(m.case_dir, "patient.yaml") + ": no port candidates");
   }
 }
 

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <iomanip>
 #include <sstream>
 
 #include "common/error.hpp"
@@ -15,6 +16,7 @@
 #include "patient/intercostal.hpp"
 #include "patient/label_map.hpp"
 #include "patient/markups.hpp"
+#include "patient/sanity.hpp"
 #include "patient/segmentation.hpp"
 #include "patient/surface.hpp"
 
@@ -78,7 +80,7 @@ Eigen::Isometry3d PoseOnTable(const TriangleMesh& skin, double left_side_up, con
 // ---------------------------------------------------------------- serialisation
 namespace {
 
-constexpr char kMagic[8] = {'T', 'R', 'O', 'C', 'P', 'M', '0', '1'};
+constexpr char kMagic[8] = {'T', 'R', 'O', 'C', 'P', 'M', '0', '2'};
 
 struct Writer {
   std::string out;
@@ -183,6 +185,10 @@ std::string SerializeModel(const PatientModel& m, std::uint64_t key) {
   }
   w.Vec(m.body_min_P);
   w.Vec(m.body_max_P);
+  for (const auto* lines : {&m.checks, &m.warnings, &m.cut_faces}) {
+    w.Pod<std::uint64_t>(lines->size());
+    for (const auto& line : *lines) w.Str(line);
+  }
   w.out.append(kMagic, 8);  // trailer: a truncated file never loads
   return w.out;
 }
@@ -233,6 +239,10 @@ bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel*
   }
   m.body_min_P = r.Vec();
   m.body_max_P = r.Vec();
+  for (auto* lines : {&m.checks, &m.warnings, &m.cut_faces}) {
+    lines->resize(r.Count(8));
+    for (auto& line : *lines) line = r.Str();
+  }
   if (!r.ok || r.pos + 8 != bytes.size()) return false;
   *out = std::move(m);
   return true;
@@ -278,6 +288,7 @@ struct CaseSpec {
   double heart_mask_threshold = 0.5;
   std::string labels, label_names;  // a label map (file or folder of masks) and its names' sidecar
   bool heart_contrast = true;
+  bool check_orientation = true;
   HeartOptions heart;
   double left_side_up = 0.0;
   Table table;
@@ -299,7 +310,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
   const YAML::Node& root = y.root();
   y.ExpectMap(root, "patient.yaml",
               {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
-               "port_candidates", "intercostal", "surfaces", "plan", "labels"});  // plan: read by trocar plan
+               "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation"});  // plan: read by trocar plan
   c.name = root["name"] ? y.String(root["name"], "name")
                         : std::filesystem::path(case_dir).filename().string();
   c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
@@ -379,6 +390,11 @@ CaseSpec ReadCase(const std::string& case_dir) {
     }
     TROCAR_THROW_UNLESS(std::filesystem::exists(c.labels),
                         y.Where(l, "labels") << ": " << c.labels << " not found (a label map file or a folder of masks)");
+  }
+  if (root["orientation"]) {
+    const YAML::Node o = root["orientation"];
+    y.ExpectMap(o, "orientation", {"check"});
+    if (o["check"]) c.check_orientation = y.Bool(o["check"], "orientation.check");
   }
   if (root["pose"]) {
     const YAML::Node p = root["pose"];
@@ -687,6 +703,42 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       have_heart = true;
     }
   });
+  stage("checks", [&] {
+    // Orientation from anatomy: a flipped or mirrored header is an error (or, with
+    // orientation: {check: false}, a warning), never a silent import.
+    const OrientationCheck o = CheckOrientation(ct, seg, have_heart ? &heart : nullptr);
+    for (const auto& f : o.findings) m.checks.push_back("orientation: " + f);
+    if (o.flipped()) {
+      std::ostringstream what;
+      what << c.ct << ": the anatomy disagrees with the header's orientation:";
+      for (const auto& f : o.findings) what << "\n  " << f;
+      what << "\n(fix the header, e.g. re-export the CT from the scanner's DICOM; or, for a "
+              "patient whose anatomy is mirrored, set orientation: {check: false} in "
+           << c.file << ")";
+      TROCAR_THROW_UNLESS(!c.check_orientation, what.str());
+      m.warnings.push_back("orientation: the anatomy disagrees with the header (not checked, "
+                           "orientation.check is false)");
+    }
+    for (const CutFace& f : FindCutFaces(ct, seg.body)) {
+      m.cut_faces.push_back(f.name);
+      if (f.name != "superior" && f.name != "inferior") {
+        std::ostringstream s;
+        s << "the body is cut by the scan's " << f.name << " face (" << std::setprecision(2) << 100 * f.body_fraction
+          << "% of it): the skin there is a crop face; no port candidate within "
+          << PatientModel::kCutFaceMargin * 1e3 << " mm of it";
+        m.warnings.push_back(s.str());
+      }
+    }
+    if (!m.cut_faces.empty()) {
+      std::string names;
+      for (const auto& n : m.cut_faces) names += (names.empty() ? "" : ", ") + n;
+      m.checks.push_back("cut faces: " + names);
+    }
+  });
+  if (!have_heart) {
+    m.warnings.push_back("no heart in the model (heart.contrast is false and there is no heart "
+                         "mask or label): plans will not avoid it");
+  }
   const double voxel = std::abs(ct.index_to_P.determinant());
   auto add = [&](const std::string& name, const Mask& mask, int budget) {
     if (mask.count() == 0) return;
@@ -718,6 +770,22 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       for (const auto& mk : markups) {
         t.points.insert(t.points.end(), mk.points.begin(), mk.points.end());
         t.normals.insert(t.normals.end(), mk.normals.begin(), mk.normals.end());
+      }
+      TROCAR_THROW_UNLESS(!t.points.empty(), spec.markups << ": target '" << spec.name << "' has no points");
+      // Every target point inside the scanned box: beyond it the model knows nothing.
+      {
+        const Eigen::Matrix3d to_index = ct.index_to_P.inverse();
+        int outside = 0;
+        Eigen::Vector3d first = Eigen::Vector3d::Zero();
+        for (const auto& p : t.points) {
+          const Eigen::Vector3d ijk = to_index * (p - ct.origin_P);
+          const bool in = (ijk.array() >= -0.5).all() && (ijk.array() <= ct.size.cast<double>().array() - 0.5).all();
+          if (!in && outside++ == 0) first = p;
+        }
+        TROCAR_THROW_UNLESS(outside == 0, spec.markups << ": target '" << spec.name << "': " << outside << " of "
+                                                       << t.points.size() << " points lie outside the CT "
+                                                       << c.ct << " (the first at " << (first * 1e3).transpose()
+                                                       << " mm, LPS); is this the same patient and frame?");
       }
       const bool from_file = spec.normals != "surface" && t.normals.size() == t.points.size();
       TROCAR_THROW_UNLESS(from_file || spec.normals != "file",
@@ -762,6 +830,54 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       }
     }
   });
+  {
+    // No port on a crop face: points within the margin of a face the body is cut by go.
+    const auto faces = FindCutFaces(ct, seg.body);
+    std::vector<PortCandidate> kept;
+    int dropped_points = 0, dropped_curves = 0;
+    for (auto& cand : m.port_candidates) {
+      Curve inside;
+      for (const auto& p : cand.skin) {
+        bool near = false;
+        for (const auto& f : faces) near = near || DistanceToCutFace(ct, f, p) < PatientModel::kCutFaceMargin;
+        if (near) {
+          ++dropped_points;
+        } else {
+          inside.push_back(p);
+        }
+      }
+      if (inside.size() >= 2) {
+        cand.skin = std::move(inside);
+        kept.push_back(std::move(cand));
+      } else {
+        ++dropped_curves;
+      }
+    }
+    if (dropped_points > 0) {
+      std::ostringstream w;
+      w << "port candidates: " << dropped_points << " points";
+      if (dropped_curves > 0) w << " (" << dropped_curves << " whole curves)";
+      w << " lay within " << PatientModel::kCutFaceMargin * 1e3 << " mm of the scan's cut faces and were left out";
+      m.warnings.push_back(w.str());
+    }
+    m.port_candidates = std::move(kept);
+    if (m.port_candidates.empty()) {
+      std::ostringstream w;
+      w << "no port candidates: ";
+      if (!c.port_markups.empty()) {
+        w << "the annotated curves all lie at the scan's cut faces";
+      } else if (dropped_curves > 0) {
+        w << "the intercostal spaces found all lie at the scan's cut faces";
+      } else {
+        const int left = static_cast<int>(seg.bones.ribs_left.size()), right = static_cast<int>(seg.bones.ribs_right.size());
+        w << "no intercostal space was found (ribs found: " << left << " left, " << right
+          << " right; sides asked: " << (c.intercostal.left ? "left" : "") << (c.intercostal.left && c.intercostal.right ? ", " : "")
+          << (c.intercostal.right ? "right" : "") << ")";
+      }
+      w << "; annotate them (port_candidates: in patient.yaml) or give a label map (labels:)";
+      m.warnings.push_back(w.str());
+    }
+  }
   m.X_WP = PoseOnTable(m.Find("skin")->mesh, m.left_side_up, m.table);
   if (options.write_cache) {
     // A case folder one cannot write to (a read-only checkout) still gives its model.

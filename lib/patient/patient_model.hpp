@@ -63,6 +63,15 @@ struct PatientModel {
   std::vector<std::pair<std::string, double>> timings;
   bool from_cache = false;
   std::string cache_error;  ///< why the cache could not be written (the model itself is whole)
+  /// What the import checked and found (orientation from anatomy, contrast, cut faces), a line each.
+  std::vector<std::string> checks;
+  /// What a user must know before trusting the model (a doubtful orientation, port candidates cut
+  /// at the scan's edge, no heart, no port candidates), a line each.
+  std::vector<std::string> warnings;
+  /// Faces of the scan's box the body is cut by ("superior", "left", ...): the skin there is a
+  /// crop face; no port candidate lies within `kCutFaceMargin` of one.
+  std::vector<std::string> cut_faces;
+  static constexpr double kCutFaceMargin = 0.015;  ///< m
 
   const Structure* Find(const std::string& name) const;
   long triangle_count() const;

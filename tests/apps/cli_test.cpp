@@ -216,6 +216,15 @@ TEST(TrocarImport, BuildsThenLoadsThePhantomCaseFromItsCache) {
   EXPECT_NE(warm.output.find("patient phantom-seed-2 (from cache)"), std::string::npos)
       << warm.output;
   EXPECT_NE(warm.output.find("load cache"), std::string::npos) << warm.output;
+  // Orientation checked from the anatomy, and said.
+  EXPECT_NE(cold.output.find("check: orientation: spine"), std::string::npos) << cold.output;
+  // No port candidates (none annotated, no side asked for spaces): non-zero, with the reason.
+  std::ofstream(dir + "/patient.yaml", std::ios::trunc)
+      << "name: none\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: false}\n";
+  const CommandRun none = Trocar("import " + dir);
+  EXPECT_EQ(none.exit_code, 1) << none.output;
+  EXPECT_NE(none.output.find("no port candidates: no intercostal space was found"), std::string::npos)
+      << none.output;
   const CommandRun missing = Trocar("import " + dir + "/nowhere");
   EXPECT_EQ(missing.exit_code, 1);
   EXPECT_NE(missing.output.find("nowhere: no patient.yaml"), std::string::npos) << missing.output;

@@ -1,0 +1,167 @@
+#include "patient/sanity.hpp"
+
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "patient/markups.hpp"
+#include "patient/patient_model.hpp"
+#include "patient/phantom.hpp"
+#include "patient/volume.hpp"
+
+namespace trocar {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A phantom case whose CT header is mirrored along the patient axes in `flip` (+1 kept, -1
+// flipped): the voxels stay, the header says the anatomy lies the other way.
+std::string FlippedCase(const std::string& name, unsigned seed, const Eigen::Vector3d& flip,
+                        const std::string& extra_yaml = "") {
+  const std::string dir = testing::TempDir() + "/trocar-flip-" + name;
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  patient::PhantomParameters p;
+  p.seed = seed;
+  p.voxel_size = 0.004;
+  patient::Volume ct = patient::GeneratePhantom(p).ct;
+  const Eigen::Matrix3d M = flip.asDiagonal();
+  ct.index_to_P = M * ct.index_to_P;
+  ct.origin_P = M * ct.origin_P;
+  patient::WriteNrrd(ct, JoinPath(dir, "ct.nrrd"));
+  std::ofstream(JoinPath(dir, "patient.yaml"))
+      << "name: " << name << "\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true}\n"
+      << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n" << extra_yaml;
+  return dir;
+}
+
+std::string ImportError(const std::string& dir) {
+  try {
+    patient::ImportPatient(dir, {false, false});
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Every flip of the header's axes, alone or together (the case: x and y), is reported
+// naming the axis the anatomy contradicts; the header as written imports with all three agreed.
+TEST(Orientation, FlippedOrMirroredHeadersAreReportedOverSeeds) {
+  for (unsigned seed : {1u, 4u}) {
+    SCOPED_TRACE(seed);
+    const patient::PatientModel ok = patient::ImportPatient(FlippedCase("none", seed, {1, 1, 1}), {false, false});
+    int agreed = 0;
+    for (const auto& line : ok.checks) agreed += line.find("as the header says") != std::string::npos;
+    EXPECT_GE(agreed, 3);
+    for (const auto& w : ok.warnings) EXPECT_EQ(w.find("orientation"), std::string::npos) << w;
+
+    struct Flip {
+      const char* name;
+      Eigen::Vector3d axes;
+      std::vector<const char*> expected;
+    };
+    const std::vector<Flip> flips = {
+        {"x", {-1, 1, 1}, {"mirrored"}},
+        {"y", {1, -1, 1}, {"front-back flipped"}},
+        {"z", {1, 1, -1}, {"head-foot flipped"}},
+        {"xy", {-1, -1, 1}, {"mirrored", "front-back flipped"}},
+    };
+    for (const Flip& f : flips) {
+      SCOPED_TRACE(f.name);
+      const std::string dir = FlippedCase(f.name, seed, f.axes);
+      const std::string error = ImportError(dir);
+      ASSERT_FALSE(error.empty()) << "a header flipped along " << f.name << " imported silently";
+      EXPECT_NE(error.find("disagrees with the header"), std::string::npos) << error;
+      for (const char* e : f.expected) EXPECT_NE(error.find(e), std::string::npos) << e << "\n" << error;
+      EXPECT_NE(error.find("orientation: {check: false}"), std::string::npos) << error;
+    }
+  }
+  // Asked not to check (a mirrored patient): imported, with a warning.
+  const patient::PatientModel mirrored = patient::ImportPatient(
+      FlippedCase("x-unchecked", 1, {-1, 1, 1}, "orientation: {check: false}\n"), {false, false});
+  bool warned = false;
+  for (const auto& w : mirrored.warnings) warned = warned || w.find("orientation") != std::string::npos;
+  EXPECT_TRUE(warned);
+}
+
+// A scan whose field of view cuts the body's left side: the crop face is named, and no port
+// candidate lies within the margin of it (the intercostal spaces found reach the side of the
+// chest, so some of their points were there).
+TEST(CutFaces, CropFacesAreNamedAndCarryNoPortCandidates) {
+  for (unsigned seed : {1u, 2u, 3u}) {
+    SCOPED_TRACE(seed);
+    const std::string dir = testing::TempDir() + "/trocar-cut-" + std::to_string(seed);
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    patient::PhantomParameters p;
+    p.seed = seed;
+    p.voxel_size = 0.004;
+    const patient::Volume full = patient::GeneratePhantom(p).ct;
+    // Keep x (left, LPS +x) up to 0.13 m: the left chest wall beyond it is cut off.
+    patient::Volume ct = full;
+    const double crop_x = 0.13;
+    const int nx = static_cast<int>(std::floor((crop_x - full.origin_P.x()) / full.spacing().x()));
+    ct.size.x() = nx;
+    ct.values.resize(static_cast<std::size_t>(ct.voxel_count()));
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < nx; ++i) ct.values[ct.Index(i, j, k)] = full.at(i, j, k);
+      }
+    }
+    patient::WriteNrrd(ct, JoinPath(dir, "ct.nrrd"));
+    std::ofstream(JoinPath(dir, "patient.yaml"))
+        << "name: cut\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true}\n"
+        << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
+    const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+    EXPECT_NE(std::find(m.cut_faces.begin(), m.cut_faces.end(), "left"), m.cut_faces.end());
+    bool warned = false;
+    for (const auto& w : m.warnings) warned = warned || w.find("left face") != std::string::npos;
+    EXPECT_TRUE(warned);
+    ASSERT_FALSE(m.port_candidates.empty());
+    const double face_x = ct.PatientPoint(nx - 0.5, 0, 0).x();
+    for (const auto& c : m.port_candidates) {
+      for (const auto& q : c.skin) {
+        EXPECT_LE(q.x(), face_x - patient::PatientModel::kCutFaceMargin + 1e-9) << c.name;
+      }
+    }
+  }
+}
+
+TEST(CutFaces, FaceNamesFollowTheHeadersAxes) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(10, 12, 8);
+  v.index_to_P = Eigen::Vector3d(-0.002, 0.002, 0.003).asDiagonal();  // RAS-like x: index runs right
+  v.values.assign(static_cast<std::size_t>(v.voxel_count()), 0.f);
+  patient::Mask body;
+  body.size = v.size;
+  body.inside.assign(v.values.size(), 0);
+  for (int k = 0; k < 8; ++k) {
+    for (int j = 3; j < 9; ++j) body.inside[v.Index(9, j, k)] = 1;  // touches i = 9 and k = 0, 7
+  }
+  std::vector<std::string> names;
+  for (const auto& f : patient::FindCutFaces(v, body)) names.push_back(f.name);
+  // i = 9 lies at the most negative x: the right; k runs superior.
+  EXPECT_EQ(names, (std::vector<std::string>{"right", "inferior", "superior"}));
+}
+
+// Target points beyond the scanned box are an error naming the target and the file.
+TEST(Targets, PointsOutsideTheScanAreAnError) {
+  const std::string dir = testing::TempDir() + "/trocar-target-outside";
+  fs::remove_all(dir);
+  patient::PhantomParameters p;
+  p.voxel_size = 0.004;
+  patient::WritePhantomCase(patient::GeneratePhantom(p), dir);
+  auto lad = patient::LoadMarkups(JoinPath(dir, "markups/LAD.mrk.json"));
+  lad[0].points.back().z() += 0.5;  // half a metre above the scan
+  lad[0].normals.clear();
+  patient::WriteMarkups(lad, JoinPath(dir, "markups/LAD.mrk.json"));
+  const std::string error = ImportError(dir);
+  EXPECT_NE(error.find("target 'LAD': 1 of 25 points lie outside the CT"), std::string::npos) << error;
+  EXPECT_NE(error.find("LAD.mrk.json"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace trocar
