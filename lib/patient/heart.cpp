@@ -170,8 +170,10 @@ Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg, const H
                       ct.source << ": heart: no contrast-filled blood pool "
                                 << (ct.hounsfield ? "above " : "above raw ") << blood
                                 << " and thicker than " << 2 * o.opening_radius * 1e3
-                                << " mm in the chest; not a contrast CT? give the heart as a "
-                                   "mask file (patient.yaml heart.mask)");
+                                << " mm in the chest: no contrast detected. Give the heart as a mask "
+                                   "file (patient.yaml heart.mask) or a label map (labels:), or "
+                                   "build without a heart (heart: {contrast: false}; plans will "
+                                   "not avoid it)");
   // The other chambers: blobs of some size around the first (septa and valves separate them).
   std::vector<std::uint8_t> keep(blobs.size() + 1, 0);
   for (const auto& blob : blobs) {

@@ -11,6 +11,7 @@
 #include "patient/patient_model.hpp"
 #include "patient/phantom.hpp"
 #include "patient/volume.hpp"
+#include "test_util.hpp"
 
 namespace trocar {
 namespace {
@@ -128,6 +129,35 @@ TEST(CutFaces, CropFacesAreNamedAndCarryNoPortCandidates) {
       }
     }
   }
+}
+
+// The real contrast CT cropped close around the heart: the body is cut on every side; none of the
+// spaces found there survives as a port candidate, and the import says so.
+TEST(CutFaces, TotalSegmentatorCtaCropCarriesNoPortCandidatesOnItsCropFaces) {
+  const std::string ct = test::SharedDataPath("ct/totalseg-cta-aorta/ct_cropped.nii.gz");
+  const std::string heart = test::SharedDataPath("ct/totalseg-cta-aorta/DERIVED_heart_on_aorta_crop.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(ct);
+  const std::string dir = testing::TempDir() + "/trocar-cta-crop";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::ofstream(JoinPath(dir, "patient.yaml"))
+      << "ct: " << ct << "\nheart: {mask: " << heart << "}\nintercostal: {left: true}\n";
+  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  for (const char* face : {"left", "right", "anterior", "posterior"}) {
+    EXPECT_NE(std::find(m.cut_faces.begin(), m.cut_faces.end(), face), m.cut_faces.end()) << face;
+  }
+  const patient::Volume volume = patient::LoadVolume(ct);
+  const auto faces = patient::FindCutFaces(volume, patient::Segment(volume).body);
+  for (const auto& c : m.port_candidates) {
+    for (const auto& q : c.skin) {
+      for (const auto& f : faces) {
+        EXPECT_GE(patient::DistanceToCutFace(volume, f, q), patient::PatientModel::kCutFaceMargin) << c.name;
+      }
+    }
+  }
+  bool said = false;
+  for (const auto& w : m.warnings) said = said || w.find("cut faces") != std::string::npos;
+  EXPECT_TRUE(said);
 }
 
 TEST(CutFaces, FaceNamesFollowTheHeadersAxes) {
