@@ -1,0 +1,213 @@
+#include "patient/case_file.hpp"
+
+#include <cmath>
+#include <filesystem>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "common/yaml_util.hpp"
+
+namespace trocar::patient {
+
+CaseSpec ReadCase(const std::string& case_dir) {
+  CaseSpec c;
+  c.dir = case_dir;
+  c.file = JoinPath(case_dir, "patient.yaml");
+  TROCAR_THROW_UNLESS(IsRegularFile(c.file),
+                      case_dir << ": no patient.yaml (a case folder holds patient.yaml, see "
+                                  "patients/README.md)");
+  const YamlReader y = YamlReader::Load(c.file);
+  const YAML::Node& root = y.root();
+  y.ExpectMap(root, "patient.yaml",
+              {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
+               "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation"});  // plan: read by trocar plan
+  c.name = root["name"] ? y.String(root["name"], "name")
+                        : std::filesystem::path(case_dir).filename().string();
+  c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
+  if (root["phantom"]) {
+    const YAML::Node ph = root["phantom"];
+    y.ExpectMap(ph, "phantom",
+                {"seed", "body_width", "body_depth", "length", "ribs_per_side", "rib_spacing",
+                 "heart_scale", "heart_offset", "voxel_size", "slice_spacing", "field_of_view"});
+    c.has_phantom = true;
+    PhantomParameters& p = c.phantom;
+    // Whole numbers in range before the casts (a cast of a negative or huge double is undefined).
+    auto whole = [&](const char* key, double fallback, double lo, double hi) {
+      const double n = y.NumberOr(ph, key, "phantom", fallback);
+      TROCAR_THROW_UNLESS(n == std::floor(n) && n >= lo && n <= hi,
+                          y.Where(ph[key], std::string("phantom.") + key)
+                              << ": " << n << " (expected a whole number in " << lo << ".." << hi
+                              << ")");
+      return n;
+    };
+    p.seed = static_cast<unsigned>(whole("seed", p.seed, 0, 4294967295.0));
+    p.body_width = y.NumberOr(ph, "body_width", "phantom", p.body_width);
+    p.body_depth = y.NumberOr(ph, "body_depth", "phantom", p.body_depth);
+    p.length = y.NumberOr(ph, "length", "phantom", p.length);
+    p.ribs_per_side = static_cast<int>(whole("ribs_per_side", p.ribs_per_side, 2, 12));
+    p.rib_spacing = y.NumberOr(ph, "rib_spacing", "phantom", p.rib_spacing);
+    p.heart_scale = y.NumberOr(ph, "heart_scale", "phantom", p.heart_scale);
+    if (ph["heart_offset"]) p.heart_offset = y.Vector3(ph["heart_offset"], "phantom.heart_offset");
+    p.voxel_size = y.NumberOr(ph, "voxel_size", "phantom", p.voxel_size);
+    p.slice_spacing = y.NumberOr(ph, "slice_spacing", "phantom", p.slice_spacing);
+    p.field_of_view = y.NumberOr(ph, "field_of_view", "phantom", p.field_of_view);
+  }
+  if (root["units"]) {
+    const std::string u = y.String(root["units"], "units");
+    TROCAR_THROW_UNLESS(u == "hounsfield" || u == "raw", y.Where(root["units"], "units")
+                                                             << ": '" << u
+                                                             << "' (expected hounsfield or raw)");
+    c.units = u == "hounsfield" ? 1 : 2;
+  }
+  if (root["thresholds"]) {
+    const YAML::Node t = root["thresholds"];
+    y.ExpectMap(t, "thresholds", {"body", "bone"});
+    // In the CT's own units: set both the HU and the raw fields, whichever the CT turns out to be.
+    if (t["body"]) c.seg.body_hu = c.seg.raw_body = y.Number(t["body"], "thresholds.body");
+    if (t["bone"]) c.seg.bone_hu = c.seg.raw_bone = y.Number(t["bone"], "thresholds.bone");
+    TROCAR_THROW_UNLESS(c.seg.body_hu < c.seg.bone_hu && c.seg.raw_body < c.seg.raw_bone,
+                        y.Where(t, "thresholds")
+                            << ": the body threshold must be below the bone threshold");
+  }
+  if (root["heart"]) {
+    const YAML::Node h = root["heart"];
+    y.ExpectMap(h, "heart", {"mask", "threshold", "contrast", "blood", "soft", "opening_radius"});
+    if (h["mask"]) {
+      c.heart_mask = JoinPath(case_dir, y.String(h["mask"], "heart.mask"));
+      TROCAR_THROW_UNLESS(IsRegularFile(c.heart_mask), y.Where(h["mask"], "heart.mask")
+                                                           << ": file " << c.heart_mask
+                                                           << " not found");
+      c.heart_mask_threshold = y.NumberOr(h, "threshold", "heart", 0.5);
+    }
+    if (h["contrast"]) c.heart_contrast = y.Bool(h["contrast"], "heart.contrast");
+    if (h["blood"]) c.heart.blood_hu = c.heart.raw_blood = y.Number(h["blood"], "heart.blood");
+    if (h["soft"]) c.heart.soft_hu = c.heart.raw_soft = y.Number(h["soft"], "heart.soft");
+    c.heart.opening_radius = y.NumberOr(h, "opening_radius", "heart", c.heart.opening_radius);
+  }
+  if (root["labels"]) {
+    // A label map: `labels: seg.nii.gz`, or `labels: {file: seg.nii.gz, names: seg.json}`.
+    const YAML::Node l = root["labels"];
+    if (l.IsMap()) {
+      y.ExpectMap(l, "labels", {"file", "names"});
+      c.labels = JoinPath(case_dir, y.String(y.Require(l, "file", "labels"), "labels.file"));
+      if (l["names"]) {
+        c.label_names = JoinPath(case_dir, y.String(l["names"], "labels.names"));
+        TROCAR_THROW_UNLESS(IsRegularFile(c.label_names), y.Where(l["names"], "labels.names")
+                                                              << ": file " << c.label_names << " not found");
+      }
+    } else {
+      c.labels = JoinPath(case_dir, y.String(l, "labels"));
+    }
+    TROCAR_THROW_UNLESS(std::filesystem::exists(c.labels),
+                        y.Where(l, "labels") << ": " << c.labels << " not found (a label map file or a folder of masks)");
+  }
+  if (root["orientation"]) {
+    const YAML::Node o = root["orientation"];
+    y.ExpectMap(o, "orientation", {"check"});
+    if (o["check"]) c.check_orientation = y.Bool(o["check"], "orientation.check");
+  }
+  if (root["pose"]) {
+    const YAML::Node p = root["pose"];
+    y.ExpectMap(p, "pose", {"left_side_up"});
+    c.left_side_up = y.NumberOr(p, "left_side_up", "pose", 0.0);
+    TROCAR_THROW_UNLESS(c.left_side_up >= -M_PI / 4 && c.left_side_up <= M_PI / 4,
+                        y.Where(p["left_side_up"], "pose.left_side_up")
+                            << ": " << c.left_side_up * 180 / M_PI
+                            << " deg is outside -45..45 deg (write e.g. '25 deg')");
+  }
+  if (root["table"]) {
+    const YAML::Node t = root["table"];
+    y.ExpectMap(t, "table", {"height", "width", "length"});
+    c.table.height = y.NumberOr(t, "height", "table", c.table.height);
+    c.table.width = y.NumberOr(t, "width", "table", c.table.width);
+    c.table.length = y.NumberOr(t, "length", "table", c.table.length);
+    TROCAR_THROW_UNLESS(
+        c.table.height > 0.3 && c.table.height < 1.5 && c.table.width > 0.2 && c.table.length > 0.5,
+        y.Where(t, "table") << ": table height 0.3-1.5 m, width > 0.2 m, length > 0.5 m expected");
+  }
+  if (root["targets"]) {
+    y.ExpectSequence(root["targets"], "targets");
+    for (std::size_t i = 0; i < root["targets"].size(); ++i) {
+      const YAML::Node t = root["targets"][i];
+      const std::string path = "targets[" + std::to_string(i) + "]";
+      y.ExpectMap(t, path, {"name", "markups", "surface", "facing", "normals"});
+      TargetSpec s;
+      s.name = y.String(y.Require(t, "name", path), path + ".name");
+      s.markups = JoinPath(case_dir, y.String(y.Require(t, "markups", path), path + ".markups"));
+      // A phantom case generates its markups with its CT on first use.
+      const bool generated = c.has_phantom && !std::filesystem::exists(c.ct);
+      TROCAR_THROW_UNLESS(generated || IsRegularFile(s.markups),
+                          y.Where(t["markups"], path + ".markups")
+                              << ": file " << s.markups << " not found");
+      if (t["surface"]) {
+        s.surface = y.String(t["surface"], path + ".surface");
+        TROCAR_THROW_UNLESS(
+            s.surface == "skin" || s.surface == "ribs" || s.surface == "sternum" ||
+                s.surface == "spine" || s.surface == "heart",
+            y.Where(t["surface"], path + ".surface")
+                << ": surface '" << s.surface
+                << "' is not a structure of the model (skin, ribs, sternum, spine, heart)");
+      }
+      if (t["facing"]) {
+        const std::string f = y.String(t["facing"], path + ".facing");
+        TROCAR_THROW_UNLESS(f == "outward" || f == "inward",
+                            y.Where(t["facing"], path + ".facing")
+                                << ": '" << f << "' (expected outward or inward)");
+        s.inward = f == "inward";
+      }
+      if (t["normals"]) {
+        s.normals = y.String(t["normals"], path + ".normals");
+        TROCAR_THROW_UNLESS(s.normals == "auto" || s.normals == "file" || s.normals == "surface",
+                            y.Where(t["normals"], path + ".normals")
+                                << ": '" << s.normals << "' (expected auto, file or surface)");
+      }
+      c.targets.push_back(s);
+    }
+  }
+  if (root["port_candidates"]) {
+    const YAML::Node pc = root["port_candidates"];
+    const std::vector<std::string> files =
+        pc.IsSequence() ? y.Strings(pc, "port_candidates")
+                        : std::vector<std::string>{y.String(pc, "port_candidates")};
+    for (const auto& f : files) {
+      const std::string p = JoinPath(case_dir, f);
+      TROCAR_THROW_UNLESS((c.has_phantom && !std::filesystem::exists(c.ct)) || IsRegularFile(p),
+                          y.Where(pc, "port_candidates") << ": file " << p << " not found");
+      c.port_markups.push_back(p);
+    }
+  }
+  if (root["intercostal"]) {
+    const YAML::Node ic = root["intercostal"];
+    y.ExpectMap(ic, "intercostal", {"left", "right"});
+    if (ic["left"]) c.intercostal.left = y.Bool(ic["left"], "intercostal.left");
+    if (ic["right"]) c.intercostal.right = y.Bool(ic["right"], "intercostal.right");
+  }
+  if (root["surfaces"]) {
+    const YAML::Node s = root["surfaces"];
+    y.ExpectMap(s, "surfaces", {"skin", "ribs", "sternum", "spine", "heart", "vessels", "smoothing"});
+    auto budget = [&](const char* key, int* v) {
+      if (!s[key]) return;
+      const double n = y.Number(s[key], std::string("surfaces.") + key);
+      TROCAR_THROW_UNLESS(n >= 100 && n <= 5e6, y.Where(s[key], std::string("surfaces.") + key)
+                                                    << ": triangle budget " << n
+                                                    << " outside 100..5000000");
+      *v = static_cast<int>(n);
+    };
+    budget("skin", &c.budgets.skin);
+    budget("ribs", &c.budgets.ribs);
+    budget("sternum", &c.budgets.sternum);
+    budget("spine", &c.budgets.spine);
+    budget("heart", &c.budgets.heart);
+    budget("vessels", &c.budgets.vessels);
+    if (s["smoothing"]) {
+      const double n = y.Number(s["smoothing"], "surfaces.smoothing");
+      TROCAR_THROW_UNLESS(n == std::floor(n) && n >= 0 && n <= 500,
+                          y.Where(s["smoothing"], "surfaces.smoothing")
+                              << ": " << n << " (expected a whole number of iterations, 0..500)");
+      c.surface.smoothing_iterations = static_cast<int>(n);
+    }
+  }
+  return c;
+}
+
+}  // namespace trocar::patient

@@ -1,0 +1,35 @@
+#pragma once
+/// @file
+/// The model's cache beside its case (`<case>/cache/`): the key over every input file's contents,
+/// the list of the CT's files (so a cached load need not decode the CT), and the files written
+/// (model.bin last, atomically; one STL per structure; targets and candidates as markups).
+/// Serialisation itself is declared in patient_model.hpp.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "patient/case_file.hpp"
+#include "patient/patient_model.hpp"
+
+namespace trocar::patient {
+
+/// The files of a folder, sorted. @throws trocar::Error when it cannot be listed.
+std::vector<std::string> FolderFiles(const std::string& dir);
+
+/// Every file the model depends on: the case file, the CT's files (`ct_files`, what the CT reader
+/// read), a CT folder's whole listing, masks, label maps and markups.
+std::vector<std::string> InputFiles(const CaseSpec& c, const std::vector<std::string>& ct_files);
+
+/// FNV-1a over a format version and each file's name and contents.
+std::uint64_t CacheKey(const std::vector<std::string>& files);
+
+/// `cache/ct_files.txt`: the CT's files as the last build read them; empty when absent, damaged
+/// or naming a file that is gone.
+std::vector<std::string> ReadCtFiles(const std::string& cache_dir);
+
+/// Writes the cache folder; model.bin last. @throws trocar::Error when it cannot be written.
+void WriteCacheFiles(const PatientModel& m, const std::string& cache_dir, std::uint64_t key,
+                     const std::vector<std::string>& ct_files);
+
+}  // namespace trocar::patient
