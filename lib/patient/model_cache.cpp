@@ -1,6 +1,7 @@
 #include "patient/model_cache.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <cstring>
 #include <filesystem>
 #include <sstream>
@@ -207,16 +208,13 @@ std::vector<std::string> FolderFiles(const std::string& dir) {
   return files;
 }
 
-// Every file the model depends on, for the cache key: the case file, the CT's files (`ct_files`:
-// what the CT reader read, a detached data file or a series' slices too), masks, label maps and
-// markups. A CT folder's whole listing counts as well (a slice added to it changes the key).
+namespace {
+
+// Every file whose contents the model depends on: the case file, the CT's files (`ct_files`: what
+// the CT reader read, a detached data file or a series' slices too), masks, label maps, markups.
 std::vector<std::string> InputFiles(const CaseSpec& c, const std::vector<std::string>& ct_files) {
   std::vector<std::string> files = {c.file};
   files.insert(files.end(), ct_files.begin(), ct_files.end());
-  if (std::filesystem::is_directory(c.ct)) {
-    const auto listing = FolderFiles(c.ct);
-    files.insert(files.end(), listing.begin(), listing.end());
-  }
   if (!c.heart_mask.empty()) files.push_back(c.heart_mask);
   if (!c.labels.empty()) {
     if (std::filesystem::is_directory(c.labels)) {
@@ -232,11 +230,36 @@ std::vector<std::string> InputFiles(const CaseSpec& c, const std::vector<std::st
   return files;
 }
 
-std::uint64_t CacheKey(const std::vector<std::string>& files) {
+// The folder a DICOM CT's series is chosen from (the `ct:` folder, or the folder of the one .dcm
+// file named), else empty: which slices the series holds depends on the whole folder.
+std::string SeriesFolder(const std::string& ct) {
+  if (std::filesystem::is_directory(ct)) return ct;
+  std::string lower = ct;
+  std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char ch) { return std::tolower(ch); });
+  if (lower.size() >= 4 && lower.compare(lower.size() - 4, 4, ".dcm") == 0) {
+    return std::filesystem::path(ct).parent_path().string();
+  }
+  return "";
+}
+
+}  // namespace
+
+std::uint64_t CacheKey(const CaseSpec& c, const std::vector<std::string>& ct_files) {
   std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v3");
-  for (const auto& f : files) {
+  for (const auto& f : InputFiles(c, ct_files)) {
     h = Fnv1a(h, std::filesystem::path(f).filename().string());
     h = Fnv1a(h, ReadTextFile(f));
+  }
+  // A DICOM series' folder by its listing (names and sizes): a slice added or removed changes the
+  // key, while the contents that matter, the series' own slices, are in ct_files above.
+  const std::string folder = SeriesFolder(c.ct);
+  if (!folder.empty()) {
+    h = Fnv1a(h, "series folder");
+    for (const auto& f : FolderFiles(folder)) {
+      std::error_code ec;
+      const auto size = std::filesystem::file_size(f, ec);
+      h = Fnv1a(h, std::filesystem::path(f).filename().string() + ":" + (ec ? "?" : std::to_string(size)));
+    }
   }
   return h;
 }

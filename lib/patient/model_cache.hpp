@@ -17,12 +17,11 @@ namespace trocar::patient {
 /// The files of a folder, sorted. @throws trocar::Error when it cannot be listed.
 std::vector<std::string> FolderFiles(const std::string& dir);
 
-/// Every file the model depends on: the case file, the CT's files (`ct_files`, what the CT reader
-/// read), a CT folder's whole listing, masks, label maps and markups.
-std::vector<std::string> InputFiles(const CaseSpec& c, const std::vector<std::string>& ct_files);
-
-/// FNV-1a over a format version and each file's name and contents.
-std::uint64_t CacheKey(const std::vector<std::string>& files);
+/// The cache key: FNV-1a over a format version, the name and contents of every file the model
+/// depends on (the case file, the CT's files `ct_files` as the CT reader read them, masks, label
+/// maps, markups) and, for a DICOM CT, the listing (names, sizes) of the folder its series is
+/// chosen from. @throws trocar::Error when an input cannot be read.
+std::uint64_t CacheKey(const CaseSpec& c, const std::vector<std::string>& ct_files);
 
 /// `cache/ct_files.txt`: the CT's files as the last build read them; empty when absent, damaged
 /// or naming a file that is gone.

@@ -136,13 +136,13 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     PatientModel cached;
     if (!last_ct_files.empty()) {
       std::uint64_t key = 0;
-      stage("key inputs", [&] { key = CacheKey(InputFiles(c, last_ct_files)); });
+      stage("key inputs", [&] { key = CacheKey(c, last_ct_files); });
       if (load_cache(key, &cached)) return cached;
     }
   }
   Volume ct;
   stage("load CT", [&] { ct = LoadVolume(c.ct); });
-  const std::uint64_t key = CacheKey(InputFiles(c, ct.files));
+  const std::uint64_t key = CacheKey(c, ct.files);
   if (cache_exists) {
     PatientModel cached;
     if (load_cache(key, &cached)) return cached;
@@ -184,6 +184,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       have_heart = true;
     }
   });
+  std::vector<CutFace> cut_faces;
   stage("checks", [&] {
     // Orientation from anatomy: a flipped or mirrored header is an error (or, with
     // orientation: {check: false}, a warning), never a silent import.
@@ -200,7 +201,8 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       m.warnings.push_back("orientation: the anatomy disagrees with the header (not checked, "
                            "orientation.check is false)");
     }
-    for (const CutFace& f : FindCutFaces(ct, seg.body)) {
+    cut_faces = FindCutFaces(ct, seg.body);
+    for (const CutFace& f : cut_faces) {
       m.cut_faces.push_back(f.name);
       if (f.name != "superior" && f.name != "inferior") {
         std::ostringstream s;
@@ -313,7 +315,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   });
   {
     // No port on a crop face: points within the margin of a face the body is cut by go.
-    const auto faces = FindCutFaces(ct, seg.body);
+    const auto& faces = cut_faces;
     std::vector<PortCandidate> kept;
     int dropped_points = 0, dropped_curves = 0;
     for (auto& cand : m.port_candidates) {
@@ -345,10 +347,11 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     if (m.port_candidates.empty()) {
       std::ostringstream w;
       w << "no port candidates: ";
-      if (!c.port_markups.empty()) {
-        w << "the annotated curves all lie at the scan's cut faces";
-      } else if (dropped_curves > 0) {
-        w << "the intercostal spaces found all lie at the scan's cut faces";
+      if (dropped_curves > 0) {
+        w << "the " << (c.port_markups.empty() ? "intercostal spaces found" : "annotated curves")
+          << " all lie at the scan's cut faces";
+      } else if (!c.port_markups.empty()) {
+        w << "the annotated files hold no curve";
       } else {
         const int left = static_cast<int>(seg.bones.ribs_left.size()), right = static_cast<int>(seg.bones.ribs_right.size());
         w << "no intercostal space was found (ribs found: " << left << " left, " << right

@@ -7,6 +7,8 @@
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "patient/patient_model.hpp"
+#include "patient/volume.hpp"
 #include "test_util.hpp"
 
 namespace trocar {
@@ -120,6 +122,32 @@ TEST(Phantom, SlicesAreShownInTheRadiologicalConvention) {
   // Sternum above the vertebra along the midline: the first bone rows are near the top.
   EXPECT_LT(bone_row / bone, slice.height * 0.75);
   EXPECT_THROW(patient::RenderSlice(ph.ct, 3, 0, 0, 1), Error);
+}
+
+// A clinical grid (a square field of view, slices apart from the in-plane spacing) is written into
+// the case's patient.yaml exactly enough that the CT regenerated from it has the same grid.
+TEST(Phantom, ClinicalGridRoundTripsThroughTheCaseFile) {
+  const std::string dir = testing::TempDir() + "/trocar-phantom-grid";
+  std::filesystem::remove_all(dir);
+  patient::PhantomParameters p;
+  p.field_of_view = 0.41;
+  p.voxel_size = p.field_of_view / 97;  // 4.2268... mm, not a short decimal
+  p.slice_spacing = 0.0037;
+  const patient::Phantom ph = patient::GeneratePhantom(p);
+  EXPECT_EQ(ph.ct.size.x(), 97);
+  EXPECT_EQ(ph.ct.size.y(), 97);
+  EXPECT_NEAR(ph.ct.spacing().z(), 0.0037, 1e-12);
+  patient::WritePhantomCase(ph, dir);
+  const patient::Volume written = patient::LoadVolume(JoinPath(dir, "ct.nrrd"));
+  std::filesystem::remove(JoinPath(dir, "ct.nrrd"));
+  patient::ImportPatient(dir, {false, false});  // regenerates the CT from patient.yaml
+  const patient::Volume again = patient::LoadVolume(JoinPath(dir, "ct.nrrd"));
+  EXPECT_EQ(again.size, written.size);
+  EXPECT_TRUE(again.index_to_P.isApprox(written.index_to_P, 1e-9));
+  EXPECT_TRUE(again.origin_P.isApprox(written.origin_P, 1e-9));
+  // A field of view that does not hold the body is refused, naming it.
+  p.field_of_view = 0.2;
+  EXPECT_THROW(patient::GeneratePhantom(p), Error);
 }
 
 TEST(Phantom, RefusesParametersOutOfRange) {
