@@ -149,8 +149,11 @@ void FillConvexPerSlice(const Volume& v, Mask* mask) {
 }  // namespace
 
 std::vector<Component> ConnectedComponents(const Volume& grid, const Mask& mask,
-                                           std::vector<int>* labels) {
+                                           std::vector<int>* labels,
+                                           const std::vector<std::uint8_t>* region) {
   TROCAR_THROW_UNLESS(mask.size == grid.size, "connected components: mask and grid sizes differ");
+  TROCAR_THROW_UNLESS(region == nullptr || region->size() == mask.inside.size(),
+                      "connected components: region and mask sizes differ");
   const int nx = grid.size.x(), ny = grid.size.y(), nz = grid.size.z();
   labels->assign(mask.inside.size(), 0);
   std::vector<Component> components;
@@ -184,7 +187,7 @@ std::vector<Component> ConnectedComponents(const Volume& grid, const Mask& mask,
             const int ii = i + di;
             if (ii < 0 || ii >= nx) continue;
             const long n = grid.Index(ii, jj, kk);
-            if (mask.inside[n] && (*labels)[n] == 0) {
+            if (mask.inside[n] && (*labels)[n] == 0 && (region == nullptr || (*region)[n] == (*region)[index])) {
               (*labels)[n] = c.label;
               stack.push_back(n);
             }
@@ -261,10 +264,15 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
   // Bone: above the bone threshold and inside the body (so the table is left out).
   s.bone = Threshold(ct, s.bone_threshold);
   for (std::size_t i = 0; i < s.bone.inside.size(); ++i) s.bone.inside[i] &= s.body.inside[i];
-  const auto bone_parts = ConnectedComponents(ct, s.bone, &s.bones.labels);
-  TROCAR_THROW_UNLESS(!bone_parts.empty(), ct.source << ": no bone above " << s.bone_threshold
+  TROCAR_THROW_UNLESS(s.bone.count() > 0, ct.source << ": no bone above " << s.bone_threshold
                                                      << units << " inside the body: empty segmentation");
-  // Where is the body? Its centre and half width across x (left-right), y (front-back).
+  if (o.shape_anatomy) {
+    ClassifyBones(ct, &s, o.anatomy, o.min_bone_volume);
+    return s;
+  }
+  // Place only (the default until the shape sorting holds on cropped scans, docs/decisions.md):
+  // each bone component by where it lies in the body's bounding box.
+  const auto bone_parts = ConnectedComponents(ct, s.bone, &s.bones.labels);
   const Eigen::Vector3d centre = 0.5 * (s.body_min_P + s.body_max_P);
   const Eigen::Vector3d half = 0.5 * (s.body_max_P - s.body_min_P);
   for (const Component& c : bone_parts) {

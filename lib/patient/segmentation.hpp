@@ -10,6 +10,7 @@
 
 #include <Eigen/Geometry>
 
+#include "patient/anatomy.hpp"
 #include "patient/volume.hpp"
 
 namespace trocar::patient {
@@ -31,8 +32,11 @@ struct Component {
 };
 
 /// 26-connected components of a mask, largest first; labels[i] is 0 outside, else the label.
+/// With `region`, neighbours join only when their region values are equal (a cut along the
+/// regions' borders).
 std::vector<Component> ConnectedComponents(const Volume& grid, const Mask& mask,
-                                           std::vector<int>* labels);
+                                           std::vector<int>* labels,
+                                           const std::vector<std::uint8_t>* region = nullptr);
 
 struct SegmentationOptions {
   /// Thresholds: in HU for Hounsfield volumes; the `raw_` ones for others (e.g. 8-bit windowed).
@@ -50,6 +54,12 @@ struct SegmentationOptions {
   bool raw_body_convex_fill = true;
   /// Bone components smaller than this are noise (m³).
   double min_bone_volume = 0.3e-6;
+  /// Bone sorted by shape and place (ClassifyBones, anatomy.hpp): contrast kept out of the bone,
+  /// ribs cut from the spine, the shoulder girdle kept out of the ribs, ribs numbered. Off by
+  /// default until it holds on cropped scans (a rib cut in two by a crop face); off, bone
+  /// components are sorted by where they lie in the body's bounding box.
+  bool shape_anatomy = false;
+  AnatomyOptions anatomy;
 };
 
 struct BoneParts {
@@ -66,11 +76,21 @@ struct Segmentation {
   Eigen::Vector3d body_max_P = Eigen::Vector3d::Zero();
   Mask bone;
   BoneParts bones;
+  /// Bright blobs inside the bone threshold that are not bone: contrast-filled heart chambers,
+  /// aorta and great vessels (empty when none were found).
+  Mask vessels;
+  /// The shoulder girdle and arms (scapulae, clavicles, humeri): bone kept out of the ribs.
+  Mask shoulder;
+  double contrast_volume = 0.0;  ///< m³ of contrast-filled blood brighter than the bone threshold
+  bool contrast = false;         ///< a contrast-filled blood pool was found (HU volumes)
+  RibNumbering numbering_left, numbering_right;
+  std::vector<std::string> anatomy;  ///< what the sorting found, in words
   double body_threshold = 0.0, bone_threshold = 0.0;  ///< as used, in the volume's units
 };
 
-/// Segments body and bone. Bone components are sorted into ribs (left, right; by height),
-/// sternum (anterior midline) and spine (posterior midline) by where they lie in the body.
+/// Segments body and bone, and sorts the bone into anatomy by shape and place (ClassifyBones):
+/// ribs (left, right; top to bottom, numbered when the top or bottom of the rib cage is in
+/// view), sternum, spine, vessels and the shoulder girdle.
 /// @throws trocar::Error naming the volume when the body or the bone comes out empty.
 Segmentation Segment(const Volume& ct, const SegmentationOptions& options = {});
 

@@ -1,0 +1,680 @@
+#include "patient/anatomy.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <cmath>
+#include <iomanip>
+#include <map>
+#include <sstream>
+
+#include "common/error.hpp"
+#include "patient/segmentation.hpp"
+#include "patient/volume.hpp"
+
+namespace trocar::patient {
+namespace {
+
+template <typename T>
+void Release(std::vector<T>* v) {
+  std::vector<T>().swap(*v);
+}
+
+// Axial slices binned by the patient's z (the scan's slices whatever its index order).
+struct Slices {
+  double z0 = 0.0, dz = 1.0;
+  int count = 0;
+  explicit Slices(const Volume& v) {
+    double lo = HUGE_VAL, hi = -HUGE_VAL;
+    for (int corner = 0; corner < 8; ++corner) {
+      const double z = v.PatientPoint(corner & 1 ? v.size.x() - 1 : 0, corner & 2 ? v.size.y() - 1 : 0,
+                                      corner & 4 ? v.size.z() - 1 : 0).z();
+      lo = std::min(lo, z);
+      hi = std::max(hi, z);
+    }
+    dz = HUGE_VAL;
+    for (int a = 0; a < 3; ++a) {
+      const double step = std::abs(v.index_to_P.col(a).z());
+      if (step > 1e-6) dz = std::min(dz, step);
+    }
+    if (!std::isfinite(dz)) dz = 1.0;
+    z0 = lo;
+    count = static_cast<int>(std::floor((hi - lo) / dz + 1.5));
+  }
+  int Of(double z) const { return std::clamp(static_cast<int>(std::lround((z - z0) / dz)), 0, count - 1); }
+};
+
+// Voxels of `bone` a ball of `radius` fits in, grown back by the ball (a morphological opening),
+// on a grid coarsened to about radius/4 so that a clinical CT's opening stays cheap.
+Mask ThickParts(const Volume& ct, const Mask& bone, double radius) {
+  const Eigen::Vector3d h = ct.spacing();
+  Eigen::Vector3i f;
+  for (int a = 0; a < 3; ++a) f[a] = std::max(1, static_cast<int>(std::lround(0.25 * radius / h[a])));
+  Volume coarse;
+  coarse.size = (ct.size.array() + f.array() - 1) / f.array();
+  coarse.index_to_P = ct.index_to_P * f.cast<double>().asDiagonal();
+  coarse.origin_P = ct.origin_P + ct.index_to_P * (0.5 * (f.cast<double>() - Eigen::Vector3d::Ones()));
+  const long cells = static_cast<long>(coarse.size.x()) * coarse.size.y() * coarse.size.z();
+  std::vector<int> count(cells, 0), total(cells, 0);
+  auto cell_of = [&](int i, int j, int k) {
+    return i / f.x() + coarse.size.x() * (static_cast<long>(j / f.y()) + static_cast<long>(coarse.size.y()) * (k / f.z()));
+  };
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const long c = cell_of(i, j, k);
+        ++total[c];
+        count[c] += bone.inside[ct.Index(i, j, k)] != 0;
+      }
+    }
+  }
+  Mask outside;  // cells mostly not bone
+  outside.size = coarse.size;
+  outside.inside.resize(cells);
+  for (long c = 0; c < cells; ++c) outside.inside[c] = 2 * count[c] < total[c];
+  Release(&count);
+  Release(&total);
+  Mask thick;
+  thick.size = ct.size;
+  thick.inside.assign(bone.inside.size(), 0);
+  const float r2 = static_cast<float>(radius * radius);
+  Mask core;
+  core.size = coarse.size;
+  core.inside.resize(cells);
+  {
+    const std::vector<float> to_outside = SquaredDistanceToMask(coarse, outside);
+    bool any = false;
+    for (long c = 0; c < cells; ++c) any |= (core.inside[c] = to_outside[c] > r2) != 0;
+    if (!any) return thick;
+  }
+  const std::vector<float> to_core = SquaredDistanceToMask(coarse, core);
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const long v = ct.Index(i, j, k);
+        const long c = cell_of(i, j, k);
+        thick.inside[v] = bone.inside[v] && !outside.inside[c] && to_core[c] <= r2;
+      }
+    }
+  }
+  return thick;
+}
+
+// The spine's axis in each axial slice: the median of the thin bone near the posterior midline
+// (posterior arches, the vertebral bodies' cortex), filled across slices without any.
+struct SpineAxis {
+  std::vector<double> x, y;
+  std::vector<std::uint8_t> known;
+  bool any = false;
+};
+
+double Median(std::vector<double>* v) {
+  std::nth_element(v->begin(), v->begin() + v->size() / 2, v->end());
+  return (*v)[v->size() / 2];
+}
+
+SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, const Mask& exclude,
+                        const Slices& slices, const AnatomyOptions& o) {
+  // The body's front-back extent in each slice: the spine lies in its back 40 %.
+  std::vector<double> y_lo(slices.count, HUGE_VAL), y_hi(slices.count, -HUGE_VAL), x_sum(slices.count, 0.0);
+  std::vector<long> x_n(slices.count, 0);
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        if (!body.inside[ct.Index(i, j, k)]) continue;
+        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+        const int s = slices.Of(p.z());
+        y_lo[s] = std::min(y_lo[s], p.y());
+        y_hi[s] = std::max(y_hi[s], p.y());
+        x_sum[s] += p.x();
+        ++x_n[s];
+      }
+    }
+  }
+  // Thin bone first (the posterior arches, the bodies' cortex); in slices without any, the thick
+  // (a solid vertebral body).
+  std::vector<std::vector<Eigen::Vector2d>> candidates(slices.count), thick(slices.count);
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const long v = ct.Index(i, j, k);
+        if (!bone.inside[v]) continue;
+        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+        const int s = slices.Of(p.z());
+        if (p.y() < y_lo[s] + 0.6 * (y_hi[s] - y_lo[s])) continue;
+        if (std::abs(p.x() - x_sum[s] / x_n[s]) > o.spine_search) continue;
+        (exclude.inside[v] ? thick : candidates)[s].push_back(p.head<2>());
+      }
+    }
+  }
+  const double area = ct.spacing().x() * ct.spacing().y();
+  for (int s = 0; s < slices.count; ++s) {
+    if (candidates[s].size() * area < 20e-6) candidates[s].swap(thick[s]);
+  }
+  Release(&thick);
+  // In each slice, the spine is where the back's bone is densest across a band of its width
+  // (the body's own centre moves with an arm beside it).
+  std::vector<std::vector<double>> xs(slices.count), ys(slices.count);
+  for (int s = 0; s < slices.count; ++s) {
+    auto& c = candidates[s];
+    if (c.empty()) continue;
+    std::sort(c.begin(), c.end(), [](const auto& a, const auto& b) { return a.x() < b.x(); });
+    std::size_t best_lo = 0, best_hi = 0, lo = 0;
+    for (std::size_t hi = 0; hi < c.size(); ++hi) {
+      while (c[hi].x() - c[lo].x() > 2 * o.midline_band) ++lo;
+      if (hi + 1 - lo > best_hi - best_lo) {
+        best_lo = lo;
+        best_hi = hi + 1;
+      }
+    }
+    for (std::size_t t = best_lo; t < best_hi; ++t) {
+      xs[s].push_back(c[t].x());
+      ys[s].push_back(c[t].y());
+    }
+  }
+  Release(&candidates);
+  SpineAxis a;
+  a.x.assign(slices.count, 0.0);
+  a.y.assign(slices.count, 0.0);
+  a.known.assign(slices.count, 0);
+  const double voxel_area = ct.spacing().x() * ct.spacing().y();
+  for (int s = 0; s < slices.count; ++s) {
+    if (xs[s].size() * voxel_area < 20e-6) continue;  // 20 mm² of midline bone at least
+    a.x[s] = Median(&xs[s]);
+    a.y[s] = Median(&ys[s]);
+    a.known[s] = 1;
+    a.any = true;
+  }
+  // Running median over ±1 cm smooths out a slice caught on a disc or a process.
+  const int w = std::max(1, static_cast<int>(std::lround(0.01 / slices.dz)));
+  std::vector<double> sx = a.x, sy = a.y;
+  for (int s = 0; s < slices.count; ++s) {
+    if (!a.known[s]) continue;
+    std::vector<double> nx, ny;
+    for (int t = std::max(0, s - w); t <= std::min(slices.count - 1, s + w); ++t) {
+      if (!a.known[t]) continue;
+      nx.push_back(a.x[t]);
+      ny.push_back(a.y[t]);
+    }
+    sx[s] = Median(&nx);
+    sy[s] = Median(&ny);
+  }
+  a.x = sx;
+  a.y = sy;
+  // Slices without midline bone (an intervertebral disc) take the nearest known slice's axis
+  // within 2 cm.
+  const int reach = static_cast<int>(std::lround(0.02 / slices.dz));
+  std::vector<std::uint8_t> filled = a.known;
+  for (int s = 0; s < slices.count; ++s) {
+    if (a.known[s]) continue;
+    for (int d = 1; d <= reach; ++d) {
+      const int t = s - d >= 0 && a.known[s - d] ? s - d : (s + d < slices.count && a.known[s + d] ? s + d : -1);
+      if (t < 0) continue;
+      a.x[s] = a.x[t];
+      a.y[s] = a.y[t];
+      filled[s] = 1;
+      break;
+    }
+  }
+  a.known = filled;
+  return a;
+}
+
+bool InColumn(const SpineAxis& a, int s, const Eigen::Vector3d& p, const AnatomyOptions& o) {
+  if (!a.known[s]) return false;
+  const double dy = p.y() - a.y[s];
+  return std::abs(p.x() - a.x[s]) <= o.spine_half_width && dy >= -o.spine_front && dy <= o.spine_back;
+}
+
+// Grows labelled voxels into unlabelled ones that pass `accept`, breadth first, at most `steps`
+// voxels away (26-neighbours); each grown voxel takes the label it was reached from.
+template <typename Accept>
+void Grow(const Volume& grid, std::vector<int>* labels, int steps, const Accept& accept) {
+  std::vector<long> front, next;
+  for (long v = 0; v < static_cast<long>(labels->size()); ++v) {
+    if ((*labels)[v] != 0) front.push_back(v);
+  }
+  const int nx = grid.size.x(), ny = grid.size.y(), nz = grid.size.z();
+  for (int step = 0; step < steps && !front.empty(); ++step) {
+    next.clear();
+    for (const long v : front) {
+      const int i = static_cast<int>(v % nx), j = static_cast<int>((v / nx) % ny);
+      const int k = static_cast<int>(v / (static_cast<long>(nx) * ny));
+      for (int dk = -1; dk <= 1; ++dk) {
+        for (int dj = -1; dj <= 1; ++dj) {
+          for (int di = -1; di <= 1; ++di) {
+            const int ii = i + di, jj = j + dj, kk = k + dk;
+            if (ii < 0 || jj < 0 || kk < 0 || ii >= nx || jj >= ny || kk >= nz) continue;
+            const long n = grid.Index(ii, jj, kk);
+            if ((*labels)[n] != 0 || !accept(n)) continue;
+            (*labels)[n] = (*labels)[v];
+            next.push_back(n);
+          }
+        }
+      }
+    }
+    front.swap(next);
+  }
+}
+
+std::string Ml(double m3) {
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(0) << m3 * 1e6 << " ml";
+  return s.str();
+}
+
+// Thick bright blobs: heart chambers and vessels full of contrast, or solid vertebral bodies,
+// with their rims (bright voxels within the ball's radius of them); the spine's axis from the
+// other bone near the posterior midline. Blobs mostly in the spine's column are vertebrae; the
+// others are returned as vessels.
+Mask FindVessels(const Volume& ct, const Mask& body, const Mask& bone, const Slices& slices,
+                 const AnatomyOptions& o, SpineAxis* axis, Mask* thick_bone) {
+  Mask vessels;
+  vessels.size = ct.size;
+  vessels.inside.assign(bone.inside.size(), 0);
+  thick_bone->size = ct.size;
+  thick_bone->inside.assign(bone.inside.size(), 0);
+  // Thick parts of what is as bright as contrast-filled blood (or brighter): blood hovering
+  // about the bone threshold is spongy above it, solid above the blood threshold.
+  const double blood = ct.hounsfield ? o.blood_hu : 0.0;
+  Mask bright;
+  if (blood > 0.0) {
+    bright.size = ct.size;
+    bright.inside.resize(bone.inside.size());
+    for (std::size_t i = 0; i < bright.inside.size(); ++i) {
+      bright.inside[i] = bone.inside[i] || (body.inside[i] && ct.values[i] > blood);
+    }
+  }
+  const Mask& pool = blood > 0.0 ? bright : bone;
+  const Mask thick = ThickParts(ct, pool, o.vessel_core_radius);
+  std::vector<int> labels;
+  const auto blobs = ConnectedComponents(ct, thick, &labels);
+  const int steps = std::max(1, static_cast<int>(std::lround(o.vessel_core_radius / ct.spacing().minCoeff())));
+  // Rims grow through blood, never into cortical bone (a rib or the sternum against the heart).
+  const double cortex_level = ct.hounsfield ? o.cortical_hu : HUGE_VAL;
+  Grow(ct, &labels, steps,
+       [&](long n) { return pool.inside[n] && !thick.inside[n] && ct.values[n] <= cortex_level; });
+  {
+    Mask rimmed;
+    rimmed.size = ct.size;
+    rimmed.inside.resize(labels.size());
+    for (long v = 0; v < static_cast<long>(labels.size()); ++v) rimmed.inside[v] = labels[v] != 0;
+    *axis = FindSpineAxis(ct, body, bone, rimmed, slices, o);
+  }
+  std::vector<long> in_column(blobs.size() + 1, 0), size(blobs.size() + 1, 0), cortical(blobs.size() + 1, 0);
+  const double cortex = ct.hounsfield ? o.cortical_hu : o.raw_cortical;
+  // The shell test needs the cortex in the blob: grow the bone blobs' rims once more through it.
+  Grow(ct, &labels, 2, [&](long n) { return pool.inside[n] && ct.values[n] > cortex_level; });
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const long v = ct.Index(i, j, k);
+        if (labels[v] == 0) continue;
+        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+        in_column[labels[v]] += InColumn(*axis, slices.Of(p.z()), p, o);
+        cortical[labels[v]] += ct.values[v] > cortex;
+        ++size[labels[v]];
+      }
+    }
+  }
+  std::vector<std::uint8_t> is_vessel(blobs.size() + 1, 0);
+  for (const Component& b : blobs) {
+    // Cancellous bone (vertebral bodies, humeral heads, the pelvis) sits in a cortical shell;
+    // blood does not (a calcified or stented wall only here and there).
+    const bool shelled = cortical[b.label] > o.cortical_fraction * size[b.label];
+    const bool spine = 2 * in_column[b.label] >= size[b.label];
+    is_vessel[b.label] = cortex > 0.0 ? !shelled && !spine : !spine;
+  }
+  for (long v = 0; v < static_cast<long>(labels.size()); ++v) {
+    vessels.inside[v] = labels[v] != 0 && is_vessel[labels[v]];
+    thick_bone->inside[v] = labels[v] != 0 && !is_vessel[labels[v]] && thick.inside[v];
+  }
+  return vessels;
+}
+
+Mask Above(const Volume& ct, const Mask& body, double threshold) {
+  Mask m;
+  m.size = ct.size;
+  m.inside.resize(ct.values.size());
+  for (std::size_t i = 0; i < m.inside.size(); ++i) m.inside[i] = body.inside[i] && ct.values[i] > threshold;
+  return m;
+}
+
+}  // namespace
+
+void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o, double min_bone_volume) {
+  const Slices slices(ct);
+  const Eigen::Vector2d centre = 0.5 * (seg->body_min_P + seg->body_max_P).head<2>();
+  const double half_width = 0.5 * (seg->body_max_P.x() - seg->body_min_P.x());
+  const double voxel_volume = std::abs(ct.index_to_P.determinant());
+  Mask& bone = seg->bone;
+  BoneParts& parts = seg->bones;
+  parts = BoneParts{};
+  SpineAxis axis;
+
+  // 1. Contrast-filled heart and vessels; the bone threshold adapted to the scan: the lowest of
+  //    the plain thresholds at which no blood shows above it, else the contrast threshold with
+  //    the vessels sorted out by their thickness.
+  const long voxels_min_vessel = static_cast<long>(o.contrast_min_volume / voxel_volume);
+  Mask thick_bone;
+  seg->vessels = FindVessels(ct, seg->body, bone, slices, o, &axis, &thick_bone);
+  if (ct.hounsfield && !o.plain_bone_hu.empty() && o.plain_bone_hu.front() < seg->bone_threshold) {
+    // Contrast: a blood pool thick and bright enough to be found at all, beside the bone. Without
+    // it, the plain threshold keeps thin ribs and coarse slices' partial-volume bone.
+    long blood = 0, other = 0;
+    const double t = o.plain_bone_hu.front();
+    for (long v = 0; v < static_cast<long>(bone.inside.size()); ++v) {
+      if (seg->vessels.inside[v]) {
+        ++blood;
+      } else if (seg->body.inside[v] && ct.values[v] > t) {
+        ++other;
+      }
+    }
+    seg->contrast = blood >= std::max<double>(voxels_min_vessel, o.contrast_bone_ratio * other);
+    if (!seg->contrast) {
+      std::ostringstream s;
+      s << "no contrast-filled blood pool (" << Ml(blood * voxel_volume) << " of bright blobs off the bone): bone threshold "
+        << t << " HU";
+      seg->anatomy.push_back(s.str());
+      seg->bone_threshold = t;
+      bone = Above(ct, seg->body, t);
+    }
+  } else {
+    seg->contrast = seg->vessels.count() >= voxels_min_vessel;
+  }
+  seg->shoulder.size = ct.size;
+  seg->shoulder.inside.assign(bone.inside.size(), 0);
+  {
+    long count = 0;
+    for (long v = 0; v < static_cast<long>(bone.inside.size()); ++v) {
+      if (!seg->vessels.inside[v]) continue;
+      bone.inside[v] = 0;
+      ++count;
+    }
+    if (count > 0) {
+      seg->anatomy.push_back("contrast-filled heart or vessels brighter than the bone threshold: " +
+                             Ml(count * voxel_volume) + ", kept out of the bone");
+    }
+    seg->contrast_volume = count * voxel_volume;
+  }
+
+  // 2. Pieces: the spine's column and the rest, never joined (ribs are cut from the vertebrae at
+  //    the column's edge).
+  std::vector<std::uint8_t> region(bone.inside.size(), 0);
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const long v = ct.Index(i, j, k);
+        if (!bone.inside[v]) continue;
+        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+        region[v] = InColumn(axis, slices.Of(p.z()), p, o) ? 2 : 1;
+      }
+    }
+  }
+  const auto pieces = ConnectedComponents(ct, bone, &parts.labels, &region);
+  std::vector<int> kind(pieces.size() + 1, 0);  // 0 none, 1 rib, 2 sternum, 3 spine, 4 shoulder
+  std::vector<long> column_voxels(pieces.size() + 1, 0);
+  for (long v = 0; v < static_cast<long>(region.size()); ++v) {
+    if (parts.labels[v] != 0 && region[v] == 2) ++column_voxels[parts.labels[v]];
+  }
+  Release(&thick_bone.inside);
+  Release(&region);
+  for (const Component& c : pieces) {
+    if (c.volume < min_bone_volume) continue;
+    if (c.volume < o.min_rib_volume && column_voxels[c.label] == 0) continue;  // a fragment
+    if (column_voxels[c.label] > 0) {
+      kind[c.label] = 3;
+      continue;
+    }
+    const int s = slices.Of(c.centroid_P.z());
+    const double front = axis.known[s] ? axis.y[s] - o.spine_front : centre.y();
+    const double mid_x = axis.known[s] ? axis.x[s] : centre.x();
+    const bool midline = (c.min_P.x() < mid_x && c.max_P.x() > mid_x) ||
+                         std::abs(c.centroid_P.x() - mid_x) < o.sternum_lateral * half_width;
+    if (midline) {
+      kind[c.label] = c.centroid_P.y() < front ? 2 : 3;
+    } else {
+      kind[c.label] = 1;
+    }
+  }
+
+  // 3. Along the rays from the body's axis the rib cage is one layer: bone inside it (vessel-wall
+  //    calcifications, bits beside the spine) is not rib, and bone outside it (shoulder blades
+  //    behind the ribs, arms beside them, collarbones in front of the first ribs) is the shoulder
+  //    girdle. Inner pieces are taken out first, so they cannot make the ribs look outside.
+  {
+    constexpr int kBins = 120;  // 3° each
+    const int cells = slices.count * kBins;
+    auto cell_of = [&](const Eigen::Vector3d& p, double* r) {
+      const Eigen::Vector2d d = p.head<2>() - centre;
+      *r = d.norm();
+      const double angle = std::atan2(d.y(), d.x()) + M_PI;
+      const int b = std::min(kBins - 1, static_cast<int>(angle / (2 * M_PI) * kBins));
+      return slices.Of(p.z()) * kBins + b;
+    };
+    // Share of each rib candidate's voxels with another candidate beyond it by the gap along
+    // the same ray (inner) or before it (outer).
+    auto layer_fractions = [&](bool outer) {
+      std::vector<float> r_ext(cells, outer ? HUGE_VALF : -HUGE_VALF);
+      std::vector<int> owner(cells, 0);
+      for (int k = 0; k < ct.size.z(); ++k) {
+        for (int j = 0; j < ct.size.y(); ++j) {
+          for (int i = 0; i < ct.size.x(); ++i) {
+            const int l = parts.labels[ct.Index(i, j, k)];
+            if (l == 0 || kind[l] != 1) continue;
+            double r;
+            const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
+            if (outer ? r < r_ext[cell] : r > r_ext[cell]) {
+              r_ext[cell] = static_cast<float>(r);
+              owner[cell] = l;
+            }
+          }
+        }
+      }
+      std::vector<double> fraction(pieces.size() + 1, 0.0);
+      for (int k = 0; k < ct.size.z(); ++k) {
+        for (int j = 0; j < ct.size.y(); ++j) {
+          for (int i = 0; i < ct.size.x(); ++i) {
+            const int l = parts.labels[ct.Index(i, j, k)];
+            if (l == 0 || kind[l] != 1) continue;
+            double r;
+            const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
+            if (owner[cell] == l) continue;
+            if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap) fraction[l] += 1.0;
+          }
+        }
+      }
+      for (const Component& c : pieces) fraction[c.label] /= static_cast<double>(c.voxels);
+      return fraction;
+    };
+    const auto inner = layer_fractions(false);
+    double inner_volume = 0.0;
+    for (const Component& c : pieces) {
+      if (kind[c.label] == 1 && inner[c.label] > o.inner_fraction) {
+        kind[c.label] = 0;
+        inner_volume += c.volume;
+      }
+    }
+    if (inner_volume > 0.0) {
+      seg->anatomy.push_back("bone inside the rib cage (not rib; calcifications, bits beside the spine): " +
+                             Ml(inner_volume));
+    }
+    const auto outer = layer_fractions(true);
+    double shoulder_volume = 0.0;
+    for (const Component& c : pieces) {
+      if (kind[c.label] == 1 && outer[c.label] > o.shoulder_fraction) kind[c.label] = 4;
+      if (kind[c.label] == 4) shoulder_volume += c.volume;
+    }
+    if (shoulder_volume > 0.0) {
+      seg->anatomy.push_back("bone outside the rib cage (shoulder girdle, arms): " +
+                             Ml(shoulder_volume) + ", kept out of the ribs");
+    }
+  }
+
+  // 4. Grow ribs, sternum and spine from their bright cortex into the marrow and rim.
+  const double grow = ct.hounsfield ? o.grow_hu : o.raw_grow;
+  if (grow > 0.0 && o.grow_distance > 0.0) {
+    for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
+      const int l = parts.labels[v];
+      if (l != 0 && (kind[l] == 0 || kind[l] == 4)) {
+        if (kind[l] == 4) seg->shoulder.inside[v] = 1;
+        parts.labels[v] = -l;  // kept, not grown from
+      }
+    }
+    const int steps = std::max(1, static_cast<int>(std::lround(o.grow_distance / ct.spacing().head<2>().mean())));
+    std::vector<int> grown = parts.labels;
+    for (int& l : grown) l = l > 0 ? l : 0;
+    Grow(ct, &grown, steps, [&](long n) {
+      return parts.labels[n] == 0 && seg->body.inside[n] && !seg->vessels.inside[n] && ct.values[n] > grow;
+    });
+    for (long v = 0; v < static_cast<long>(grown.size()); ++v) {
+      if (parts.labels[v] == 0 && grown[v] != 0) {
+        parts.labels[v] = grown[v];
+        bone.inside[v] = 1;
+      }
+      if (parts.labels[v] < 0) parts.labels[v] = -parts.labels[v];
+    }
+  } else {
+    for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
+      const int l = parts.labels[v];
+      if (l != 0 && kind[l] == 4) seg->shoulder.inside[v] = 1;
+    }
+  }
+
+  // Component statistics after growth.
+  std::vector<Component> stats(pieces.begin(), pieces.end());
+  {
+    std::vector<long> n(pieces.size() + 1, 0);
+    std::vector<Eigen::Vector3d> sum(pieces.size() + 1, Eigen::Vector3d::Zero());
+    std::vector<Eigen::Vector3d> lo(pieces.size() + 1, Eigen::Vector3d::Constant(HUGE_VAL)),
+        hi(pieces.size() + 1, Eigen::Vector3d::Constant(-HUGE_VAL));
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const int l = parts.labels[ct.Index(i, j, k)];
+          if (l == 0) continue;
+          const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+          ++n[l];
+          sum[l] += p;
+          lo[l] = lo[l].cwiseMin(p);
+          hi[l] = hi[l].cwiseMax(p);
+        }
+      }
+    }
+    for (Component& c : stats) {
+      if (n[c.label] == 0) continue;
+      c.voxels = n[c.label];
+      c.volume = n[c.label] * voxel_volume;
+      c.centroid_P = sum[c.label] / static_cast<double>(n[c.label]);
+      c.min_P = lo[c.label];
+      c.max_P = hi[c.label];
+    }
+  }
+  double lump_volume = 0.0;
+  for (const Component& c : stats) {
+    switch (kind[c.label]) {
+      case 1: {
+        // A rib is long and slender: a lump (a sacral wing, a transverse process) is not.
+        const double length = (c.max_P - c.min_P).norm();
+        if (c.volume > o.lump_volume && length * length * length < o.min_rib_elongation * c.volume) {
+          lump_volume += c.volume;
+          break;
+        }
+        (c.centroid_P.x() > (axis.any ? axis.x[slices.Of(c.centroid_P.z())] : centre.x()) ? parts.ribs_left
+                                                                                          : parts.ribs_right)
+            .push_back(c);
+        break;
+      }
+      case 2:
+        parts.sternum.push_back(c);
+        break;
+      case 3:
+        parts.spine.push_back(c);
+        break;
+      default:
+        break;
+    }
+  }
+  if (lump_volume > 0.0) {
+    seg->anatomy.push_back("bone lumps off the midline, not slender like a rib (transverse processes, the sacrum's "
+                           "wings, a scapula's edge): " + Ml(lump_volume));
+  }
+  auto by_height = [](const Component& a, const Component& b) { return a.centroid_P.z() > b.centroid_P.z(); };
+  std::sort(parts.ribs_left.begin(), parts.ribs_left.end(), by_height);
+  std::sort(parts.ribs_right.begin(), parts.ribs_right.end(), by_height);
+
+  // 5. Numbering, per side: from rib 1 when the top of the rib cage is in view, from rib 12 when
+  //    its bottom is (the spine going on below the lowest rib); both must agree.
+  double scan_top = -HUGE_VAL, scan_bottom = HUGE_VAL;
+  for (int corner = 0; corner < 8; ++corner) {
+    const double z = ct.PatientPoint(corner & 1 ? ct.size.x() - 1 : 0, corner & 2 ? ct.size.y() - 1 : 0,
+                                     corner & 4 ? ct.size.z() - 1 : 0).z();
+    scan_top = std::max(scan_top, z);
+    scan_bottom = std::min(scan_bottom, z);
+  }
+  double spine_bottom = HUGE_VAL;
+  for (const Component& c : parts.spine) spine_bottom = std::min(spine_bottom, c.min_P.z());
+  double sternum_top = -HUGE_VAL;
+  for (const Component& c : parts.sternum) sternum_top = std::max(sternum_top, c.max_P.z());
+  for (int side : {+1, -1}) {
+    auto& ribs = side > 0 ? parts.ribs_left : parts.ribs_right;
+    RibNumbering& n = side > 0 ? seg->numbering_left : seg->numbering_right;
+    const std::string name = side > 0 ? "left" : "right";
+    if (ribs.empty()) {
+      n.basis = "no " + name + " rib found";
+      continue;
+    }
+    const int count = static_cast<int>(ribs.size());
+    const Component& top = ribs.front();
+    const Component& bottom = ribs.back();
+    // In view: no rib of this side reaches the scan's face there.
+    double rib_top = -HUGE_VAL, rib_bottom = HUGE_VAL;
+    for (const Component& c : ribs) {
+      rib_top = std::max(rib_top, c.max_P.z());
+      rib_bottom = std::min(rib_bottom, c.min_P.z());
+    }
+    const bool top_in_view = scan_top - rib_top >= o.top_margin;
+    const bool bottom_in_view = rib_bottom - scan_bottom >= o.bottom_spine &&
+                                spine_bottom <= rib_bottom - o.bottom_spine && bottom.min_P.z() <= rib_bottom + 1e-9;
+    // Rib 1 meets the manubrium: the top rib's front end reaches the sternum's top.
+    const bool meets_manubrium = !parts.sternum.empty() && top.min_P.z() <= sternum_top + 0.01 &&
+                                 std::abs(top.max_P.z() - sternum_top) < 0.04;
+    std::ostringstream why;
+    int first = 0;  // number of ribs.front()
+    if (top_in_view && bottom_in_view) {
+      if (count == 12) {
+        first = 1;
+        n.confidence = 0.95;
+        why << "12 " << name << " ribs between the top of the rib cage and the lumbar spine";
+      } else {
+        why << count << " " << name << " rib pieces between the top of the rib cage and the lumbar spine, not 12 "
+            << "(ribs broken into pieces or joined): not numbered";
+      }
+    } else if (top_in_view && meets_manubrium) {
+      first = 1;
+      n.confidence = 0.8;
+      why << "from the top of the rib cage (the highest " << name << " rib is rib 1, meeting the manubrium)";
+    } else if (top_in_view) {
+      why << "the top of the rib cage is in the scan but the highest " << name
+          << " rib does not meet the manubrium (rib 1 not confirmed): not numbered";
+    } else if (bottom_in_view) {
+      why << "only the bottom of the rib cage is in the scan: counting up from the lowest " << name
+          << " piece is not trusted (transverse processes and the pelvis can pass for ribs, and 11 pairs occur): "
+             "not numbered";
+    } else {
+      why << "neither the top of the rib cage nor its bottom (with the lumbar spine) is in the scan: "
+             "the "
+          << name << " ribs are not numbered";
+    }
+    n.basis = why.str();
+    n.numbered = first >= 1 && n.confidence >= 0.5 && first + count - 1 <= 12;
+    if (n.numbered) {
+      for (int r = 0; r < count; ++r) ribs[r].number = first + r;
+    } else {
+      n.confidence = 0.0;
+    }
+  }
+  parts.numbered = seg->numbering_left.numbered || seg->numbering_right.numbered;
+}
+
+}  // namespace trocar::patient

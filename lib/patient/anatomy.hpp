@@ -1,0 +1,84 @@
+#pragma once
+/// @file
+/// Bone sorted into anatomy by shape and place, not by brightness alone (docs/decisions.md,
+/// "Anatomy by shape"): contrast-filled heart chambers and vessels (bright blobs thicker than any
+/// rib) are vessels, never bone; the spine is the column about its axis, and ribs joined to it at
+/// the costovertebral joints are cut off at the column's edge; bone lying outside the rib cage
+/// (shoulder blades, collarbones, arms) is the shoulder girdle; the sternum is the rib cage's
+/// anterior midline; the ribs are what remains, numbered from rib 1 or rib 12 when the top or
+/// the bottom of the rib cage is in view, with a confidence.
+
+#include <string>
+#include <vector>
+
+namespace trocar::patient {
+
+struct Volume;
+struct Segmentation;
+
+struct AnatomyOptions {
+  /// Bone this thick (a ball of this radius fits in it) and off the spine's column is a
+  /// contrast-filled heart chamber or vessel: ribs, sternum, collarbones and shoulder blades are
+  /// thinner (m).
+  double vessel_core_radius = 0.007;
+  /// A scan without contrast (no blood pool of at least `contrast_min_volume` m³ and
+  /// `contrast_bone_ratio` of the bone's volume) takes its bone threshold from the first of these
+  /// (HU) instead: thin ribs and coarse slices' partial-volume bone stay in.
+  std::vector<double> plain_bone_hu = {250.0};
+  double contrast_min_volume = 5e-6;
+  double contrast_bone_ratio = 0.1;
+  /// Contrast-filled blood is looked for above this (HU; 0 for raw volumes: above the bone
+  /// threshold only).
+  double blood_hu = 200.0;
+  /// A thick blob with more than this share of its voxels (rim included) above `cortical_hu`
+  /// (raw: `raw_cortical`, 0 = no test) is cancellous bone in its cortical shell, not blood.
+  double cortical_hu = 700.0, raw_cortical = 0.0;
+  double cortical_fraction = 0.12;
+  /// The spine's column about its axis, in each axial slice: half width left-right, and reach
+  /// ahead of and behind the axis (m). Ribs are cut from the vertebrae at its edge (the
+  /// costotransverse joints lie 25-35 mm from the midline).
+  double spine_half_width = 0.026;
+  double spine_front = 0.05, spine_back = 0.06;
+  /// Bone near the posterior midline that fixes the spine's axis: within this of the midline (m).
+  double midline_band = 0.012;
+  /// ... looked for this far either side of the body's centroid in each slice (m).
+  double spine_search = 0.04;
+  /// A bone piece lies outside the rib cage (shoulder girdle, arm) when, along the rays from the
+  /// body's axis, at least `shoulder_fraction` of it has other bone nearer the axis by more than
+  /// `shoulder_gap` (m).
+  double shoulder_gap = 0.012;
+  double shoulder_fraction = 0.35;
+  /// ... and inside it (not rib) when more than this share has other bone beyond it.
+  double inner_fraction = 0.6;
+  /// Pieces whose centre is within this fraction of the half body width of the midline, in
+  /// front of the spine, are sternum.
+  double sternum_lateral = 0.12;
+  /// Ribs, sternum and spine grown from their bright cortex into the marrow and the partial-
+  /// volume rim: neighbouring voxels above this (HU; raw volumes: `raw_grow`, 0 = no growth)
+  /// within `grow_distance` (m) of the bright bone.
+  double grow_hu = 180.0, raw_grow = 0.0;  // above enhanced blood in a venous phase
+  double grow_distance = 0.004;
+  /// A rib is slender: a piece over `lump_volume` (m³) whose bounding-box diagonal cubed is
+  /// less than `min_rib_elongation` times its volume is a lump of other bone.
+  double lump_volume = 2e-6, min_rib_elongation = 25.0;
+  /// Bone pieces off the spine smaller than this are fragments (the stubs the spine's column
+  /// leaves of a rib's neck), not ribs (m³).
+  double min_rib_volume = 1e-6;
+  /// Numbering: the top of the rib cage is in view when the scan reaches this far above the
+  /// highest rib; the bottom when the spine continues this far below the lowest rib (m).
+  double top_margin = 0.015, bottom_spine = 0.03;
+};
+
+/// How one side's ribs were numbered.
+struct RibNumbering {
+  bool numbered = false;
+  double confidence = 0.0;  ///< 0..1: how sure the numbers are
+  std::string basis;        ///< what the numbers rest on, or why there are none
+};
+
+/// Sorts `seg->bone` into `seg->bones` (ribs per side numbered when possible, sternum, spine),
+/// `seg->vessels` and `seg->shoulder`; reports what it found in `seg->anatomy`.
+void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& options,
+                   double min_bone_volume);
+
+}  // namespace trocar::patient
