@@ -454,36 +454,34 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
     };
     // Share of each rib candidate's voxels with another candidate beyond it by the gap along
     // the same ray (inner) or before it (outer).
+    // Calls f(label, cell, r) for every voxel of a rib candidate.
+    auto for_each_candidate = [&](const auto& f) {
+      for (int k = 0; k < ct.size.z(); ++k) {
+        for (int j = 0; j < ct.size.y(); ++j) {
+          for (int i = 0; i < ct.size.x(); ++i) {
+            const int l = parts.labels[ct.Index(i, j, k)];
+            if (l == 0 || kind[l] != 1) continue;
+            double r;
+            const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
+            f(l, cell, r);
+          }
+        }
+      }
+    };
     auto layer_fractions = [&](bool outer) {
       std::vector<float> r_ext(cells, outer ? HUGE_VALF : -HUGE_VALF);
       std::vector<int> owner(cells, 0);
-      for (int k = 0; k < ct.size.z(); ++k) {
-        for (int j = 0; j < ct.size.y(); ++j) {
-          for (int i = 0; i < ct.size.x(); ++i) {
-            const int l = parts.labels[ct.Index(i, j, k)];
-            if (l == 0 || kind[l] != 1) continue;
-            double r;
-            const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
-            if (outer ? r < r_ext[cell] : r > r_ext[cell]) {
-              r_ext[cell] = static_cast<float>(r);
-              owner[cell] = l;
-            }
-          }
+      for_each_candidate([&](int l, int cell, double r) {
+        if (outer ? r < r_ext[cell] : r > r_ext[cell]) {
+          r_ext[cell] = static_cast<float>(r);
+          owner[cell] = l;
         }
-      }
+      });
       std::vector<double> fraction(pieces.size() + 1, 0.0);
-      for (int k = 0; k < ct.size.z(); ++k) {
-        for (int j = 0; j < ct.size.y(); ++j) {
-          for (int i = 0; i < ct.size.x(); ++i) {
-            const int l = parts.labels[ct.Index(i, j, k)];
-            if (l == 0 || kind[l] != 1) continue;
-            double r;
-            const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
-            if (owner[cell] == l) continue;
-            if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap) fraction[l] += 1.0;
-          }
-        }
-      }
+      for_each_candidate([&](int l, int cell, double r) {
+        if (owner[cell] == l) return;
+        if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap) fraction[l] += 1.0;
+      });
       for (const Component& c : pieces) fraction[c.label] /= static_cast<double>(c.voxels);
       return fraction;
     };
