@@ -3,12 +3,20 @@
 /// File helpers: reading with errors that name the file, and atomic writes (temporary name,
 /// then rename) so that no reader ever sees a half-written output.
 
+#include <cstdint>
 #include <string>
 
 namespace trocar {
 
 /// Whole file as text. @throws trocar::Error naming the path when it cannot be read.
+/// Refused beyond `Limits().max_text_bytes` (TROCAR_MAX_TEXT_BYTES), before anything is read.
 std::string ReadTextFile(const std::string& path);
+
+/// Whole binary file (CT data, the model cache), refused beyond `Limits().max_file_bytes`.
+std::string ReadBinaryFile(const std::string& path);
+
+/// Whole file, refused (naming the file, its size, the limit and `env`) beyond `max_bytes`.
+std::string ReadFileBounded(const std::string& path, std::uint64_t max_bytes, const char* env);
 
 /// Writes `content` to `path` through a temporary file in the same folder and a rename.
 /// @throws trocar::Error naming the path when any step fails; the target is then untouched.

@@ -31,9 +31,14 @@ class YamlReader {
   void ExpectSequence(const YAML::Node& node, const std::string& path) const;
 
   /// A finite number; also accepts "pi/2", "-90 deg" and similar (ParseScalarExpression).
+  /// Infinity (.inf) is refused: a size, threshold or weight is never infinite.
   double Number(const YAML::Node& node, const std::string& path) const;
   double NumberOr(const YAML::Node& map, const std::string& key, const std::string& path,
                   double fallback) const;
+  /// A number or ±.inf: only for bounds that may be absent (joint limits).
+  double Bound(const YAML::Node& node, const std::string& path) const;
+  double BoundOr(const YAML::Node& map, const std::string& key, const std::string& path,
+                 double fallback) const;
   std::string String(const YAML::Node& node, const std::string& path) const;
   bool Bool(const YAML::Node& node, const std::string& path) const;
   Eigen::Vector3d Vector3(const YAML::Node& node, const std::string& path) const;

@@ -1,26 +1,48 @@
 #include "control/recorder.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <iomanip>
 #include <sstream>
 
 #include "common/file_util.hpp"
+#include "common/limits.hpp"
 #include "common/plot.hpp"
 
 namespace trocar::control {
+
+Recorder::Recorder(std::size_t capacity)
+    : capacity_(std::max<std::size_t>(
+          2, capacity > 0 ? capacity : static_cast<std::size_t>(Limits().max_recorded_samples))) {}
+
+void Recorder::Add(RecordRow row) {
+  const std::size_t step = seen_++;
+  if (row.status == SampleStatus::kDroppedJump || row.status == SampleStatus::kDroppedNonFinite) {
+    ++dropped_;
+  }
+  if (row.status == SampleStatus::kHeldClutch || row.status == SampleStatus::kHeldAbsent) ++held_;
+  if (step % stride_ != 0) return;
+  if (rows_.size() >= capacity_) {
+    // Keep rows 0, 2, 4, ... (steps 0, 2·stride, ...): the record stays uniform in time.
+    std::size_t kept = 0;
+    for (std::size_t i = 0; i < rows_.size(); i += 2) rows_[kept++] = std::move(rows_[i]);
+    rows_.resize(kept);
+    stride_ *= 2;
+    if (step % stride_ != 0) return;
+  }
+  rows_.push_back(std::move(row));
+}
 
 TrackingSummary Recorder::Summarize(std::optional<double> step_time, double skip_until) const {
   TrackingSummary s;
   double sum_p = 0.0, sum_o = 0.0;
   int counted = 0;
   std::optional<double> last_outside;
+  s.steps = static_cast<int>(seen_);
+  s.dropped = dropped_;
+  s.held = held_;
   for (const RecordRow& row : rows_) {
-    ++s.steps;
-    if (row.status == SampleStatus::kDroppedJump || row.status == SampleStatus::kDroppedNonFinite) {
-      ++s.dropped;
-    }
-    if (row.status == SampleStatus::kHeldClutch || row.status == SampleStatus::kHeldAbsent) ++s.held;
     if (row.t < skip_until) continue;
     ++counted;
     sum_p += row.position_error * row.position_error;

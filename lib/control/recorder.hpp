@@ -36,10 +36,18 @@ struct TrackingSummary {
   std::optional<double> settling_time;
 };
 
+/// Memory stays bounded over any session length: beyond `capacity` rows the record is thinned
+/// (every other row kept, and from then on every 2nd, 4th, ... step recorded), so a long
+/// `--duration` keeps a uniformly sampled record of the whole run. `stride()` says how thin.
 class Recorder {
  public:
-  void Add(RecordRow row) { rows_.push_back(std::move(row)); }
+  /// @param capacity most rows kept; 0: `Limits().max_recorded_samples`.
+  explicit Recorder(std::size_t capacity = 0);
+  void Add(RecordRow row);
   const std::vector<RecordRow>& rows() const { return rows_; }
+  /// 1 while every step is recorded; else the number of steps per recorded row.
+  std::size_t stride() const { return stride_; }
+  std::size_t steps_seen() const { return seen_; }
   /// @param step_time for a step input, when the step happened (enables settling_time);
   /// @param skip_until rows before this time are left out of the error statistics (start-up).
   TrackingSummary Summarize(std::optional<double> step_time = std::nullopt,
@@ -54,6 +62,10 @@ class Recorder {
 
  private:
   std::vector<RecordRow> rows_;
+  std::size_t capacity_ = 0;
+  std::size_t stride_ = 1;
+  std::size_t seen_ = 0;
+  int dropped_ = 0, held_ = 0;  // over every step, recorded or not
 };
 
 }  // namespace trocar::control

@@ -1,5 +1,6 @@
 #include "patient/case_file.hpp"
 
+#include <tuple>
 #include <cmath>
 #include <filesystem>
 
@@ -83,6 +84,19 @@ CaseSpec ReadCase(const std::string& case_dir) {
     if (h["blood"]) c.heart.blood_hu = c.heart.raw_blood = y.Number(h["blood"], "heart.blood");
     if (h["soft"]) c.heart.soft_hu = c.heart.raw_soft = y.Number(h["soft"], "heart.soft");
     c.heart.opening_radius = y.NumberOr(h, "opening_radius", "heart", c.heart.opening_radius);
+    TROCAR_THROW_UNLESS(c.heart.opening_radius > 0.0 && c.heart.opening_radius <= 0.05,
+                        y.Where(h, "heart.opening_radius")
+                            << ": " << c.heart.opening_radius << " m (expected 0-0.05 m)");
+  }
+  // Thresholds in order, in whichever units the CT turns out to have: soft tissue < blood <
+  // bone. Out of order they make most of the body "heart" or "bone" (a 21-litre heart).
+  for (const auto& [units, soft, blood, bone] :
+       {std::make_tuple("Hounsfield", c.heart.soft_hu, c.heart.blood_hu, c.seg.bone_hu),
+        std::make_tuple("raw", c.heart.raw_soft, c.heart.raw_blood, c.seg.raw_bone)}) {
+    TROCAR_THROW_UNLESS(soft < blood && blood < bone,
+                        c.file << ": thresholds out of order (" << units << " units): heart.soft "
+                               << soft << ", heart.blood " << blood << ", thresholds.bone " << bone
+                               << " (expected soft < blood < bone)");
   }
   if (root["labels"]) {
     // A label map: `labels: seg.nii.gz`, or `labels: {file: seg.nii.gz, names: seg.json}`.
@@ -122,8 +136,9 @@ CaseSpec ReadCase(const std::string& case_dir) {
     c.table.width = y.NumberOr(t, "width", "table", c.table.width);
     c.table.length = y.NumberOr(t, "length", "table", c.table.length);
     TROCAR_THROW_UNLESS(
-        c.table.height > 0.3 && c.table.height < 1.5 && c.table.width > 0.2 && c.table.length > 0.5,
-        y.Where(t, "table") << ": table height 0.3-1.5 m, width > 0.2 m, length > 0.5 m expected");
+        c.table.height > 0.3 && c.table.height < 1.5 && c.table.width > 0.2 &&
+            c.table.width < 2.0 && c.table.length > 0.5 && c.table.length < 4.0,
+        y.Where(t, "table") << ": table height 0.3-1.5 m, width 0.2-2 m, length 0.5-4 m expected");
   }
   if (root["targets"]) {
     y.ExpectSequence(root["targets"], "targets");

@@ -29,6 +29,7 @@
 #include <gdcmTransferSyntax.h>
 
 #include "common/error.hpp"
+#include "common/limits.hpp"
 #include "common/file_util.hpp"
 #include "patient/volume.hpp"
 
@@ -425,7 +426,7 @@ bool ReadFile(const std::string& file, std::vector<Slice>* out) {
   TROCAR_THROW_UNLESS(bytes <= kMaxDicomFileBytes,
                       file << ": " << bytes << " bytes, more than the " << kMaxDicomFileBytes
                            << " a DICOM image file may have here");
-  const std::string bytes_read = ReadTextFile(file);
+  const std::string bytes_read = ReadBinaryFile(file);
   CheckStructure(bytes_read, file, sniff);
   std::istringstream stream(bytes_read);
   gdcm::ImageReader reader;
@@ -778,6 +779,9 @@ Volume LoadDicomSeries(const std::string& path) {
   v.index_to_P.col(2) = step_mm * kMillimetre;
   v.origin_P = first.position_mm * kMillimetre;
   v.source = is_folder ? path : folder;
+  CheckVolumeGeometry(v, (is_folder ? path : folder) + " (DICOM series: pixel spacing (0028,0030), "
+                                                       "slice positions (0020,0032))");
+  CheckedVoxelCount(v.size, v.source);
   const long per_slice = static_cast<long>(first.rows) * first.columns;
   v.values.resize(static_cast<std::size_t>(per_slice) * n);
   for (int k = 0; k < n; ++k) {

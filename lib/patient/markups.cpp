@@ -9,11 +9,26 @@
 
 namespace trocar::patient {
 
+namespace {
+
+// node[key] as a string, `fallback` when absent. @throws naming the field when it is not text.
+std::string Text(const nlohmann::json& node, const char* key, const std::string& fallback,
+                 const std::string& where) {
+  if (!node.contains(key) || node[key].is_null()) return fallback;
+  TROCAR_THROW_UNLESS(node[key].is_string(), where << "." << key << ": expected a string, got "
+                                                   << node[key].dump().substr(0, 60));
+  return node[key].get<std::string>();
+}
+
+}  // namespace
+
 std::vector<Markup> LoadMarkups(const std::string& path) {
   nlohmann::json doc;
   try {
     doc = nlohmann::json::parse(ReadTextFile(path));
-  } catch (const nlohmann::json::parse_error& e) {
+  } catch (const nlohmann::json::exception& e) {
+    // Syntax errors, and numbers out of range (1e400) which the parser refuses with their own
+    // exception type.
     TROCAR_THROW(path << ": not valid JSON: " << e.what());
   }
   TROCAR_THROW_UNLESS(doc.is_object() && doc.contains("markups") && doc["markups"].is_array(),
@@ -24,12 +39,12 @@ std::vector<Markup> LoadMarkups(const std::string& path) {
     const std::string where = path + ": markups[" + std::to_string(m) + "]";
     TROCAR_THROW_UNLESS(node.is_object(), where << ": expected an object");
     Markup markup;
-    markup.type = node.value("type", std::string("Fiducial"));
-    markup.name = node.value("name", "markup-" + std::to_string(m + 1));
-    const std::string system = node.value("coordinateSystem", std::string("LPS"));
+    markup.type = Text(node, "type", "Fiducial", where);
+    markup.name = Text(node, "name", "markup-" + std::to_string(m + 1), where);
+    const std::string system = Text(node, "coordinateSystem", "LPS", where);
     TROCAR_THROW_UNLESS(system == "LPS" || system == "RAS",
                         where << ".coordinateSystem: '" << system << "' (expected LPS or RAS)");
-    const std::string units = node.value("coordinateUnits", std::string("mm"));
+    const std::string units = Text(node, "coordinateUnits", "mm", where);
     TROCAR_THROW_UNLESS(units == "mm" || units == "m",
                         where << ".coordinateUnits: '" << units << "' (expected mm or m)");
     const double scale = units == "mm" ? 1e-3 : 1.0;
@@ -51,7 +66,7 @@ std::vector<Markup> LoadMarkups(const std::string& path) {
       }
       TROCAR_THROW_UNLESS(p.allFinite(), p_where << ".position: not finite");
       markup.points.push_back(to_lps.asDiagonal() * p * scale);
-      markup.labels.push_back(point.value("label", markup.name + "-" + std::to_string(i + 1)));
+      markup.labels.push_back(Text(point, "label", markup.name + "-" + std::to_string(i + 1), p_where));
       if (point.contains("orientation")) {
         const auto& o = point["orientation"];
         TROCAR_THROW_UNLESS(o.is_array() && o.size() == 9,

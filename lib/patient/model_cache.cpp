@@ -6,6 +6,8 @@
 #include <filesystem>
 #include <sstream>
 
+#include <zlib.h>
+
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "patient/markups.hpp"
@@ -15,7 +17,15 @@ namespace trocar::patient {
 // ---------------------------------------------------------------- serialisation
 namespace {
 
-constexpr char kMagic[8] = {'T', 'R', 'O', 'C', 'P', 'M', '0', '2'};
+constexpr char kMagic[8] = {'T', 'R', 'O', 'C', 'P', 'M', '0', '3'};
+
+// CRC-32 (zlib) of everything before the checksum, with the length: a flipped byte anywhere
+// (a pose, a vertex, the key) fails it.
+std::uint64_t Checksum(const char* data, std::size_t n) {
+  uLong crc = crc32_z(0L, Z_NULL, 0);
+  crc = crc32_z(crc, reinterpret_cast<const Bytef*>(data), n);
+  return (static_cast<std::uint64_t>(n) << 32) ^ static_cast<std::uint64_t>(crc);
+}
 
 struct Writer {
   std::string out;
@@ -124,17 +134,30 @@ std::string SerializeModel(const PatientModel& m, std::uint64_t key) {
     w.Pod<std::uint64_t>(lines->size());
     for (const auto& line : *lines) w.Str(line);
   }
+  w.Pod(Checksum(w.out.data(), w.out.size()));
   w.out.append(kMagic, 8);  // trailer: a truncated file never loads
   return w.out;
 }
 
-bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel* out) {
-  if (bytes.size() < 24 || std::memcmp(bytes.data(), kMagic, 8) != 0 ||
-      std::memcmp(bytes.data() + bytes.size() - 8, kMagic, 8) != 0) {
+bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel* out,
+                      std::string* damage) {
+  auto damaged = [&](const char* why) {
+    if (damage != nullptr) *damage = why;
     return false;
+  };
+  if (bytes.size() < 32 || std::memcmp(bytes.data(), kMagic, 8) != 0) {
+    return damaged("not a cache of this version of trocar");
+  }
+  if (std::memcmp(bytes.data() + bytes.size() - 8, kMagic, 8) != 0) {
+    return damaged("truncated (no end marker)");
+  }
+  std::uint64_t stored = 0;
+  std::memcpy(&stored, bytes.data() + bytes.size() - 16, 8);
+  if (stored != Checksum(bytes.data(), bytes.size() - 16)) {
+    return damaged("its checksum does not match its contents");
   }
   Reader r{bytes, 8};
-  if (r.Pod<std::uint64_t>() != key) return false;
+  if (r.Pod<std::uint64_t>() != key) return false;  // stale: built from other inputs
   PatientModel m;
   m.name = r.Str();
   m.ct_source = r.Str();
@@ -178,7 +201,7 @@ bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel*
     lines->resize(r.Count(8));
     for (auto& line : *lines) line = r.Str();
   }
-  if (!r.ok || r.pos + 8 != bytes.size()) return false;
+  if (!r.ok || r.pos + 16 != bytes.size()) return damaged("its contents are inconsistent");
   *out = std::move(m);
   return true;
 }
@@ -248,7 +271,7 @@ std::uint64_t CacheKey(const CaseSpec& c, const std::vector<std::string>& ct_fil
   std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v3");
   for (const auto& f : InputFiles(c, ct_files)) {
     h = Fnv1a(h, std::filesystem::path(f).filename().string());
-    h = Fnv1a(h, ReadTextFile(f));
+    h = Fnv1a(h, ReadBinaryFile(f));
   }
   // A DICOM series' folder by its listing (names and sizes): a slice added or removed changes the
   // key, while the contents that matter, the series' own slices, are in ct_files above.

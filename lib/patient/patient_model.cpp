@@ -119,9 +119,14 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   }
   const std::string cache_dir = JoinPath(case_dir, "cache");
   const std::string model_bin = JoinPath(cache_dir, "model.bin");
+  std::string cache_damage;  // why a cache that was there could not be trusted
   auto load_cache = [&](std::uint64_t key, PatientModel* cached) {
     const auto t0 = Clock::now();
-    if (!DeserializeModel(ReadTextFile(model_bin), key, cached)) return false;
+    std::string damage;
+    if (!DeserializeModel(ReadBinaryFile(model_bin), key, cached, &damage)) {
+      if (!damage.empty()) cache_damage = model_bin + ": " + damage + "; rebuilt from the CT";
+      return false;
+    }
     cached->case_dir = case_dir;
     cached->from_cache = true;
     cached->timings = timings;
@@ -153,6 +158,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   PatientModel m;
   m.name = c.name;
   m.case_dir = case_dir;
+  m.warnings.insert(m.warnings.end(), ct.warnings.begin(), ct.warnings.end());
   m.ct_source = c.ct;
   m.table = c.table;
   m.left_side_up = c.left_side_up;
@@ -182,6 +188,18 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     } else if (c.heart_contrast) {
       heart = SegmentHeartFromContrast(ct, seg, c.heart);
       have_heart = true;
+    }
+    if (have_heart) {
+      // An adult heart holds 0.3-1.2 litres (an enlarged one up to ~2): far more is a mask or
+      // thresholds that took in the whole mediastinum or body, never a heart to plan around.
+      const double litres = heart.count() * std::abs(ct.index_to_P.determinant()) * 1e3;
+      TROCAR_THROW_UNLESS(litres <= 3.0,
+                          c.file << ": the heart came out as " << litres << " litres (at most ~2 "
+                                 << "in a real chest) from "
+                                 << (!c.heart_mask.empty() ? "heart.mask " + c.heart_mask
+                                     : have_labels        ? "the label map " + c.labels
+                                                          : std::string("the thresholds heart.blood and heart.soft"))
+                                 << ": check them");
     }
   });
   std::vector<CutFace> cut_faces;
@@ -373,6 +391,8 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       }
     });
   }
+  // Said for this import only (the cache just written is sound).
+  if (!cache_damage.empty()) m.warnings.push_back(cache_damage);
   m.timings = timings;
   return m;
 }

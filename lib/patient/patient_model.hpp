@@ -99,8 +99,11 @@ Eigen::Vector3d NearestSurfaceNormal(const TriangleMesh& mesh, const Eigen::Vect
 Eigen::Isometry3d PoseOnTable(const TriangleMesh& skin, double left_side_up, const Table& table);
 
 /// Serialisation of a model (binary, versioned, with the input key). Load returns false on any
-/// mismatch or corruption (the caller rebuilds), never a half-read model.
+/// mismatch or corruption (the caller rebuilds), never a half-read model. The file carries a
+/// checksum of its whole contents; `damage` says why a file that is not merely stale (built from
+/// other inputs) was refused: truncated, checksum failed, inconsistent.
 std::string SerializeModel(const PatientModel& model, std::uint64_t key);
-bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel* model);
+bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel* model,
+                      std::string* damage = nullptr);
 
 }  // namespace trocar::patient

@@ -26,6 +26,9 @@ struct Volume {
   /// NRRD key/value pairs (`key:=value`, e.g. a 3D Slicer segmentation's Segment0_Name).
   std::vector<std::pair<int, std::string>> extensions;
   std::vector<std::pair<std::string, std::string>> key_values;
+  /// What the reader repaired or doubts, each naming the file (e.g. a NIfTI quaternion
+  /// normalised); the import passes them on as the model's warnings.
+  std::vector<std::string> warnings;
 
   long voxel_count() const { return static_cast<long>(size.x()) * size.y() * size.z(); }
   long Index(int i, int j, int k) const {
@@ -42,6 +45,11 @@ struct Volume {
     return index_to_P.inverse() * (p_P - origin_P);
   }
 };
+
+/// Refuses sizes that are not positive or not finite geometry, degenerate voxel axes, and
+/// voxel sizes outside 1 µm – 100 mm along any axis (a damaged header, or metres read as
+/// millimetres). @throws trocar::Error naming `what`, the axis and the value.
+void CheckVolumeGeometry(const Volume& volume, const std::string& what);
 
 /// A grey-level picture of one slice: axis 2 (axial, k fixed), 1 (coronal, j fixed) or 0
 /// (sagittal, i fixed), windowed to [level − width/2, level + width/2], one pixel per voxel

@@ -11,6 +11,7 @@
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "common/limits.hpp"
 #include "patient/volume.hpp"
 
 namespace trocar::patient {
@@ -54,46 +55,76 @@ std::string Lower(std::string s) {
   return s;
 }
 
-// gzip or zlib, detected from the stream.
-std::string Inflate(const std::string& data, const std::string& what) {
+// gzip or zlib, detected from the stream. Never produces more than `max_out` bytes: beyond it
+// the stream holds more than the header describes (a decompression bomb among others) and the
+// read stops with an error naming the bound, unless `prefix_only`, which returns the first
+// `max_out` bytes (a header to size the rest by).
+std::string Inflate(const std::string& data, const std::string& what, std::uint64_t max_out,
+                    bool prefix_only = false) {
   z_stream stream{};
   TROCAR_THROW_UNLESS(inflateInit2(&stream, 15 + 32) == Z_OK, what << ": cannot start decompression");
-  stream.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data.data()));
-  stream.avail_in = static_cast<uInt>(data.size());
+  const auto* next = reinterpret_cast<const Bytef*>(data.data());
+  std::size_t left = data.size();
   std::string out;
   char buffer[1 << 16];
   int status = Z_OK;
+  bool too_long = false;
+  auto feed = [&] {  // zlib counts input in uInt: hand it at most 1 GiB at a time
+    if (stream.avail_in == 0 && left > 0) {
+      const std::size_t piece = std::min<std::size_t>(left, std::size_t{1} << 30);
+      stream.next_in = const_cast<Bytef*>(next);
+      stream.avail_in = static_cast<uInt>(piece);
+      next += piece;
+      left -= piece;
+    }
+  };
+  auto append = [&](std::size_t n) {
+    if (out.size() + n > max_out) {
+      out.append(buffer, static_cast<std::size_t>(max_out - out.size()));
+      too_long = true;
+      return false;
+    }
+    out.append(buffer, n);
+    return true;
+  };
   while (status == Z_OK) {
+    feed();
     stream.next_out = reinterpret_cast<Bytef*>(buffer);
     stream.avail_out = sizeof(buffer);
     status = inflate(&stream, Z_NO_FLUSH);
-    if (status == Z_STREAM_END && stream.avail_in > 0) {
+    if (status != Z_OK && status != Z_STREAM_END) break;
+    if (!append(sizeof(buffer) - stream.avail_out)) break;
+    if (status == Z_STREAM_END && (stream.avail_in > 0 || left > 0)) {
       // Concatenated gzip members: continue with the next one.
-      out.append(buffer, sizeof(buffer) - stream.avail_out);
       inflateReset(&stream);
       status = Z_OK;
       continue;
     }
-    if (status != Z_OK && status != Z_STREAM_END) break;
-    out.append(buffer, sizeof(buffer) - stream.avail_out);
-    if (status == Z_OK && stream.avail_in == 0 && stream.avail_out != 0) {
+    if (status == Z_OK && stream.avail_in == 0 && left == 0 && stream.avail_out != 0) {
       status = Z_BUF_ERROR;  // input ended before the stream did
     }
   }
+  const std::string message = stream.msg ? stream.msg : std::to_string(status);
   inflateEnd(&stream);
+  if (too_long) {
+    TROCAR_THROW_UNLESS(prefix_only, what << ": compressed data inflates to more than the "
+                                          << max_out << " bytes its header describes");
+    return out;
+  }
+  if (prefix_only && out.size() == max_out) return out;
   TROCAR_THROW_UNLESS(status == Z_STREAM_END,
                       what << ": compressed data is "
                            << (status == Z_BUF_ERROR ? "truncated" : "corrupt") << " (zlib "
-                           << (stream.msg ? stream.msg : std::to_string(status)) << ")");
+                           << message << ")");
   return out;
 }
 
 // Raw voxel bytes → floats, checking the count and that every value is finite.
 std::vector<float> Convert(const std::string& bytes, std::size_t offset, VoxelType type,
-                           bool big_endian, long count, double slope, double intercept,
+                           bool big_endian, std::uint64_t count, double slope, double intercept,
                            const std::string& what) {
   const int n = BytesOf(type);
-  const std::size_t needed = static_cast<std::size_t>(count) * n;
+  const std::size_t needed = static_cast<std::size_t>(count) * n;  // count ≤ max_voxels: no overflow
   TROCAR_THROW_UNLESS(bytes.size() >= offset && bytes.size() - offset >= needed,
                       what << ": voxel data is truncated: " << (bytes.size() >= offset ? bytes.size() - offset : 0)
                            << " bytes, expected " << needed);
@@ -104,7 +135,7 @@ std::vector<float> Convert(const std::string& bytes, std::size_t offset, VoxelTy
   const unsigned char* p = reinterpret_cast<const unsigned char*>(bytes.data()) + offset;
   unsigned char word[8];
   long bad = 0;
-  for (long v = 0; v < count; ++v, p += n) {
+  for (std::uint64_t v = 0; v < count; ++v, p += n) {
     for (int b = 0; b < n; ++b) word[b] = big_endian ? p[n - 1 - b] : p[b];
     double x = 0.0;
     switch (type) {
@@ -131,13 +162,10 @@ bool LooksLikeHounsfield(VoxelType type, const std::vector<float>& values) {
   return *std::min_element(values.begin(), values.end()) <= -500.0f;
 }
 
-void CheckGeometry(const Volume& v, const std::string& what) {
-  TROCAR_THROW_UNLESS((v.size.array() > 0).all(), what << ": sizes " << v.size.transpose()
-                                                       << " must be positive");
-  TROCAR_THROW_UNLESS(v.index_to_P.allFinite() && v.origin_P.allFinite(),
-                      what << ": spacing, directions or origin is not finite");
-  TROCAR_THROW_UNLESS(std::abs(v.index_to_P.determinant()) > 1e-15,
-                      what << ": the voxel axes are degenerate (zero spacing or parallel directions)");
+// Sizes, spacing and directions as CheckVolumeGeometry, returning the voxel count.
+std::uint64_t CheckGeometry(const Volume& v, const std::string& what) {
+  CheckVolumeGeometry(v, what);
+  return CheckedVoxelCount(v.size, what);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -191,7 +219,7 @@ std::vector<std::string> SplitVectors(const std::string& raw) {
 }
 
 Volume LoadNrrd(const std::string& path) {
-  const std::string text = ReadTextFile(path);
+  const std::string text = ReadBinaryFile(path);
   TROCAR_THROW_UNLESS(text.rfind("NRRD000", 0) == 0,
                       path << ": not a NRRD file (it must start with NRRD000x)");
   std::map<std::string, std::string> fields;
@@ -277,7 +305,7 @@ Volume LoadNrrd(const std::string& path) {
                         path << ": field 'space units': '" << field("space units")
                              << "' (only millimetres are supported)");
   }
-  CheckGeometry(v, path);
+  const std::uint64_t count = CheckGeometry(v, path);
 
   const std::string encoding = Lower(field("encoding"));
   TROCAR_THROW_UNLESS(encoding == "raw" || encoding == "gzip" || encoding == "gz",
@@ -293,15 +321,15 @@ Volume LoadNrrd(const std::string& path) {
     data_name = JoinPath(ParentDirectory(path), name);
     TROCAR_THROW_UNLESS(IsRegularFile(data_name), path << ": field 'data file': '" << name
                                                        << "' not found (looked for " << data_name << ")");
-    data = ReadTextFile(data_name);
+    data = ReadBinaryFile(data_name);
     v.files.push_back(data_name);
   } else {
     TROCAR_THROW_UNLESS(data_start != std::string::npos,
                         path << ": no attached data and no 'data file' field");
     data = text.substr(data_start);
   }
-  if (encoding != "raw") data = Inflate(data, data_name);
-  v.values = Convert(data, 0, type, big_endian, v.voxel_count(), 1.0, 0.0, data_name);
+  if (encoding != "raw") data = Inflate(data, data_name, count * BytesOf(type));
+  v.values = Convert(data, 0, type, big_endian, count, 1.0, 0.0, data_name);
   v.hounsfield = LooksLikeHounsfield(type, v.values);
   return v;
 }
@@ -310,8 +338,14 @@ Volume LoadNrrd(const std::string& path) {
 // NIfTI-1
 
 Volume LoadNifti(const std::string& path) {
-  std::string bytes = ReadTextFile(path);
-  if (EndsWith(Lower(path), ".gz")) bytes = Inflate(bytes, path);
+  std::string bytes = ReadBinaryFile(path);
+  const bool gzipped = EndsWith(Lower(path), ".gz");
+  std::string compressed;
+  if (gzipped) {
+    // The header first, to size the rest: the voxels never inflate past what it describes.
+    compressed = std::move(bytes);
+    bytes = Inflate(compressed, path, 352, /*prefix_only=*/true);
+  }
   TROCAR_THROW_UNLESS(bytes.size() >= 352, path << ": too short for a NIfTI-1 header ("
                                                 << bytes.size() << " bytes)");
   std::int32_t header_size;
@@ -372,9 +406,33 @@ Volume LoadNifti(const std::string& path) {
       origin_mm[r] = f32(280 + 16 * r + 12);
     }
   } else if (qform > 0) {
-    const double b = f32(256), c = f32(260), d = f32(264);
-    const double a = std::sqrt(std::max(0.0, 1.0 - (b * b + c * c + d * d)));
-    const Eigen::Matrix3d R = Eigen::Quaterniond(a, b, c, d).toRotationMatrix();
+    // As the NIfTI reference code (nifti1_io.c, nifti_quatern_to_mat44): a = sqrt(1 − b² − c² −
+    // d²), and when b² + c² + d² reaches 1 the vector part is normalised and a = 0 (a 180°
+    // rotation). Used as it is, a longer quaternion scales and shears the voxel axes.
+    double b = f32(256), c = f32(260), d = f32(264);
+    const double norm2 = b * b + c * c + d * d;
+    TROCAR_THROW_UNLESS(std::isfinite(norm2),
+                        path << ": qform quaternion (" << b << ", " << c << ", " << d
+                             << ") is not finite");
+    double a = 1.0 - norm2;
+    if (a < 1e-7) {
+      if (norm2 > 1.0 + 1e-6) {
+        std::ostringstream w;
+        w << path << ": qform quaternion (b, c, d) = (" << b << ", " << c << ", " << d
+          << ") has b² + c² + d² = " << norm2
+          << " > 1; normalised as the NIfTI reference code does (a 180° rotation): check the "
+             "orientation";
+        v.warnings.push_back(w.str());
+      }
+      const double scale = 1.0 / std::sqrt(norm2);
+      b *= scale;
+      c *= scale;
+      d *= scale;
+      a = 0.0;
+    } else {
+      a = std::sqrt(a);
+    }
+    const Eigen::Matrix3d R = Eigen::Quaterniond(a, b, c, d).normalized().toRotationMatrix();
     const double qfac = pixdim[0] < 0 ? -1.0 : 1.0;
     directions_mm = R * Eigen::Vector3d(pixdim[1], pixdim[2], qfac * pixdim[3]).asDiagonal();
     origin_mm << f32(268), f32(272), f32(276);
@@ -386,9 +444,14 @@ Volume LoadNifti(const std::string& path) {
   const Eigen::Vector3d to_lps(-1.0, -1.0, 1.0);
   v.index_to_P = to_lps.asDiagonal() * directions_mm * kMillimetre;
   v.origin_P = to_lps.asDiagonal() * origin_mm * kMillimetre;
-  CheckGeometry(v, path);
-  TROCAR_THROW_UNLESS(vox_offset >= 348 && std::isfinite(vox_offset),
-                      path << ": vox_offset " << vox_offset << " is not past the header");
+  const std::uint64_t count = CheckGeometry(v, path);
+  TROCAR_THROW_UNLESS(std::isfinite(vox_offset) && vox_offset >= 348 && vox_offset < 1e9,
+                      path << ": vox_offset " << vox_offset << " is not just past the header");
+  const std::size_t data_offset = static_cast<std::size_t>(vox_offset);
+  if (gzipped) bytes = Inflate(compressed, path, data_offset + count * BytesOf(type));
+  TROCAR_THROW_UNLESS(bytes.size() >= data_offset,
+                      path << ": " << bytes.size() << " bytes, shorter than its vox_offset "
+                           << data_offset);
   // Convert() assumes little-endian bytes after our own swap of the header only: voxel data
   // follow the header's byte order.
   const bool big_endian = swap;
@@ -401,9 +464,9 @@ Volume LoadNifti(const std::string& path) {
       std::memcpy(&x, read(o, 4).data(), 4);
       return x;
     };
-    while (pos + 8 <= static_cast<std::size_t>(vox_offset)) {
+    while (pos + 8 <= data_offset) {
       const std::int32_t esize = i32(pos), ecode = i32(pos + 4);
-      if (esize < 16 || esize % 16 != 0 || pos + esize > static_cast<std::size_t>(vox_offset)) {
+      if (esize < 16 || esize % 16 != 0 || pos + esize > data_offset) {
         break;  // not an extension record: the rest is padding
       }
       std::string content = bytes.substr(pos + 8, static_cast<std::size_t>(esize) - 8);
@@ -412,8 +475,7 @@ Volume LoadNifti(const std::string& path) {
       pos += static_cast<std::size_t>(esize);
     }
   }
-  v.values = Convert(bytes, static_cast<std::size_t>(vox_offset), type, big_endian,
-                     v.voxel_count(), slope, intercept, path);
+  v.values = Convert(bytes, data_offset, type, big_endian, count, slope, intercept, path);
   v.hounsfield = LooksLikeHounsfield(type, v.values);
   return v;
 }
@@ -422,7 +484,7 @@ Volume LoadNifti(const std::string& path) {
 // MetaImage
 
 Volume LoadMetaImage(const std::string& path) {
-  const std::string text = ReadTextFile(path);
+  const std::string text = ReadBinaryFile(path);
   std::map<std::string, std::string> fields;
   std::size_t at = 0;
   std::size_t data_start = std::string::npos;
@@ -489,7 +551,7 @@ Volume LoadMetaImage(const std::string& path) {
   // MetaImage physical space is LPS millimetres (ITK's convention).
   v.index_to_P = directions * spacing.asDiagonal() * kMillimetre;
   v.origin_P = origin_mm * kMillimetre;
-  CheckGeometry(v, path);
+  const std::uint64_t count = CheckGeometry(v, path);
   static const std::map<std::string, VoxelType> types = {
       {"MET_UCHAR", VoxelType::kUint8},  {"MET_CHAR", VoxelType::kInt8},
       {"MET_SHORT", VoxelType::kInt16},  {"MET_USHORT", VoxelType::kUint16},
@@ -513,13 +575,13 @@ Volume LoadMetaImage(const std::string& path) {
     data_name = JoinPath(ParentDirectory(path), file);
     TROCAR_THROW_UNLESS(IsRegularFile(data_name), path << ": field 'ElementDataFile': '" << file
                                                        << "' not found (looked for " << data_name << ")");
-    data = ReadTextFile(data_name);
+    data = ReadBinaryFile(data_name);
     v.files.push_back(data_name);
   }
   if (fields.count("CompressedData") && Lower(fields["CompressedData"]) == "true") {
-    data = Inflate(data, data_name);
+    data = Inflate(data, data_name, count * BytesOf(type_it->second));
   }
-  v.values = Convert(data, 0, type_it->second, big_endian, v.voxel_count(), 1.0, 0.0, data_name);
+  v.values = Convert(data, 0, type_it->second, big_endian, count, 1.0, 0.0, data_name);
   v.hounsfield = LooksLikeHounsfield(type_it->second, v.values);
   return v;
 }
@@ -542,6 +604,27 @@ std::string Deflate(const std::string& data, bool gzip) {
 }
 
 }  // namespace
+
+void CheckVolumeGeometry(const Volume& v, const std::string& what) {
+  TROCAR_THROW_UNLESS((v.size.array() > 0).all(), what << ": sizes " << v.size.transpose()
+                                                       << " must be positive");
+  TROCAR_THROW_UNLESS(v.index_to_P.allFinite() && v.origin_P.allFinite(),
+                      what << ": spacing, directions or origin is not finite");
+  const Eigen::Vector3d spacing = v.spacing();
+  static const char* kAxis[3] = {"i (columns)", "j (rows)", "k (slices)"};
+  for (int a = 0; a < 3; ++a) {
+    TROCAR_THROW_UNLESS(spacing[a] >= 1e-6 && spacing[a] <= 0.1,
+                        what << ": voxel size along " << kAxis[a] << " is " << spacing[a] * 1e3
+                             << " mm, outside 0.001–100 mm (a damaged header, or units other "
+                                "than millimetres?)");
+  }
+  TROCAR_THROW_UNLESS(
+      std::abs(v.index_to_P.determinant()) > 1e-3 * spacing.prod(),
+      what << ": the voxel axes are degenerate (parallel or nearly parallel directions)");
+  TROCAR_THROW_UNLESS(v.origin_P.cwiseAbs().maxCoeff() < 100.0,
+                      what << ": origin " << v.origin_P.transpose() * 1e3
+                           << " mm is more than 100 m from the scanner's origin");
+}
 
 SliceImage RenderSlice(const Volume& v, int axis, int index, double level, double width) {
   TROCAR_THROW_UNLESS(axis >= 0 && axis <= 2 && index >= 0 && index < v.size[axis],

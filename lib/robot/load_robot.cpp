@@ -5,6 +5,7 @@
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "common/geometry.hpp"
+#include "common/limits.hpp"
 #include "common/yaml_util.hpp"
 
 namespace trocar::robot {
@@ -82,17 +83,17 @@ std::vector<Geometry> ReadGeometryList(const YamlReader& r, const YAML::Node& no
 void ReadLimits(const YamlReader& r, const YAML::Node& node, const std::string& path,
                 JointLimits* limits) {
   r.ExpectMap(node, path, {"lower", "upper", "velocity", "acceleration", "effort"});
-  limits->lower = r.NumberOr(node, "lower", path, limits->lower);
-  limits->upper = r.NumberOr(node, "upper", path, limits->upper);
-  limits->velocity = r.NumberOr(node, "velocity", path, limits->velocity);
-  limits->acceleration = r.NumberOr(node, "acceleration", path, limits->acceleration);
-  limits->effort = r.NumberOr(node, "effort", path, limits->effort);
+  limits->lower = r.BoundOr(node, "lower", path, limits->lower);
+  limits->upper = r.BoundOr(node, "upper", path, limits->upper);
+  limits->velocity = r.BoundOr(node, "velocity", path, limits->velocity);
+  limits->acceleration = r.BoundOr(node, "acceleration", path, limits->acceleration);
+  limits->effort = r.BoundOr(node, "effort", path, limits->effort);
   TROCAR_THROW_UNLESS(limits->lower <= limits->upper,
                       r.Where(node, path) << ": lower limit " << limits->lower
                                           << " > upper limit " << limits->upper);
   for (const char* key : {"velocity", "acceleration"}) {
     if (node[key]) {
-      const double v = r.Number(node[key], path + "." + key);
+      const double v = r.Bound(node[key], path + "." + key);
       TROCAR_THROW_UNLESS(v > 0, r.Where(node[key], path + "." + key)
                                      << ": " << v << " must be positive");
     }
@@ -405,11 +406,20 @@ std::vector<IncludeSpec> ReadIncludes(const YamlReader& r, const YAML::Node& roo
   return out;
 }
 
+// The files being loaded (open includes, for cycles and depth) and how many were loaded in all:
+// includes that fan out (each file including the next several times) grow exponentially with
+// depth, so the total is bounded too.
+struct IncludeStack {
+  std::vector<std::string> open;
+  int loaded = 0;
+  std::string root;
+};
+
 RobotModelBuilder LoadDescription(const std::string& path, const LoadOptions& options,
-                                  std::vector<std::string>* stack);
+                                  IncludeStack* stack);
 
 RobotModelBuilder LoadYamlDescription(const std::string& path, const LoadOptions& options,
-                                      std::vector<std::string>* stack) {
+                                      IncludeStack* stack) {
   const YamlReader r = YamlReader::Load(path);
   const YAML::Node& root = r.root();
   const std::vector<IncludeSpec> includes = ReadIncludes(r, root);
@@ -448,14 +458,22 @@ RobotModelBuilder LoadYamlDescription(const std::string& path, const LoadOptions
 }
 
 RobotModelBuilder LoadDescription(const std::string& path, const LoadOptions& options,
-                                  std::vector<std::string>* stack) {
+                                  IncludeStack* stack) {
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": robot description not found");
   const std::string canonical = std::filesystem::weakly_canonical(path).string();
-  for (const std::string& open : *stack) {
+  for (const std::string& open : stack->open) {
     TROCAR_THROW_UNLESS(open != canonical, path << ": included from itself (include cycle)");
   }
-  TROCAR_THROW_UNLESS(stack->size() < 16, path << ": includes nested more than 16 deep");
-  stack->push_back(canonical);
+  TROCAR_THROW_UNLESS(stack->open.size() < 16, path << ": includes nested more than 16 deep");
+  const int max_files = Limits().max_includes;
+  TROCAR_THROW_UNLESS(stack->loaded < max_files,
+                      path << ": " << stack->root << " loads more than " << max_files
+                           << " robot files in all (includes that include others several times "
+                              "multiply) "
+                           << LimitHint(static_cast<std::uint64_t>(max_files),
+                                        "TROCAR_MAX_INCLUDES"));
+  ++stack->loaded;
+  stack->open.push_back(canonical);
   RobotModelBuilder builder("", path);
   if (EndsWith(path, ".urdf") || EndsWith(path, ".URDF") || EndsWith(path, ".xml")) {
     builder = ParseUrdf(path, options);
@@ -473,7 +491,7 @@ RobotModelBuilder LoadDescription(const std::string& path, const LoadOptions& op
                         path << ": unknown robot description type (expected .urdf or .yaml)");
     builder = LoadYamlDescription(path, options, stack);
   }
-  stack->pop_back();
+  stack->open.pop_back();
   return builder;
 }
 
@@ -487,7 +505,8 @@ DhTable LoadDhTable(const std::string& path) {
 }
 
 RobotModelBuilder LoadRobotDescription(const std::string& path, const LoadOptions& options) {
-  std::vector<std::string> stack;
+  IncludeStack stack;
+  stack.root = path;
   return LoadDescription(path, options, &stack);
 }
 

@@ -263,8 +263,25 @@ namespace {
 constexpr double kParallelTolerance = 1e-6;  // sine of the largest accepted angle between axes
 constexpr double kAssemblyTolerance = 1e-6;  // metres
 
+// Beyond this a robot part is not physical (a damaged or hostile file: a radius of 1e308 makes
+// every bounding volume infinite).
+constexpr double kMaxPartSize = 100.0;  // metres
+
 void ValidateGeometry(const std::string& where, const Geometry& g) {
   TROCAR_THROW_UNLESS(g.X_LG.matrix().allFinite(), where << ": pose is not finite");
+  TROCAR_THROW_UNLESS(g.X_LG.translation().norm() <= kMaxPartSize,
+                      where << ": origin " << FormatVector(g.X_LG.translation()) << " is more than "
+                            << kMaxPartSize << " m from its link");
+  if (g.shape != Geometry::Shape::kMesh) {
+    TROCAR_THROW_UNLESS(!(g.size.cwiseAbs().maxCoeff() > kMaxPartSize),
+                        where << ": " << ToString(g.shape) << " size " << FormatVector(g.size)
+                              << " is larger than " << kMaxPartSize << " m (not a robot part)");
+  } else {
+    TROCAR_THROW_UNLESS(g.mesh_scale.allFinite() && (g.mesh_scale.array().abs() > 0).all() &&
+                            g.mesh_scale.cwiseAbs().maxCoeff() <= 1000.0,
+                        where << ": mesh scale " << FormatVector(g.mesh_scale)
+                              << " (expected finite, non-zero, at most 1000)");
+  }
   TROCAR_THROW_UNLESS(g.rgba.allFinite(), where << ": colour is not finite");
   switch (g.shape) {
     case Geometry::Shape::kMesh:

@@ -1,10 +1,14 @@
 #include "robot/urdf_loader.hpp"
 
+#include <cctype>
 #include <cmath>
+#include <cstring>
 #include <cstdlib>
 #include <filesystem>
 #include <map>
 #include <mutex>
+#include <regex>
+#include <tuple>
 #include <sstream>
 
 #include <console_bridge/console.h>
@@ -12,6 +16,7 @@
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "common/limits.hpp"
 #include "common/geometry.hpp"
 
 namespace trocar::robot {
@@ -55,6 +60,94 @@ std::vector<std::string> SplitPath(const char* text) {
     if (!item.empty()) out.push_back(item);
   }
   return out;
+}
+
+// What the XML holds, scanned before urdfdom sees it: urdfdom's XML parser (TinyXML) recurses
+// once per nesting level, so a file nested tens of thousands of elements deep overflows the
+// stack; and urdfdom drops every <collision> (or <visual>) of a link when one of them is
+// malformed, without failing. The scan bounds the depth and counts each link's geometry
+// elements, to compare with what urdfdom returns. Comments, CDATA, processing instructions and
+// declarations are skipped; quoted attribute values may hold '>'.
+struct XmlCensus {
+  std::map<std::string, int> collisions, visuals;  // per link name (as written)
+};
+
+XmlCensus ScanUrdfXml(const std::string& xml, const std::string& path) {
+  XmlCensus census;
+  const int max_depth = Limits().max_xml_depth;
+  std::vector<std::string> stack;
+  std::vector<std::string> link_names;  // name attribute of each open element
+  std::size_t at = 0;
+  auto skip_past = [&](const char* end) {
+    const std::size_t found = xml.find(end, at);
+    at = found == std::string::npos ? xml.size() : found + std::strlen(end);
+  };
+  while ((at = xml.find('<', at)) != std::string::npos) {
+    if (xml.compare(at, 4, "<!--") == 0) { skip_past("-->"); continue; }
+    if (xml.compare(at, 9, "<![CDATA[") == 0) { skip_past("]]>"); continue; }
+    if (xml.compare(at, 2, "<?") == 0) { skip_past("?>"); continue; }
+    if (xml.compare(at, 2, "<!") == 0) {  // <!DOCTYPE ...[ ... ]>
+      const std::size_t bracket = xml.find('[', at), close = xml.find('>', at);
+      if (bracket != std::string::npos && bracket < close) {
+        at = bracket;
+        skip_past("]");
+      }
+      skip_past(">");
+      continue;
+    }
+    // A tag: to its '>' outside quotes.
+    std::size_t end = at + 1;
+    char quote = 0;
+    for (; end < xml.size(); ++end) {
+      const char ch = xml[end];
+      if (quote != 0) {
+        if (ch == quote) quote = 0;
+      } else if (ch == '"' || ch == '\'') {
+        quote = ch;
+      } else if (ch == '>') {
+        break;
+      }
+    }
+    if (end >= xml.size()) break;  // unterminated: the parser reports it
+    const std::string tag = xml.substr(at + 1, end - at - 1);
+    at = end + 1;
+    if (!tag.empty() && tag[0] == '/') {
+      if (!stack.empty()) {
+        stack.pop_back();
+        link_names.pop_back();
+      }
+      continue;
+    }
+    const bool self_closing = !tag.empty() && tag.back() == '/';
+    std::size_t name_end = 0;
+    while (name_end < tag.size() && !std::isspace(static_cast<unsigned char>(tag[name_end])) &&
+           tag[name_end] != '/') {
+      ++name_end;
+    }
+    const std::string element = tag.substr(0, name_end);
+    std::string name_attribute;
+    {
+      static const std::regex kName("(^|\\s)name\\s*=\\s*(\"([^\"]*)\"|'([^']*)')");
+      std::smatch m;
+      const std::string attributes = tag.substr(name_end);
+      if (std::regex_search(attributes, m, kName)) {
+        name_attribute = m[3].matched ? m[3].str() : m[4].str();
+      }
+    }
+    if (stack.size() == 2 && stack[0] == "robot" && stack[1] == "link") {
+      if (element == "collision") ++census.collisions[link_names[1]];
+      if (element == "visual") ++census.visuals[link_names[1]];
+    }
+    if (self_closing) continue;
+    stack.push_back(element);
+    link_names.push_back(name_attribute);
+    TROCAR_THROW_UNLESS(static_cast<int>(stack.size()) <= max_depth,
+                        path << ": XML elements nested more than " << max_depth << " deep (at <"
+                             << element << "> near byte " << at << ") "
+                             << LimitHint(static_cast<std::uint64_t>(max_depth),
+                                          "TROCAR_MAX_XML_DEPTH"));
+  }
+  return census;
 }
 
 }  // namespace
@@ -103,6 +196,7 @@ std::string ResolveMeshPath(const std::string& uri, const std::string& descripti
 RobotModelBuilder ParseUrdf(const std::string& path, const LoadOptions& options) {
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": URDF file not found");
   const std::string xml = ReadTextFile(path);
+  const XmlCensus census = ScanUrdfXml(xml, path);
   urdf::ModelInterfaceSharedPtr urdf_model;
   std::string parser_messages;
   {
@@ -116,6 +210,25 @@ RobotModelBuilder ParseUrdf(const std::string& path, const LoadOptions& options)
     }
     console_bridge::restorePreviousOutputHandler();
     if (parser_messages.empty()) parser_messages = handler.messages();
+  }
+  // urdfdom drops the whole <collision> (or <visual>) list of a link when one element of it
+  // fails to parse, and still returns the model: a robot silently without collision shapes.
+  if (urdf_model != nullptr) {
+    for (const auto& [name, link] : urdf_model->links_) {
+      for (const auto& [kind, counts, parsed] :
+           {std::make_tuple("collision", &census.collisions, link->collision_array.size()),
+            std::make_tuple("visual", &census.visuals, link->visual_array.size())}) {
+        const auto it = counts->find(name);
+        if (it == counts->end()) continue;  // a name written with entities: not comparable
+        TROCAR_THROW_UNLESS(
+            static_cast<std::size_t>(it->second) <= parsed,
+            path << ": link '" << name << "': " << it->second << " <" << kind
+                 << "> element(s) in the file, but the URDF parser could read only " << parsed
+                 << ": one of them is malformed (e.g. a box size that is not three numbers, a "
+                    "missing <geometry>)"
+                 << (parser_messages.empty() ? std::string() : ": " + parser_messages));
+      }
+    }
   }
   TROCAR_THROW_UNLESS(urdf_model != nullptr,
                       path << ": not a valid URDF: "

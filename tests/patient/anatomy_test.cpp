@@ -102,9 +102,9 @@ TEST(ShapeAnatomy, ContrastIsNeverBoneAndArmsAreNeverRibsOnLabelledRealCts) {
         if (cls.rfind("rib", 0) == 0) in_ribs += n;
       }
       const double total = static_cast<double>(c.totals.at(name));
-      if (name == "heart") EXPECT_LT(in_bone / total, 0.01) << k.ct;
-      if (name == "aorta") EXPECT_LT(in_bone / total, 0.10) << k.ct;
-      if (kind == LabelKind::kShoulder) EXPECT_EQ(in_ribs, 0) << name << " in " << k.ct;
+      if (name == "heart") { EXPECT_LT(in_bone / total, 0.01) << k.ct; }
+      if (name == "aorta") { EXPECT_LT(in_bone / total, 0.10) << k.ct; }
+      if (kind == LabelKind::kShoulder) { EXPECT_EQ(in_ribs, 0) << name << " in " << k.ct; }
     }
   }
 }

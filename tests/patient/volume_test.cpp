@@ -212,6 +212,7 @@ TEST_F(BadVolume, TruncatedDataSaysHowShort) {
 
 TEST_F(BadVolume, TruncatedGzipIsReported) {
   Volume v;
+  v.index_to_P = 0.001 * Eigen::Matrix3d::Identity();
   v.size = Eigen::Vector3i(8, 8, 8);
   v.values.assign(512, 1.0f);
   const std::string good = ::testing::TempDir() + "/trocar_bad_volume_good.nrrd";
@@ -245,6 +246,7 @@ TEST_F(BadVolume, GarbledHeadersNameTheField) {
 
 TEST_F(BadVolume, NonFiniteVoxelsAreRefused) {
   Volume v;
+  v.index_to_P = 0.001 * Eigen::Matrix3d::Identity();
   v.size = Eigen::Vector3i(2, 2, 2);
   v.values.assign(8, 1.0f);
   v.values[3] = NAN;

@@ -1,0 +1,424 @@
+// Hostile and careless input (issue #19): each test is one way a crafted or careless file used to
+// crash, hang, exhaust memory or pass silently, and checks that it now ends in a clear error (or
+// a warning and a sound result) naming the file and what was wrong.
+#include <sys/resource.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "common/limits.hpp"
+#include "control/recorder.hpp"
+#include "patient/markups.hpp"
+#include "patient/patient_model.hpp"
+#include "patient/phantom.hpp"
+#include "patient/volume.hpp"
+#include "robot/load_robot.hpp"
+#include "test_util.hpp"
+
+namespace trocar {
+namespace {
+
+namespace fs = std::filesystem;
+
+class Hostile : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = ::testing::TempDir() + "/trocar_hostile_" +
+           ::testing::UnitTest::GetInstance()->current_test_info()->name();
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  std::string Write(const std::string& name, const std::string& bytes) {
+    const std::string path = dir_ + "/" + name;
+    fs::create_directories(fs::path(path).parent_path());
+    std::ofstream(path, std::ios::binary) << bytes;
+    return path;
+  }
+  template <typename F>
+  std::string ErrorOf(F&& f) {
+    try {
+      f();
+    } catch (const Error& e) {
+      return e.what();
+    }
+    ADD_FAILURE() << "no error";
+    return "";
+  }
+  std::string dir_;
+};
+
+#define EXPECT_HAS(text, needle) EXPECT_NE((text).find(needle), std::string::npos) << (text)
+
+// Peak resident memory of this process (ctest runs each test in its own process).
+double PeakRssMb() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss / 1024.0;
+}
+
+// `zeros` zero bytes after `prefix`, gzip-compressed in pieces (a decompression bomb: ~1000:1).
+std::string GzipBomb(const std::string& prefix, std::size_t zeros) {
+  z_stream s{};
+  deflateInit2(&s, 9, Z_DEFLATED, 15 + 16, 9, Z_DEFAULT_STRATEGY);
+  std::string out;
+  std::string chunk(1 << 20, '\0');
+  char buffer[1 << 16];
+  auto pump = [&](const std::string& in, int flush) {
+    s.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(in.data()));
+    s.avail_in = static_cast<uInt>(in.size());
+    do {
+      s.next_out = reinterpret_cast<Bytef*>(buffer);
+      s.avail_out = sizeof buffer;
+      deflate(&s, flush);
+      out.append(buffer, sizeof buffer - s.avail_out);
+    } while (s.avail_out == 0);
+  };
+  pump(prefix, Z_NO_FLUSH);
+  for (std::size_t done = 0; done < zeros; done += chunk.size()) pump(chunk, Z_NO_FLUSH);
+  pump("", Z_FINISH);
+  deflateEnd(&s);
+  return out;
+}
+
+// A NIfTI-1 header (int16 voxels, 1 mm, sform identity) for a size.
+std::string NiftiHeader(int nx, int ny, int nz) {
+  std::string h(352, '\0');
+  auto put = [&](std::size_t at, const void* data, std::size_t n) { std::memcpy(&h[at], data, n); };
+  const std::int32_t size = 348;
+  put(0, &size, 4);
+  const std::int16_t dims[8] = {3, std::int16_t(nx), std::int16_t(ny), std::int16_t(nz), 1, 1, 1, 1};
+  put(40, dims, 16);
+  const std::int16_t datatype = 4, bitpix = 16, sform = 1;
+  put(70, &datatype, 2);
+  put(72, &bitpix, 2);
+  const float pixdim[4] = {1, 1, 1, 1};
+  put(76, pixdim, 16);
+  const float offset = 352;
+  put(108, &offset, 4);
+  put(254, &sform, 2);
+  for (int r = 0; r < 3; ++r) {
+    float row[4] = {0, 0, 0, 0};
+    row[r] = 1;
+    put(280 + 16 * r, row, 16);
+  }
+  put(344, "n+1", 4);
+  return h;
+}
+
+// ---- Crashes ------------------------------------------------------------------------------------
+
+// Sizes whose product passes 2^63 used to wrap to zero voxels: empty data passed the size check,
+// then a null read (SIGSEGV). Now the count is checked without overflow, before any allocation.
+TEST_F(Hostile, VolumeSizesWhoseProductOverflowsAreRefused) {
+  const std::string nrrd = Write("wrap.nrrd",
+                                 "NRRD0004\ntype: short\ndimension: 3\nsizes: 2097152 2097152 2097152\n"
+                                 "spacings: 1 1 1\nencoding: raw\n\n");
+  const std::string e1 = ErrorOf([&] { patient::LoadVolume(nrrd); });
+  EXPECT_HAS(e1, "wrap.nrrd: sizes 2097152 2097152 2097152");
+  EXPECT_HAS(e1, "TROCAR_MAX_VOXELS");
+  const std::string mha = Write("wrap.mha",
+                                "NDims = 3\nDimSize = 2097152 2097152 2097152\nElementType = MET_SHORT\n"
+                                "ElementSpacing = 1 1 1\nElementDataFile = LOCAL\n");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(mha); }), "voxels, more than trocar reads");
+  // Within int16 sizes, NIfTI's largest is refused the same way, before reading the data.
+  const std::string nii = Write("big.nii", NiftiHeader(32767, 32767, 32767));
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(nii); }), "voxels, more than trocar reads");
+}
+
+// TinyXML under urdfdom recursed once per level: 50,000 nested elements overflowed the stack.
+TEST_F(Hostile, DeeplyNestedUrdfIsRefusedBeforeTheXmlParser) {
+  std::string xml = "<robot name=\"r\">";
+  for (int i = 0; i < 50000; ++i) xml += "<a>";
+  for (int i = 0; i < 50000; ++i) xml += "</a>";
+  xml += "</robot>";
+  const std::string path = Write("deep.urdf", xml);
+  const std::string e = ErrorOf([&] { robot::LoadRobot(path); });
+  EXPECT_HAS(e, "deep.urdf: XML elements nested more than 64 deep");
+  EXPECT_HAS(e, "TROCAR_MAX_XML_DEPTH");
+}
+
+// ---- Hangs --------------------------------------------------------------------------------------
+
+// Eight files, each including the next eight times: 8^5 loads at depth 5 (91 s and 8 GB before).
+TEST_F(Hostile, RobotIncludesThatFanOutAreBoundedInTotal) {
+  Write("leaf.yaml",
+        "links: [{name: base}, {name: tip}]\n"
+        "joints: [{name: j, type: revolute, parent: base, child: tip, axis: [0, 0, 1], "
+        "limits: {lower: -1, upper: 1}}]\n");
+  std::string previous = "leaf.yaml";
+  for (int level = 0; level < 6; ++level) {
+    std::string yaml = "include:\n  - {file: " + previous + "}\n";
+    for (int copy = 1; copy < 8; ++copy) {
+      yaml += "  - {file: " + previous + ", prefix: l" + std::to_string(level) + "c" +
+              std::to_string(copy) + "_, parent: base}\n";
+    }
+    previous = "level" + std::to_string(level) + ".yaml";
+    Write(previous, yaml);
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::string e = ErrorOf([&] { robot::LoadRobot(dir_ + "/" + previous); });
+  EXPECT_HAS(e, "loads more than 256 robot files in all") << e;
+  EXPECT_HAS(e, "TROCAR_MAX_INCLUDES");
+  // Not a timing assertion on speed, a bound on work: 256 small files, not 8^6.
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 30.0);
+}
+
+// ---- Unbounded memory ---------------------------------------------------------------------------
+
+// A .nii.gz of a few MB inflated to GB before the size check. Now the header sizes the stream:
+// it never inflates past what the header describes.
+TEST_F(Hostile, CompressedBombsStopAtTheSizeTheHeaderDescribes) {
+  const double before = PeakRssMb();
+  const std::string nii = Write("bomb.nii.gz", GzipBomb(NiftiHeader(64, 64, 64), std::size_t{384} << 20));
+  EXPECT_LT(fs::file_size(nii), 1u << 20);
+  const std::string e1 = ErrorOf([&] { patient::LoadVolume(nii); });
+  EXPECT_HAS(e1, "bomb.nii.gz: compressed data inflates to more than the 524640 bytes its header describes");
+  const std::string nrrd = Write(
+      "bomb.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 64 64 64\nspacings: 1 1 1\n"
+                   "encoding: gzip\n\n" + GzipBomb("", std::size_t{384} << 20));
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(nrrd); }),
+             "compressed data inflates to more than the 524288 bytes");
+  // The 384 MiB each stream holds was never in memory.
+  EXPECT_LT(PeakRssMb() - before, 150.0) << "peak RSS grew by " << PeakRssMb() - before << " MB";
+}
+
+// Files are read whole only below a limit, checked from the file's size before reading: a
+// sparse file of 4.5 GiB (no disk used) is refused by name, size and limit.
+TEST_F(Hostile, FilesBeyondTheLimitAreRefusedBeforeTheyAreRead) {
+  const std::string path = dir_ + "/huge.nrrd";
+  { std::ofstream(path, std::ios::binary) << "NRRD0004\n"; }
+  fs::resize_file(path, (std::uintmax_t{9} << 29));  // 4.5 GiB, sparse
+  const double before = PeakRssMb();
+  const std::string e = ErrorOf([&] { patient::LoadVolume(path); });
+  EXPECT_HAS(e, "huge.nrrd: 4831838208 bytes, more than trocar reads (limit 4294967296");
+  EXPECT_HAS(e, "TROCAR_MAX_FILE_BYTES");
+  EXPECT_LT(PeakRssMb() - before, 100.0);
+  // Text formats have their own, smaller bound.
+  const std::string yaml = dir_ + "/huge.yaml";
+  { std::ofstream(yaml) << "a: 1\n"; }
+  fs::resize_file(yaml, std::uintmax_t{300} << 20);
+  EXPECT_HAS(ErrorOf([&] { robot::LoadRobot(yaml); }), "TROCAR_MAX_TEXT_BYTES");
+}
+
+// The phantom at its finest voxels over its widest field of view needed 12 GB; now the voxel
+// count is checked before the volume is allocated.
+TEST_F(Hostile, ThePhantomsLargestGridIsRefusedBeforeAllocation) {
+  patient::PhantomParameters p;
+  p.voxel_size = 0.0005;
+  p.field_of_view = 1.0;
+  const double before = PeakRssMb();
+  const std::string e = ErrorOf([&] { patient::GeneratePhantom(p); });
+  EXPECT_HAS(e, "phantom: voxel_size 0.000500 m");
+  EXPECT_HAS(e, "TROCAR_MAX_VOXELS");
+  EXPECT_LT(PeakRssMb() - before, 100.0);
+}
+
+// The teleop recorder grew without bound with a long --duration. It now thins itself: bounded,
+// uniform in time, and the counts still cover every step.
+TEST(RecorderBound, ALongSessionIsThinnedUniformlyAndCountsEveryStep) {
+  control::Recorder recorder(100);
+  for (int step = 0; step < 1000; ++step) {
+    control::RecordRow row;
+    row.t = step * 0.001;
+    row.position_error = 1e-3;
+    if (step % 10 == 0) row.status = control::SampleStatus::kHeldClutch;
+    recorder.Add(row);
+  }
+  EXPECT_LE(recorder.rows().size(), 100u);
+  EXPECT_GE(recorder.rows().size(), 50u);
+  EXPECT_EQ(recorder.stride(), 16u);
+  for (std::size_t i = 0; i < recorder.rows().size(); ++i) {
+    EXPECT_NEAR(recorder.rows()[i].t, i * 16 * 0.001, 1e-12) << i;
+  }
+  const control::TrackingSummary s = recorder.Summarize();
+  EXPECT_EQ(s.steps, 1000);
+  EXPECT_EQ(s.held, 100);
+  EXPECT_NEAR(s.rms_position_error, 1e-3, 1e-12);
+  // Under the capacity nothing is thinned.
+  control::Recorder small(100);
+  for (int step = 0; step < 100; ++step) small.Add(control::RecordRow{});
+  EXPECT_EQ(small.rows().size(), 100u);
+  EXPECT_EQ(small.stride(), 1u);
+}
+
+// ---- Silently wrong -----------------------------------------------------------------------------
+
+// One malformed <collision> made urdfdom drop collision elements of that link without failing:
+// the robot lost its shapes and `trocar check` cleared poses it should have flagged.
+TEST_F(Hostile, AGeometryElementTheUrdfParserDropsIsAnErrorNamingTheLink) {
+  const std::string path = Write("drop.urdf", R"(<robot name="r">
+  <link name="base">
+    <collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision>
+    <collision><geometry><box size="0.1 0.1"/></geometry></collision>
+  </link>
+  <link name="tip"><visual><geometry><sphere/></geometry></visual></link>
+  <joint name="j" type="revolute"><parent link="base"/><child link="tip"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+</robot>)");
+  const std::string e = ErrorOf([&] { robot::LoadRobot(path); });
+  EXPECT_HAS(e, "drop.urdf: link 'base': 2 <collision> element(s) in the file");
+  EXPECT_HAS(e, "malformed");
+  // A comment or CDATA holding tags does not count as elements; a sound file loads whole.
+  const std::string good = Write("good.urdf", R"(<robot name="r">
+  <!-- <link name="ghost"><collision/></link> -->
+  <link name="base">
+    <collision name='a>b'><geometry><box size="0.1 0.1 0.1"/></geometry></collision>
+    <collision><geometry><sphere radius="0.05"/></geometry></collision>
+  </link>
+  <link name="tip"/>
+  <joint name="j" type="revolute"><parent link="base"/><child link="tip"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+</robot>)");
+  const robot::RobotModel model = robot::LoadRobot(good);
+  std::size_t collisions = 0;
+  for (int l = 0; l < model.num_links(); ++l) collisions += model.link(l).collisions.size();
+  EXPECT_EQ(collisions, 2u);
+}
+
+// A qform quaternion with b² + c² + d² > 1 was used as it is: 1 mm voxels became 199 mm and an
+// axis flipped. Now as the NIfTI reference code: normalised (a = 0), with a warning.
+TEST_F(Hostile, ANiftiQuaternionLongerThanOneIsNormalisedWithAWarning) {
+  std::string h = NiftiHeader(4, 4, 4);
+  const std::int16_t qform = 1, sform = 0;
+  std::memcpy(&h[252], &qform, 2);
+  std::memcpy(&h[254], &sform, 2);
+  const float bcd[3] = {0.0f, 0.0f, 14.1f};  // b²+c²+d² = 198.8
+  std::memcpy(&h[256], bcd, 12);
+  const std::string path = Write("q.nii", h + std::string(4 * 4 * 4 * 2, '\0'));
+  const patient::Volume v = patient::LoadVolume(path);
+  EXPECT_NEAR(v.spacing().maxCoeff(), 1e-3, 1e-9);
+  EXPECT_NEAR(v.spacing().minCoeff(), 1e-3, 1e-9);
+  // d = 1 after normalising: a 180° turn about z, which NIfTI RAS → LPS undoes for x and y.
+  EXPECT_TRUE(v.index_to_P.isApprox(1e-3 * Eigen::Matrix3d::Identity(), 1e-6)) << v.index_to_P;
+  ASSERT_EQ(v.warnings.size(), 1u);
+  EXPECT_HAS(v.warnings[0], "q.nii: qform quaternion");
+}
+
+// A changed byte in model.bin used to load: the cart moved 20 cm and `check` counted other
+// collisions. The cache now carries a checksum of its whole contents; a failed one is rebuilt
+// with a warning, and the model equals a fresh build.
+TEST_F(Hostile, ADamagedCacheIsRebuiltWithAWarning) {
+  patient::PhantomParameters p;
+  p.voxel_size = 0.004;
+  patient::WritePhantomCase(patient::GeneratePhantom(p), dir_);
+  const patient::PatientModel fresh = patient::ImportPatient(dir_);
+  const std::string bin = dir_ + "/cache/model.bin";
+  std::string bytes = ReadBinaryFile(bin);
+  // Flip one byte in the middle of every region in turn: meshes, then the pose near the end.
+  for (const std::size_t at : {bytes.size() / 2, bytes.size() - 400}) {
+    std::string damaged = bytes;
+    damaged[at] = static_cast<char>(damaged[at] ^ 0x20);
+    { std::ofstream(bin, std::ios::binary) << damaged; }
+    const patient::PatientModel again = patient::ImportPatient(dir_);
+    EXPECT_FALSE(again.from_cache);
+    bool warned = false;
+    for (const auto& w : again.warnings) warned = warned || w.find("checksum") != std::string::npos;
+    EXPECT_TRUE(warned) << "no warning about the damaged cache (byte " << at << ")";
+    EXPECT_TRUE(again.X_WP.isApprox(fresh.X_WP, 1e-12));
+    ASSERT_EQ(again.structures.size(), fresh.structures.size());
+    for (std::size_t s = 0; s < fresh.structures.size(); ++s) {
+      EXPECT_EQ(again.structures[s].mesh.vertices, fresh.structures[s].mesh.vertices);
+    }
+    // The rebuilt cache is sound again, and its warning is not carried into later loads.
+    const patient::PatientModel cached = patient::ImportPatient(dir_);
+    EXPECT_TRUE(cached.from_cache);
+    for (const auto& w : cached.warnings) EXPECT_EQ(w.find("checksum"), std::string::npos) << w;
+  }
+}
+
+// Values a careless file gives, each refused with the field named.
+TEST_F(Hostile, ImplausibleCaseValuesAreRefusedByField) {
+  patient::PhantomParameters p;
+  p.voxel_size = 0.004;
+  patient::WritePhantomCase(patient::GeneratePhantom(p), dir_);
+  const std::string yaml = ReadTextFile(dir_ + "/patient.yaml");
+  auto import_with = [&](const std::string& extra) {
+    { std::ofstream(dir_ + "/patient.yaml") << yaml << extra; }
+    return ErrorOf([&] { patient::ImportPatient(dir_, {false, false}); });
+  };
+  EXPECT_HAS(import_with("table: {height: 0.8, width: .inf}\n"), "table.width");
+  EXPECT_HAS(import_with("table: {height: 0.8}\ntable: {height: 0.9}\n"),
+             "table: duplicate key (first at line");
+  EXPECT_HAS(import_with("heart: {blood: -500, soft: 100}\n"), "thresholds out of order");
+  EXPECT_HAS(import_with("? [a, b]\n: 1\n"), "a key must be a plain name, not a list");
+  // A heart segmentation that takes in most of the body is refused, naming the thresholds.
+  EXPECT_HAS(import_with("heart: {blood: -200, soft: -300}\n"), "heart.blood and heart.soft");
+}
+
+TEST_F(Hostile, ImplausibleRobotValuesAreRefusedByField) {
+  const std::string sphere = Write(
+      "sphere.yaml",
+      "links: [{name: base, collision: [{shape: sphere, radius: 1e308}]}, {name: tip}]\n"
+      "joints: [{name: j, type: revolute, parent: base, child: tip, axis: [0, 0, 1], "
+      "limits: {lower: -1, upper: 1}}]\n");
+  EXPECT_HAS(ErrorOf([&] { robot::LoadRobot(sphere); }), "larger than 100 m");
+  const std::string key = Write("key.yaml", "{[1, 2]: 3, links: [{name: base}]}\n");
+  EXPECT_HAS(ErrorOf([&] { robot::LoadRobot(key); }), "key.yaml:1:2: top level: a key must be a plain name");
+  const std::string dup = Write("dup.yaml", "links: [{name: base}]\nlinks: [{name: other}]\n");
+  EXPECT_HAS(ErrorOf([&] { robot::LoadRobot(dup); }), "dup.yaml:2:1: links: duplicate key");
+  // Infinite joint limits stay allowed (a continuous joint), infinite sizes do not.
+  const std::string inf_limits = Write(
+      "inf.yaml",
+      "links: [{name: base}, {name: tip}]\n"
+      "joints: [{name: j, type: revolute, parent: base, child: tip, axis: [0, 0, 1], "
+      "limits: {lower: -.inf, upper: .inf, velocity: .inf}}]\n");
+  EXPECT_NO_THROW(robot::LoadRobot(inf_limits));
+}
+
+// Markups: numbers out of range and fields of the wrong type were "internal error".
+TEST_F(Hostile, MarkupsWithWrongTypesNameTheField) {
+  const std::string point = R"({"controlPoints": [{"position": [1, 2, 3]}]})";
+  const std::string range = Write("range.mrk.json", R"({"markups": [{"controlPoints": [{"position": [1e400, 2, 3]}]}]})");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadMarkups(range); }), "range.mrk.json: not valid JSON");
+  const std::string type = Write("type.mrk.json", R"({"markups": [{"name": 5, "controlPoints": [{"position": [1, 2, 3]}]}]})");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadMarkups(type); }), "type.mrk.json: markups[0].name: expected a string, got 5");
+  const std::string label = Write("label.mrk.json", R"({"markups": [{"controlPoints": [{"position": [1, 2, 3], "label": [1]}]}]})");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadMarkups(label); }), "controlPoints[0].label: expected a string");
+}
+
+// DICOM slices 1e-5 mm apart (and other degenerate spacing) were accepted.
+TEST_F(Hostile, DegenerateVoxelSpacingIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 3);
+  v.index_to_P = Eigen::Vector3d(1e-3, 1e-3, 1e-8).asDiagonal();
+  v.values.assign(48, 0.0f);
+  patient::WriteDicomSeries(v, dir_ + "/ct");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "voxel size along k (slices) is 1e-05 mm");
+  const std::string nrrd = Write("flat.nrrd",
+                                 "NRRD0004\ntype: short\ndimension: 3\nsizes: 2 2 2\n"
+                                 "spacings: 1 1 0.00001\nencoding: raw\n\n" + std::string(16, '\0'));
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(nrrd); }), "flat.nrrd: voxel size along k (slices)");
+}
+
+// ---- Interrupted or repeated commands -----------------------------------------------------------
+
+// A first-use phantom generation killed between the CT and the markups left a case that failed
+// on every later import. The case is now written aside and moved in with the CT last: a write
+// that fails half-way leaves no CT, so the next import regenerates.
+TEST_F(Hostile, APhantomCaseWrittenHalfWayHasNoCt) {
+  patient::PhantomParameters p;
+  p.voxel_size = 0.004;
+  const patient::Phantom ph = patient::GeneratePhantom(p);
+  fs::create_directories(dir_ + "/markups/LIMA.mrk.json/blocker");  // a folder in the way
+  EXPECT_THROW(patient::WritePhantomCase(ph, dir_), Error);
+  EXPECT_FALSE(fs::exists(dir_ + "/ct.nrrd"));
+  for (const auto& entry : fs::directory_iterator(dir_)) {
+    EXPECT_EQ(entry.path().filename().string().rfind(".phantom.tmp", 0), std::string::npos)
+        << "temporary folder left behind: " << entry.path();
+  }
+  fs::remove_all(dir_ + "/markups/LIMA.mrk.json");
+  patient::WritePhantomCase(ph, dir_);
+  EXPECT_TRUE(fs::exists(dir_ + "/ct.nrrd"));
+  EXPECT_NO_THROW(patient::ImportPatient(dir_, {false, false}));
+}
+
+}  // namespace
+}  // namespace trocar
