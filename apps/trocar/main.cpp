@@ -1,6 +1,8 @@
 // trocar: port placement and surgeon verification for robot-assisted minimally invasive surgery.
 #include <CLI/CLI.hpp>
 #include <iostream>
+#include <new>
+#include <string>
 
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
@@ -20,6 +22,15 @@ int main(int argc, char** argv) {
     return app.exit(e);
   } catch (const trocar::Error& e) {
     std::cerr << "error: " << e.what() << "\n";
+    return 1;
+  } catch (const std::bad_alloc&) {
+    // Input too large for this machine: the readers bound what one file may cost
+    // (common/limits.hpp); what remains is the whole job's size.
+    std::string command;
+    for (int i = 1; i < argc; ++i) command += std::string(i > 1 ? " " : "") + argv[i];
+    std::cerr << "error: out of memory running 'trocar " << command
+              << "': the inputs need more memory than this machine has (lower the phantom's or "
+                 "the CT's resolution, or the limits TROCAR_MAX_VOXELS / TROCAR_MAX_FILE_BYTES)\n";
     return 1;
   } catch (const std::exception& e) {
     std::cerr << "internal error: " << e.what() << "\n";

@@ -19,6 +19,7 @@ struct PhantomOptions {
   patient::PhantomParameters p;
   bool ras = false;
   bool dicom = false;
+  bool force = false;
 };
 
 // Axial slice at the heart and a coronal slice through it, side by side, soft-tissue window.
@@ -42,6 +43,21 @@ void WritePreview(const patient::Phantom& ph, const std::string& path) {
 }
 
 void RunPhantom(const PhantomOptions& o) {
+  // Checked before the minutes of generation, and never over a case someone may have edited.
+  if (!o.force) {
+    for (const char* name : {"patient.yaml", "ct.nrrd", "ct", "markups"}) {
+      const std::string existing = JoinPath(o.out, name);
+      std::error_code ec;
+      TROCAR_THROW_UNLESS(!std::filesystem::exists(existing, ec),
+                          o.out << ": already holds a case (" << existing
+                                << "); choose another --out, or add --force to overwrite it");
+    }
+  }
+  {
+    std::error_code ec;
+    TROCAR_THROW_UNLESS(!std::filesystem::exists(o.out, ec) || std::filesystem::is_directory(o.out, ec),
+                        o.out << ": exists and is not a folder");
+  }
   const patient::Phantom ph = patient::GeneratePhantom(o.p);
   const patient::CtFormat format = o.dicom ? patient::CtFormat::kDicom
                                   : o.ras  ? patient::CtFormat::kNrrdRas
@@ -148,6 +164,7 @@ void AddPatientCommands(CLI::App* app) {
   cmd->add_option("--voxel", o->p.voxel_size, "voxel size (m)")->capture_default_str();
   cmd->add_option("--slice", o->p.slice_spacing, "axial slice spacing (m; 0: the voxel size)")->capture_default_str();
   cmd->add_option("--fov", o->p.field_of_view, "square in-plane field of view (m; 0: the body and 2 cm around it)")->capture_default_str();
+  cmd->add_flag("--force", o->force, "overwrite the case already in --out (its patient.yaml too)");
   cmd->add_flag("--ras", o->ras, "write the CT with a RAS header (default LPS)");
   cmd->add_flag("--dicom", o->dicom, "write the CT as a DICOM series folder ct/ instead of ct.nrrd")
       ->excludes("--ras");

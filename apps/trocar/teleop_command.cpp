@@ -6,6 +6,7 @@
 
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
+#include "common/file_util.hpp"
 #include "common/geometry.hpp"
 #include "control/control_loop.hpp"
 #include "control/device_input.hpp"
@@ -79,7 +80,18 @@ int RunTeleop(const TeleopCommandOptions& o) {
     std::error_code ec;
     std::filesystem::create_directories(o.record, ec);
     TROCAR_THROW_UNLESS(!ec && std::filesystem::is_directory(o.record),
-                        "--record " << o.record << ": cannot create the folder: " << ec.message());
+                        "--record " << o.record << ": cannot create the folder: "
+                                    << (ec ? ec.message() : "a file of that name is in the way"));
+    for (const char* name : {"record.csv", "tracking.png", "errors.png"}) {
+      const std::filesystem::path out = std::filesystem::path(o.record) / name;
+      TROCAR_THROW_UNLESS(!std::filesystem::exists(out, ec) || std::filesystem::is_regular_file(out, ec),
+                          "--record " << o.record << ": " << out.string()
+                                      << " exists and is not a file (it cannot be replaced)");
+    }
+    // Writable: a file written and removed now, not after the run.
+    const std::string probe = (std::filesystem::path(o.record) / ".trocar-write-test").string();
+    WriteFileAtomically(probe, "");
+    std::filesystem::remove(probe, ec);
   }
   control::RunnerStats timing;
   session.realtime = o.realtime;
@@ -109,7 +121,12 @@ int RunTeleop(const TeleopCommandOptions& o) {
   int limited_steps = 0;
   for (const auto& row : recorder.rows()) limited_steps += row.limited_joints > 0;
   std::cout << "  samples: " << s.steps << " (" << s.dropped << " dropped, " << s.held
-            << " held); a joint limit acted at " << limited_steps << " steps\n";
+            << " held); a joint limit acted at " << limited_steps
+            << (recorder.stride() > 1 ? " recorded" : "") << " steps\n";
+  if (recorder.stride() > 1) {
+    std::cout << "  record thinned to every " << recorder.stride() << "th step ("
+              << recorder.rows().size() << " rows; TROCAR_MAX_RECORDED_SAMPLES bounds it)\n";
+  }
   if (o.realtime) {
     std::cout << "  real time: " << timing.steps << " steps, mean period "
               << timing.mean_period * 1e3 << " ms, period error p99 "

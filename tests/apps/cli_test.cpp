@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <regex>
+#include <cstdlib>
 #include <sstream>
 #include <string>
 
@@ -165,6 +166,36 @@ TEST(TrocarTeleop, RunsHeadlessAndRecords) {
   }
 }
 
+// An output that cannot be written is found before the run, not after it (issue #19).
+TEST(TrocarTeleop, ARecordFolderThatCannotTakeTheRecordFailsBeforeTheRun) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_teleop_blocked";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir + "/record.csv");  // a folder where the file goes
+  const CommandRun run = Trocar("teleop --robot " + test::SourcePath("robots/pa10/pa10.yaml") +
+                                " --input sinusoid --duration 30 --record " + dir);
+  EXPECT_EQ(run.exit_code, 1) << run.output;
+  EXPECT_NE(run.output.find("record.csv exists and is not a file"), std::string::npos) << run.output;
+  EXPECT_EQ(run.output.find("position error"), std::string::npos) << "the run went ahead:\n" << run.output;
+}
+
+// A long session keeps a bounded record, thinned uniformly, and says so (issue #19).
+TEST(TrocarTeleop, ALongSessionsRecordIsBoundedAndSaysItWasThinned) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_teleop_thinned";
+  std::filesystem::remove_all(dir);
+  setenv("TROCAR_MAX_RECORDED_SAMPLES", "300", 1);
+  const CommandRun run = Trocar("teleop --robot " + test::SourcePath("robots/pa10/pa10.yaml") +
+                                " --input sinusoid --duration 2 --controller dls --record " + dir);
+  unsetenv("TROCAR_MAX_RECORDED_SAMPLES");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("samples: 2001 ("), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("record thinned to every 8th step"), std::string::npos) << run.output;
+  std::ifstream csv(dir + "/record.csv");
+  int rows = -1;
+  for (std::string line; std::getline(csv, line);) ++rows;
+  EXPECT_LE(rows, 300);
+  EXPECT_GE(rows, 150);
+}
+
 TEST(TrocarTeleop, BadInputsAreClearErrors) {
   const std::string robot = test::SourcePath("robots/pa10/pa10.yaml");
   const CommandRun unknown = Trocar("teleop --robot " + robot + " --input zigzag");
@@ -195,9 +226,43 @@ TEST(TrocarPhantom, WritesACaseAPersonCanOpen) {
   }
   const Image preview = DecodePng(ReadTextFile(dir + "/preview.png"));
   EXPECT_GT(preview.width, 100);
-  const CommandRun bad = Trocar("phantom --out " + dir + " --body-width 3");
+  const CommandRun bad = Trocar("phantom --out " + dir + " --body-width 3 --force");
   EXPECT_EQ(bad.exit_code, 1);
   EXPECT_NE(bad.output.find("phantom: body_width = 3 is outside"), std::string::npos) << bad.output;
+}
+
+// `phantom --out` onto a case someone edited used to overwrite its patient.yaml (issue #19).
+TEST(TrocarPhantom, RefusesToOverwriteACaseUnlessForced) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_phantom_again";
+  std::filesystem::remove_all(dir);
+  ASSERT_EQ(Trocar("phantom --out " + dir + " --seed 2 --voxel 0.004").exit_code, 0);
+  { std::ofstream(dir + "/patient.yaml", std::ios::app) << "# edited by hand\n"; }
+  const std::string edited = ReadTextFile(dir + "/patient.yaml");
+  const CommandRun again = Trocar("phantom --out " + dir + " --seed 3 --voxel 0.004");
+  EXPECT_EQ(again.exit_code, 1) << again.output;
+  EXPECT_NE(again.output.find("already holds a case"), std::string::npos) << again.output;
+  EXPECT_NE(again.output.find("--force"), std::string::npos) << again.output;
+  EXPECT_EQ(ReadTextFile(dir + "/patient.yaml"), edited);
+  const CommandRun forced = Trocar("phantom --out " + dir + " --seed 3 --voxel 0.004 --force");
+  EXPECT_EQ(forced.exit_code, 0) << forced.output;
+  EXPECT_NE(ReadTextFile(dir + "/patient.yaml").find("seed 3"), std::string::npos);
+}
+
+// Running out of memory is a message saying so and naming the command, not "internal error".
+TEST(TrocarPhantom, OutOfMemoryIsAClearError) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_phantom_oom";
+  std::filesystem::remove_all(dir);
+  const std::string command = "bash -c 'ulimit -v 500000; " + std::string(TROCAR_BINARY) +
+                              " phantom --out " + dir + " --voxel 0.0007' 2>&1";
+  FILE* pipe = popen(command.c_str(), "r");
+  ASSERT_NE(pipe, nullptr);
+  std::string output;
+  std::array<char, 4096> buffer;
+  for (size_t n; (n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0;) output.append(buffer.data(), n);
+  const int status = pclose(pipe);
+  EXPECT_EQ(WIFEXITED(status) ? WEXITSTATUS(status) : -1, 1) << output;
+  EXPECT_NE(output.find("error: out of memory running 'trocar phantom --out"), std::string::npos) << output;
+  EXPECT_EQ(output.find("internal error"), std::string::npos) << output;
 }
 
 TEST(TrocarImport, BuildsThenLoadsThePhantomCaseFromItsCache) {
