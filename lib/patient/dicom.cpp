@@ -218,6 +218,23 @@ struct Range {
   std::uint32_t length = 0;
 };
 
+// The value representation of the elements an image's geometry and pixels are read from, or
+// nullptr for other elements.
+const char* ImageElementVr(std::uint32_t tag) {
+  static const std::map<std::uint32_t, const char*> kVr = {
+      {Tag32(0x0008, 0x0016), "UI"}, {Tag32(0x0008, 0x0060), "CS"}, {Tag32(0x0018, 0x0050), "DS"},
+      {Tag32(0x0018, 0x0088), "DS"}, {Tag32(0x0018, 0x1164), "DS"}, {Tag32(0x0020, 0x0032), "DS"},
+      {Tag32(0x0020, 0x0037), "DS"}, {Tag32(0x0028, 0x0002), "US"}, {Tag32(0x0028, 0x0004), "CS"},
+      {Tag32(0x0028, 0x0006), "US"}, {Tag32(0x0028, 0x0008), "IS"}, {Tag32(0x0028, 0x0009), "AT"},
+      {Tag32(0x0028, 0x0010), "US"}, {Tag32(0x0028, 0x0011), "US"}, {Tag32(0x0028, 0x0030), "DS"},
+      {Tag32(0x0028, 0x0100), "US"}, {Tag32(0x0028, 0x0101), "US"}, {Tag32(0x0028, 0x0102), "US"},
+      {Tag32(0x0028, 0x0103), "US"}, {Tag32(0x0028, 0x1050), "DS"}, {Tag32(0x0028, 0x1051), "DS"},
+      {Tag32(0x0028, 0x1052), "DS"}, {Tag32(0x0028, 0x1053), "DS"}, {Tag32(0x0028, 0x1054), "LO"},
+      {Tag32(0x3004, 0x000C), "DS"}};
+  const auto it = kVr.find(tag);
+  return it == kVr.end() ? nullptr : it->second;
+}
+
 class Walker {
  public:
   Walker(const std::string& bytes, const std::string& file, bool big_endian)
@@ -244,6 +261,14 @@ class Walker {
       TROCAR_THROW_UNLESS(KnownVr(vr), file_ << ": element " << TagName32(tag) << " at byte " << pos - 4
                                              << " has no known value representation (garbled or "
                                                 "not explicit VR)");
+      // GDCM's image helpers assert that these carry their dictionary VR (found by fuzzing:
+      // pixel spacing written as US aborted the process).
+      const char* expected = ImageElementVr(tag);
+      TROCAR_THROW_UNLESS(expected == nullptr || (vr[0] == expected[0] && vr[1] == expected[1]) ||
+                              (vr[0] == 'U' && vr[1] == 'N'),
+                          file_ << ": element " << TagName32(tag) << " at byte " << pos - 4
+                                << " has value representation " << std::string(vr, 2)
+                                << ", expected " << expected);
       if (HasLongLength(vr)) {
         value.length = U32(pos + 4);
         pos += 8;

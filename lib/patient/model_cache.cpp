@@ -27,6 +27,12 @@ std::uint64_t Checksum(const char* data, std::size_t n) {
   return (static_cast<std::uint64_t>(n) << 32) ^ static_cast<std::uint64_t>(crc);
 }
 
+}  // namespace
+
+std::uint64_t ModelChecksum(const char* data, std::size_t n) { return Checksum(data, n); }
+
+namespace {
+
 struct Writer {
   std::string out;
   template <typename T>

@@ -14,6 +14,11 @@
 
 namespace trocar::patient {
 
+/// The checksum model.bin carries over everything before it (its last 16 bytes are this
+/// checksum and the end marker). Exposed for the cache's fuzz target, which seals mutated bytes
+/// so that the parser behind the checksum is explored too.
+std::uint64_t ModelChecksum(const char* data, std::size_t n);
+
 /// The files of a folder, sorted. @throws trocar::Error when it cannot be listed.
 std::vector<std::string> FolderFiles(const std::string& dir);
 

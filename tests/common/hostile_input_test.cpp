@@ -398,6 +398,31 @@ TEST_F(Hostile, DegenerateVoxelSpacingIsRefused) {
   EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(nrrd); }), "flat.nrrd: voxel size along k (slices)");
 }
 
+// Found by fuzz_dicom: pixel spacing (0028,0030) with another VR than DS made GDCM's image
+// helper assert, aborting the process. Now refused by the structure walk, by element and VR.
+TEST_F(Hostile, AnImageElementWithTheWrongValueRepresentationIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 2);
+  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+  v.values.assign(32, 0.0f);
+  patient::WriteDicomSeries(v, dir_ + "/ct");
+  int changed = 0;
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    std::string bytes = ReadBinaryFile(entry.path().string());
+    const std::string spacing("\x28\x00\x30\x00" "DS", 6);
+    const std::size_t at = bytes.find(spacing);
+    ASSERT_NE(at, std::string::npos);
+    bytes[at + 4] = 'U';
+    bytes[at + 5] = 'S';
+    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
+    ++changed;
+  }
+  ASSERT_EQ(changed, 2);
+  const std::string e = ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); });
+  EXPECT_HAS(e, "(0028,0030)");
+  EXPECT_HAS(e, "has value representation US, expected DS");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed
