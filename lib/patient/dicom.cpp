@@ -379,6 +379,9 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
   const Walker walker(data, file, ts == "1.2.840.10008.1.2.2");
   const bool explicit_vr = ts != "1.2.840.10008.1.2";
   std::map<std::uint32_t, Range> top;  // top-level elements of defined length
+  // GDCM asserts on a file that ends right after its meta information (found by fuzz_dicom).
+  TROCAR_THROW_UNLESS(walker.Has(at, 8) && !walker.OnlyZerosFrom(at),
+                      file << ": no dataset after the file meta information (truncated?)");
   while (walker.Has(at, 1)) {
     if (walker.OnlyZerosFrom(at)) break;  // trailing padding
     Range value;

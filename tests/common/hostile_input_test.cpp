@@ -423,6 +423,24 @@ TEST_F(Hostile, AnImageElementWithTheWrongValueRepresentationIsRefused) {
   EXPECT_HAS(e, "has value representation US, expected DS");
 }
 
+// Found by fuzz_dicom: a file that ends right after its file meta information made GDCM assert.
+TEST_F(Hostile, ADicomFileWithOnlyItsMetaInformationIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 2);
+  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+  v.values.assign(32, 0.0f);
+  patient::WriteDicomSeries(v, dir_ + "/ct");
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    const std::string bytes = ReadBinaryFile(entry.path().string());
+    // (0002,0000) group length right after the preamble and magic: the meta ends there.
+    std::uint32_t group_length = 0;
+    std::memcpy(&group_length, &bytes[132 + 8], 4);
+    { std::ofstream(entry.path(), std::ios::binary) << bytes.substr(0, 132 + 12 + group_length); }
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }),
+             "no dataset after the file meta information");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed

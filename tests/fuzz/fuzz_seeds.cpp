@@ -140,6 +140,14 @@ int main(int argc, char** argv) {
     control::WriteDeviceCsv(tmp + "/motion.csv", samples);
     Copy(tmp + "/motion.csv", out + "/teleop_csv/motion.csv");
   }
+  // Label maps: a Slicer segmentation and a TotalSegmentator names sidecar.
+  Text(out + "/label_map/seg.seg.nrrd",
+       "NRRD0004\ntype: unsigned char\ndimension: 3\nspace: left-posterior-superior\n"
+       "sizes: 2 2 2\nspace directions: (1,0,0) (0,1,0) (0,0,1)\nspace origin: (0,0,0)\n"
+       "encoding: raw\nSegment0_Name:=rib_left_5\nSegment0_LabelValue:=1\nSegment0_Layer:=0\n"
+       "Segment1_Name:=heart\nSegment1_LabelValue:=2\nSegment1_Layer:=0\n\n" +
+           std::string("\x00\x01\x02\x01\x00\x01\x02\x00", 8));
+  Text(out + "/label_map/names.json", "{\"1\": \"rib_left_5\", \"2\": \"heart\", \"3\": \"aorta\"}");
   fs::remove_all(tmp);
   std::cout << "fuzz seeds written to " << out << "\n";
   return 0;
