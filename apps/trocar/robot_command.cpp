@@ -9,6 +9,7 @@
 #include "common/geometry.hpp"
 #include "kinematics/dh_extraction.hpp"
 #include "kinematics/forward_kinematics.hpp"
+#include "kinematics/start_configuration.hpp"
 #include "kinematics/setup_joints.hpp"
 #include "robot/load_robot.hpp"
 
@@ -132,7 +133,14 @@ void PrintInfo(std::ostream& out, const RobotModel& model) {
         << " m, coupler " << Number(c.L23) << " m, rocker " << Number(c.L34) << " m, ground "
         << Number((c.P4 - c.P1).norm()) << " m\n";
   }
-  out << "\nframes:\n";
+  out << "\ntool: link '" << model.link(model.tool_frame().link).name << "', "
+      << model.tool_basis() << "\n";
+  {
+    const kinematics::StartConfiguration start = kinematics::ChooseStart(model);
+    out << "start: " << FormatVector(start.q, 4) << ", " << start.basis << "\n";
+    for (const std::string& w : start.warnings) out << "  warning: " << w << "\n";
+  }
+  out << "\nframes (every link is a frame too, by its name):\n";
   for (const auto& frame : model.frames()) {
     out << "  " << frame.name << " on link '" << model.link(frame.link).name << "' at xyz "
         << FormatVector(frame.X_LF.translation()) << " rpy "

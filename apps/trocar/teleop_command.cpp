@@ -13,6 +13,7 @@
 #include "control/gain_tuning.hpp"
 #include "control/teleop_session.hpp"
 #include "kinematics/forward_kinematics.hpp"
+#include "kinematics/start_configuration.hpp"
 #include "robot/load_robot.hpp"
 
 namespace trocar::apps {
@@ -25,8 +26,9 @@ struct TeleopCommandOptions {
   double duration = 10.0;
   double rate = 1000.0;
   std::string record;
-  std::string controller = "jt";
+  std::string controller = "dls";
   bool position_only = false;
+  bool full_pose = false;
   std::string filter = "none";
   double amplitude = 0.04;
   std::vector<double> q0;
@@ -39,12 +41,16 @@ int RunTeleop(const TeleopCommandOptions& o) {
   robot::LoadOptions load;
   load.load_meshes = false;
   const robot::RobotModel model = robot::LoadRobot(o.robot, load);
-  Eigen::VectorXd q0 = model.home_configuration();
+  // The robot's home, or one chosen away from limits and singularities; --q0 overrides both.
+  kinematics::StartConfiguration start = kinematics::ChooseStart(model);
+  Eigen::VectorXd q0 = start.q;
   if (!o.q0.empty()) {
     TROCAR_THROW_UNLESS(static_cast<int>(o.q0.size()) == model.num_positions(),
                         "--q0: " << o.q0.size() << " values, robot '" << model.name()
                                  << "' has " << model.num_positions() << " active joints");
     q0 = Eigen::Map<const Eigen::VectorXd>(o.q0.data(), model.num_positions());
+    start.basis = "--q0";
+    start.warnings = kinematics::StartWarnings(model, q0, start.length);
   }
   const auto violations = kinematics::LimitViolations(model, q0);
   TROCAR_THROW_UNLESS(violations.empty(), "start configuration outside the joint limits: "
@@ -70,7 +76,11 @@ int RunTeleop(const TeleopCommandOptions& o) {
   session.duration = o.duration;
   session.rate_hz = o.rate;
   session.mapping.scale = o.scale;
-  session.mapping.position_only = o.position_only;
+  // A robot with fewer than six joints cannot follow a full pose: it follows the position.
+  const bool position_only =
+      o.position_only || (!o.full_pose && model.num_positions() < 6);
+  TROCAR_THROW_UNLESS(!(o.position_only && o.full_pose), "--position-only and --full-pose exclude each other");
+  session.mapping.position_only = position_only;
   session.mapping.filter = control::ParseTremorFilter(o.filter);
   session.mapping.max_jump = o.max_jump;
   if (!o.camera_rpy.empty()) {
@@ -100,14 +110,19 @@ int RunTeleop(const TeleopCommandOptions& o) {
   const control::TrackingSummary s = recorder.Summarize(step_time);
 
   std::cout << std::setprecision(4);
+  for (const std::string& w : start.warnings) std::cerr << "warning: " << w << "\n";
   std::cout << "teleop: robot '" << model.name() << "', controller " << o.controller
             << ", input " << input->name() << ", scale " << o.scale << ":1"
-            << (o.position_only ? ", position only" : "") << ", filter " << o.filter << ", "
+            << (position_only ? (o.position_only ? ", position only"
+                                                 : ", position only (fewer than 6 joints)")
+                              : "")
+            << ", filter " << o.filter << ", "
             << o.duration << " s at " << o.rate << " Hz" << (o.realtime ? " (real time)" : "")
             << "\n";
+  std::cout << "  start: " << FormatVector(q0, 4) << ", " << start.basis << "\n";
   std::cout << "  position error:    RMS " << s.rms_position_error * 1e3 << " mm, max "
             << s.max_position_error * 1e3 << " mm\n";
-  if (!o.position_only) {
+  if (!position_only) {
     std::cout << "  orientation error: RMS " << s.rms_orientation_error * 180 / M_PI << " deg, max "
               << s.max_orientation_error * 180 / M_PI << " deg\n";
   }
@@ -166,7 +181,7 @@ int RunTune(const TuneCommandOptions& o) {
   options.scale = o.scale;
   options.duration = o.duration;
   options.max_evaluations = o.evaluations;
-  const auto r = control::TuneGains(model, model.home_configuration(), options);
+  const auto r = control::TuneGains(model, kinematics::ChooseStart(model).q, options);
   std::cout << std::setprecision(4) << "tune: robot '" << model.name() << "', controller "
             << o.controller << ", reference " << o.input << " (" << o.duration << " s, scale "
             << o.scale << ":1), " << r.evaluations << " evaluations\n";
@@ -213,7 +228,9 @@ void AddTeleopCommand(CLI::App* app) {
   cmd->add_option("--record", o->record, "folder for record.csv, tracking.png and errors.png");
   cmd->add_option("--controller", o->controller, "jt (Jacobian transpose), dls, jla")
       ->capture_default_str();
-  cmd->add_flag("--position-only", o->position_only, "control position only");
+  cmd->add_flag("--position-only", o->position_only,
+                "control position only (the default for robots with fewer than 6 joints)");
+  cmd->add_flag("--full-pose", o->full_pose, "control position and orientation even with fewer than 6 joints");
   cmd->add_option("--filter", o->filter, "tremor filter: none, lowpass, oneeuro")->capture_default_str();
   cmd->add_option("--amplitude", o->amplitude, "scripted input amplitude (m)")->capture_default_str();
   cmd->add_option("--q0", o->q0, "start configuration (default: the robot's home)");

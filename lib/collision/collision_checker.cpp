@@ -426,9 +426,9 @@ void CollisionChecker::SetRobotState(const robot::RobotState& state) {
   const std::size_t known = state_->port_W.size();
   state_->port_W.resize(w.ports.size());
   for (std::size_t p = 0; p < w.ports.size(); ++p) {
-    if (w.port_frame[p] >= 0) {
+    if (w.port_frame[p]) {
       state_->port_W[p] =
-          kinematics::FramePose(state, w.robot->frames()[w.port_frame[p]]).translation();
+          kinematics::FramePose(state, *w.port_frame[p]).translation();
     } else if (p >= known) {
       state_->port_W[p] = state.X_WL[w.port_link[p]].translation();
     }

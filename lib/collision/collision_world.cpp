@@ -125,14 +125,14 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
   }
   std::vector<int> port_of(model.num_links(), -1);
   for (const auto& name : frames) {
-    int frame = -1;
-    for (std::size_t i = 0; i < model.frames().size(); ++i) {
-      if (model.frames()[i].name == name) frame = static_cast<int>(i);
+    // A named frame or a link (GetFrame names both when neither matches).
+    robot::Frame frame;
+    try {
+      frame = model.GetFrame(name);
+    } catch (const Error& e) {
+      TROCAR_THROW("collision world: port frame '" << name << "': " << e.what());
     }
-    TROCAR_THROW_UNLESS(frame >= 0, "collision world: port frame '"
-                                        << name << "' is not a frame of robot '" << model.name()
-                                        << "'");
-    const int link = model.frames()[frame].link;
+    const int link = frame.link;
     int insertion = -1;
     for (int l : Subtree(model, link)) {
       const int pj = model.link(l).parent_joint;
@@ -171,7 +171,7 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
     port.links = Subtree(model, link);
     for (int l : port.links) port_of[l] = static_cast<int>(w.ports.size());
     w.ports.push_back(port);
-    w.port_frame.push_back(-1);
+    w.port_frame.push_back(std::nullopt);
     w.port_link.push_back(link);
   }
   std::map<const TriangleMesh*, std::shared_ptr<fcl::CollisionGeometryd>> meshes;

@@ -5,6 +5,7 @@
 #include <fcl/fcl.h>
 
 #include <memory>
+#include <optional>
 #include <mutex>
 #include <vector>
 
@@ -35,8 +36,8 @@ struct CollisionWorld::Impl {
   std::vector<std::shared_ptr<const TriangleBvh>> mesh;  ///< per body: fixed meshes, else null
   std::vector<Arm> arms;
   std::vector<Port> ports;
-  std::vector<int>
-      port_frame;  ///< index into robot->frames(); -1 for a shaft port (its link in port_link)
+  /// Per port: its frame (a named frame or a link's); none for a shaft port (its link in port_link)
+  std::vector<std::optional<robot::Frame>> port_frame;
   std::vector<int> port_link;
   std::vector<int> robot_bodies, fixed_bodies;
   std::vector<char> allowed;       ///< bodies × bodies

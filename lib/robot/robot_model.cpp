@@ -82,9 +82,12 @@ int RobotModel::GetJoint(const std::string& name) const {
 
 const Frame& RobotModel::GetFrame(const std::string& name) const {
   const int index = FindByName(frames_, name);
-  TROCAR_THROW_UNLESS(index >= 0, source_ << ": robot '" << name_ << "' has no frame '" << name
-                                          << "' (frames: " << NameList(frames_) << ")");
-  return frames_[index];
+  if (index >= 0) return frames_[index];
+  const int link = FindByName(link_frames_, name);
+  TROCAR_THROW_UNLESS(link >= 0, source_ << ": robot '" << name_ << "' has no frame or link '"
+                                         << name << "' (frames: " << NameList(frames_)
+                                         << "; links: " << NameList(links_) << ")");
+  return link_frames_[link];
 }
 
 Eigen::VectorXd RobotModel::ActiveLimits(double JointLimits::*member) const {
@@ -685,22 +688,52 @@ RobotModel RobotModelBuilder::Build() const {
                         src << ": " << role << " '" << spec.name << "': pose is not finite");
     return Frame{spec.name, link_index[spec.link], spec.X_LF};
   };
+  // A declared frame named like a link must be that link's own frame: otherwise one name would
+  // mean two poses (`--frame tool` giving the wrong link).
+  auto check_clash = [&](const Frame& frame, const std::string& role) {
+    const int link = FindByName(model.links_, frame.name);
+    TROCAR_THROW_UNLESS(link < 0 || (link == frame.link && frame.X_LF.isApprox(I, 1e-12)),
+                        src << ": " << role << " '" << frame.name << "' (on link '"
+                            << model.links_[frame.link].name
+                            << "') has the name of link '" << model.links_[std::max(link, 0)].name
+                            << "' but not its pose: rename one of them");
+  };
   if (tool_) {
     model.tool_ = make_frame(*tool_, "tool");
+    model.tool_basis_ = "declared in the description";
+    check_clash(model.tool_, "tool frame");
+  } else if (const int named = FindByName(model.links_, "tool"); named >= 0) {
+    model.tool_ = Frame{"tool", named, I};
+    model.tool_basis_ = "the link named 'tool'";
   } else {
+    // The tip of the chain below the last active joint, followed through fixed and mimic joints
+    // while the chain does not branch.
     int link = model.active_joints_.empty()
                    ? model.num_links() - 1
                    : model.joints_[model.active_joints_.back()].child_link;
+    std::string through;
     for (;;) {
       const auto& children = model.links_[link].child_joints;
-      if (children.size() != 1 || model.joints_[children[0]].movable()) break;
-      link = model.joints_[children[0]].child_link;
+      if (children.size() != 1) break;
+      const Joint& next = model.joints_[children[0]];
+      if (next.movable() && next.drive != JointDrive::kMimic) break;
+      through += (through.empty() ? "" : ", ") + std::string(next.movable() ? "mimic " : "fixed ") +
+                 "'" + next.name + "'";
+      link = next.child_link;
     }
     model.tool_ = Frame{"tool", link, I};
+    model.tool_basis_ =
+        model.active_joints_.empty()
+            ? std::string("the last link (no active joints)")
+            : "the tip of the chain below the last active joint '" +
+                  model.joints_[model.active_joints_.back()].name + "'" +
+                  (through.empty() ? std::string() : " through " + through) +
+                  (model.links_[link].child_joints.size() > 1 ? " (the chain branches there)" : "");
   }
   model.frames_.push_back(model.tool_);
   if (rcm_) {
     model.rcm_ = make_frame(*rcm_, "rcm");
+    check_clash(*model.rcm_, "rcm frame");
     model.frames_.push_back(*model.rcm_);
   }
   std::set<std::string> frame_names{model.tool_.name};
@@ -709,6 +742,10 @@ RobotModel RobotModelBuilder::Build() const {
     TROCAR_THROW_UNLESS(frame_names.insert(spec.name).second,
                         src << ": frame '" << spec.name << "' is defined twice");
     model.frames_.push_back(make_frame(spec, "frame"));
+    check_clash(model.frames_.back(), "frame");
+  }
+  for (int l = 0; l < model.num_links(); ++l) {
+    model.link_frames_.push_back(Frame{model.links_[l].name, l, I});
   }
 
   if (home_) {

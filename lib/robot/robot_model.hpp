@@ -175,9 +175,12 @@ class RobotModel {
 
   int base_link() const { return 0; }
   const Frame& tool_frame() const { return tool_; }
+  /// How the tool was chosen: "declared", "the link named 'tool'", or the chain it ends.
+  const std::string& tool_basis() const { return tool_basis_; }
   /// Remote centre of motion, when the robot has one (mechanical or declared).
   const std::optional<Frame>& rcm_frame() const { return rcm_; }
-  /// Every named frame, the tool (and RCM) included.
+  /// Every named frame, the tool (and RCM) included. Links are frames too (GetFrame finds them
+  /// by name), but are not listed here.
   const std::vector<Frame>& frames() const { return frames_; }
 
   /// Index by name, or -1.
@@ -186,6 +189,7 @@ class RobotModel {
   /// Index by name. @throws trocar::Error listing the known names when absent.
   int GetLink(const std::string& name) const;
   int GetJoint(const std::string& name) const;
+  /// A named frame, or else a link by name (its own frame). @throws listing both when absent.
   const Frame& GetFrame(const std::string& name) const;
 
   /// Movable joints on the path from the base to `link`, base first.
@@ -198,8 +202,10 @@ class RobotModel {
   Eigen::VectorXd acceleration_limits() const;
   /// A configuration inside the limits: 0 where allowed, otherwise the middle of the range.
   Eigen::VectorXd neutral_configuration() const;
-  /// Where sessions start: the sidecar's `home` when given, else the neutral configuration.
+  /// Where sessions start: the sidecar's `home` when given, else the neutral configuration
+  /// (kinematics::ChooseStart picks a better one for robots without a home).
   Eigen::VectorXd home_configuration() const;
+  bool has_home() const { return home_.size() == num_positions() && num_positions() > 0; }
 
   const ControllerSettings& controller() const { return controller_; }
 
@@ -218,8 +224,10 @@ class RobotModel {
   std::vector<int> resolve_order_;
   std::vector<std::vector<int>> movable_paths_;
   Frame tool_;
+  std::string tool_basis_;
   std::optional<Frame> rcm_;
   std::vector<Frame> frames_;
+  std::vector<Frame> link_frames_;  // one per link, at the link's origin
   ControllerSettings controller_;
   Eigen::VectorXd home_;
 };
