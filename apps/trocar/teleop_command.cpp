@@ -3,6 +3,7 @@
 #include <iomanip>
 #include <iostream>
 #include <memory>
+#include <sstream>
 
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
@@ -55,7 +56,27 @@ int RunTeleop(const TeleopCommandOptions& o) {
   const auto violations = kinematics::LimitViolations(model, q0);
   TROCAR_THROW_UNLESS(violations.empty(), "start configuration outside the joint limits: "
                                               << violations.front());
-  const control::Vector6d fallback = (control::Vector6d() << 20, 20, 20, 40, 40, 40).finished();
+  control::Vector6d fallback = (control::Vector6d() << 20, 20, 20, 40, 40, 40).finished();
+  // Jacobian transpose needs gains fitted to the robot (thesis §6.3.2): a robot that gives none
+  // gets them tuned on first use, saved in the overlay beside it for the next sessions.
+  std::string tuned_note;
+  if (o.controller == "jt" && model.controller().gains.count("jt") == 0 &&
+      model.controller().task_gains.size() == 0) {
+    control::GainTuningOptions tuning;
+    tuning.controller = "jt";
+    const auto tuned = control::TuneGains(model, q0, tuning);
+    fallback = tuned.gains;
+    std::string saved;
+    try {
+      saved = "saved to " + control::SaveControllerGains(o.robot, "jt", tuned.gains);
+    } catch (const Error& e) {
+      saved = std::string("not saved: ") + e.what();
+    }
+    std::ostringstream note;
+    note << "  jt gains tuned on first use (the robot gives none): " << FormatVector(tuned.gains, 5)
+         << ", " << saved << "\n";
+    tuned_note = note.str();
+  }
   control::ControlLoop loop(model, control::MakeController(o.controller, model, fallback), q0);
 
   std::unique_ptr<control::DeviceInput> input;
@@ -119,7 +140,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
             << ", filter " << o.filter << ", "
             << o.duration << " s at " << o.rate << " Hz" << (o.realtime ? " (real time)" : "")
             << "\n";
-  std::cout << "  start: " << FormatVector(q0, 4) << ", " << start.basis << "\n";
+  std::cout << "  start: " << FormatVector(q0, 4) << ", " << start.basis << "\n" << tuned_note;
   std::cout << "  position error:    RMS " << s.rms_position_error * 1e3 << " mm, max "
             << s.max_position_error * 1e3 << " mm\n";
   if (!position_only) {

@@ -1,6 +1,9 @@
 #include "control/gain_tuning.hpp"
 
 #include <cmath>
+#include <filesystem>
+#include <map>
+#include <vector>
 #include <iomanip>
 #include <sstream>
 
@@ -8,6 +11,8 @@
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "common/yaml_util.hpp"
+#include "robot/load_robot.hpp"
 #include "control/control_loop.hpp"
 #include "control/teleop_session.hpp"
 
@@ -126,62 +131,33 @@ GainTuningResult TuneGains(const robot::RobotModel& model, const Eigen::VectorXd
 
 std::string SaveControllerGains(const std::string& description, const std::string& controller,
                                 const Vector6d& gains) {
-  const bool urdf = description.size() > 5 &&
-                    (description.substr(description.size() - 5) == ".urdf" ||
-                     description.substr(description.size() - 4) == ".xml");
-  const std::string path =
-      urdf ? description.substr(0, description.rfind('.')) + ".trocar.yaml" : description;
-  const std::string text = IsRegularFile(path) ? ReadTextFile(path) : std::string();
-  std::vector<std::string> lines;
-  {
-    std::stringstream stream(text);
-    for (std::string line; std::getline(stream, line);) lines.push_back(line);
-  }
-  std::ostringstream gains_line;
-  gains_line << std::setprecision(6) << "    " << controller << ": [";
-  for (int i = 0; i < 6; ++i) gains_line << (i ? ", " : "") << gains[i];
-  gains_line << "]   # tuned by trocar tune";
-  auto top_level = [](const std::string& line) {
-    return !line.empty() && line[0] != ' ' && line[0] != '#' && line[0] != '-';
-  };
-  // Find the top-level controller block, then its `gains:` map, then the controller's line.
-  std::size_t block = lines.size();
-  for (std::size_t i = 0; i < lines.size(); ++i) {
-    if (lines[i].rfind("controller:", 0) == 0) block = i;
-  }
-  if (block == lines.size()) {
-    lines.push_back("controller:");
-    lines.push_back("  gains:");
-    lines.push_back(gains_line.str());
-  } else {
-    TROCAR_THROW_UNLESS(lines[block].find_first_not_of(" ", 11) == std::string::npos ||
-                            lines[block][lines[block].find_first_not_of(" ", 11)] == '#',
-                        path << ":" << block + 1
-                             << ": write the controller block in block style to save gains");
-    std::size_t end = block + 1;
-    while (end < lines.size() && !top_level(lines[end])) ++end;
-    std::size_t gains_at = end;
-    for (std::size_t i = block + 1; i < end; ++i) {
-      if (lines[i].rfind("  gains:", 0) == 0) gains_at = i;
-    }
-    if (gains_at == end) {
-      lines.insert(lines.begin() + static_cast<long>(end), {"  gains:", gains_line.str()});
-    } else {
-      std::size_t gains_end = gains_at + 1;
-      while (gains_end < end && lines[gains_end].rfind("    ", 0) == 0) ++gains_end;
-      bool replaced = false;
-      for (std::size_t i = gains_at + 1; i < gains_end; ++i) {
-        if (lines[i].rfind("    " + controller + ":", 0) == 0) {
-          lines[i] = gains_line.str();
-          replaced = true;
-        }
+  // The overlay beside the robot, never the user's own file: other controllers' gains in it are
+  // kept; numbers are written at full precision (17 significant digits) with yaml-cpp.
+  const std::string path = robot::GainsOverlayPath(description);
+  std::map<std::string, std::vector<double>> all;
+  if (IsRegularFile(path)) {
+    const YamlReader r = YamlReader::Load(path);
+    if (r.root()["gains"] && r.root()["gains"].IsMap()) {
+      for (const auto& entry : r.root()["gains"]) {
+        const std::string name = r.String(entry.first, "gains");
+        all[name] = r.Numbers(entry.second, "gains." + name);
       }
-      if (!replaced) lines.insert(lines.begin() + static_cast<long>(gains_end), gains_line.str());
     }
   }
-  std::ostringstream out;
-  for (const std::string& line : lines) out << line << "\n";
-  WriteFileAtomically(path, out.str());
+  all[controller] = std::vector<double>(gains.data(), gains.data() + 6);
+  YAML::Emitter out;
+  out.SetDoublePrecision(17);
+  out << YAML::Comment("Controller gains tuned by trocar for " +
+                       std::filesystem::path(description).filename().string() +
+                       "; read after the robot's own file. Delete it to tune again.");
+  out << YAML::BeginMap << YAML::Key << "robot" << YAML::Value
+      << std::filesystem::path(description).filename().string() << YAML::Key << "gains"
+      << YAML::Value << YAML::BeginMap;
+  for (const auto& [name, values] : all) {
+    out << YAML::Key << name << YAML::Value << YAML::Flow << values;
+  }
+  out << YAML::EndMap << YAML::EndMap;
+  WriteFileAtomically(path, std::string(out.c_str()) + "\n");
   return path;
 }
 

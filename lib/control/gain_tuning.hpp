@@ -42,9 +42,9 @@ struct GainTuningResult {
 GainTuningResult TuneGains(const robot::RobotModel& model, const Eigen::VectorXd& q0,
                            const GainTuningOptions& options);
 
-/// Writes `controller.gains.<controller>: [...]` into the robot's sidecar: the YAML description
-/// itself, or `<stem>.trocar.yaml` beside a URDF (created when absent). Only that line's block is
-/// rewritten; comments and the rest of the file stay. Atomic (temporary file, then rename).
+/// Writes the tuned gains into the overlay beside the robot (robot::GainsOverlayPath:
+/// `arm.urdf` → `arm.gains.yaml`), keeping the other controllers' entries; the user's own files
+/// are never touched. yaml-cpp, full precision, atomic (temporary file, then rename).
 /// @returns the file written.
 std::string SaveControllerGains(const std::string& description, const std::string& controller,
                                 const Vector6d& gains);

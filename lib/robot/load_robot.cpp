@@ -504,10 +504,34 @@ DhTable LoadDhTable(const std::string& path) {
   return ReadDhTable(r, r.Require(r.root(), "dh", ""), options);
 }
 
+std::string GainsOverlayPath(const std::string& description) {
+  const std::filesystem::path p(description);
+  return (p.parent_path() / (p.stem().string() + ".gains.yaml")).string();
+}
+
 RobotModelBuilder LoadRobotDescription(const std::string& path, const LoadOptions& options) {
   IncludeStack stack;
   stack.root = path;
-  return LoadDescription(path, options, &stack);
+  RobotModelBuilder builder = LoadDescription(path, options, &stack);
+  // Tuned gains live in an overlay beside the robot (written by trocar tune and by teleop's
+  // first-use tuning), never in the user's own file; they override the description's.
+  const std::string overlay = GainsOverlayPath(path);
+  if (IsRegularFile(overlay)) {
+    const YamlReader r = YamlReader::Load(overlay);
+    r.ExpectMap(r.root(), "", {"robot", "gains"});
+    const YAML::Node gains = r.Require(r.root(), "gains", "");
+    TROCAR_THROW_UNLESS(gains.IsMap(), r.Where(gains, "gains") << ": expected a mapping from "
+                                                                  "controller name to 6 gains");
+    for (const auto& entry : gains) {
+      const std::string name = r.String(entry.first, "gains");
+      const std::vector<double> values = r.Numbers(entry.second, "gains." + name);
+      TROCAR_THROW_UNLESS(values.size() == 6, r.Where(entry.second, "gains." + name)
+                                                  << ": expected 6 values [wx wy wz vx vy vz], got "
+                                                  << values.size());
+      builder.controller().gains[name] = Eigen::Map<const Eigen::VectorXd>(values.data(), 6);
+    }
+  }
+  return builder;
 }
 
 RobotModel LoadRobot(const std::string& path, const LoadOptions& options) {

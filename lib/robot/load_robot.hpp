@@ -29,6 +29,11 @@ namespace trocar::robot {
 /// @throws trocar::Error naming the file, line and field for any problem.
 RobotModelBuilder LoadRobotDescription(const std::string& path, const LoadOptions& options = {});
 
+/// The overlay of tuned controller gains beside a robot description: `arm.urdf` →
+/// `arm.gains.yaml` (`gains: {jt: [wx, wy, wz, vx, vy, vz], ...}`). Loading applies it over the
+/// description's own gains.
+std::string GainsOverlayPath(const std::string& description);
+
 /// @throws trocar::Error naming the file, line and field for any problem.
 RobotModel LoadRobot(const std::string& path, const LoadOptions& options = {});
 

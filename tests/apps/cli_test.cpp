@@ -286,6 +286,26 @@ TEST(TrocarTeleop, PlainUrdfsOfRandomArmsTrackWithDefaultSettings) {
       << stretched.output;
 }
 
+// Jacobian transpose on a robot that gives no gains: tuned on first use (22 mm RMS untuned on the
+// PA10), saved in the overlay beside the robot, read back next time; the URDF is untouched.
+TEST(TrocarTeleop, JacobianTransposeGainsAreTunedOnFirstUseIntoAnOverlay) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_jt_first_use";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const std::string urdf = dir + "/arm.urdf";
+  std::filesystem::copy_file(test::SourcePath("robots/pa10/pa10.urdf"), urdf);
+  const std::string original = ReadTextFile(urdf);
+  const CommandRun first = Trocar("teleop --robot " + urdf + " --controller jt --input sinusoid");
+  ASSERT_EQ(first.exit_code, 0) << first.output;
+  EXPECT_NE(first.output.find("jt gains tuned on first use"), std::string::npos) << first.output;
+  EXPECT_NE(first.output.find("saved to " + dir + "/arm.gains.yaml"), std::string::npos) << first.output;
+  EXPECT_LT(RmsPositionErrorMm(first.output), 0.5) << first.output;
+  EXPECT_EQ(ReadTextFile(urdf), original);
+  const CommandRun second = Trocar("teleop --robot " + urdf + " --controller jt --input sinusoid");
+  EXPECT_EQ(second.output.find("tuned on first use"), std::string::npos) << second.output;
+  EXPECT_EQ(RmsPositionErrorMm(second.output), RmsPositionErrorMm(first.output));
+}
+
 TEST(TrocarTeleop, BadInputsAreClearErrors) {
   const std::string robot = test::SourcePath("robots/pa10/pa10.yaml");
   const CommandRun unknown = Trocar("teleop --robot " + robot + " --input zigzag");
