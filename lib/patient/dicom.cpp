@@ -356,9 +356,13 @@ std::string InflateRaw(const std::string& data, const std::string& file) {
 void CheckStructure(const std::string& bytes, const std::string& file, Sniff sniff) {
   std::size_t pos = 0;
   std::string ts = "1.2.840.10008.1.2";  // a bare dataset: implicit VR little endian
-  if (sniff == Sniff::kDicom) {
+  // A file meta group (0002) is read as explicit VR little endian: after the preamble and DICM,
+  // or at the very start of a file without them (GDCM reads such a group the same way, and
+  // asserts on one it cannot: found by fuzz_dicom).
+  const bool bare_meta = sniff == Sniff::kBare && bytes.size() >= 2 && bytes[0] == 0x02 && bytes[1] == 0x00;
+  if (sniff == Sniff::kDicom || bare_meta) {
     const Walker meta(bytes, file, false);
-    pos = 132;
+    pos = bare_meta ? 0 : 132;
     ts.clear();
     while (meta.Has(pos, 2) && meta.U16(pos) == 0x0002) {
       Range value;

@@ -441,6 +441,16 @@ TEST_F(Hostile, ADicomFileWithOnlyItsMetaInformationIsRefused) {
              "no dataset after the file meta information");
 }
 
+// Found by fuzz_dicom: eight bytes starting like a file meta group (0002,00F5) without the
+// preamble made GDCM assert while reading it as implicit VR. Such a group is now walked as the
+// explicit VR it must be first.
+TEST_F(Hostile, AMetaGroupWithoutPreambleIsCheckedBeforeGdcm) {
+  const std::string path = Write("bare/x.dcm", std::string("\x02\x00\xf5\x00\x00\x00\x00\x00", 8));
+  const std::string e = ErrorOf([&] { patient::LoadDicomSeries(path); });
+  EXPECT_HAS(e, "x.dcm");
+  EXPECT_HAS(e, "value representation");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed
