@@ -433,7 +433,24 @@ TEST(TrocarCheck, PlacesTheCartAtAPatientAndListsCollisionsAndClearances) {
   std::filesystem::remove_all(dir);
   ASSERT_EQ(Trocar("phantom --out " + dir + " --seed 2 --voxel 0.004").exit_code, 0);
   const CommandRun run = Trocar("check --patient " + dir);
-  EXPECT_TRUE(run.exit_code == 0 || run.exit_code == 3) << run.output;  // free, or in collision
+  // The default cart placement on this phantom collides (the suite's plan tests find free ones):
+  // the verdict must say so, and agree with the pairs and the clearances it lists, so that a
+  // colliding placement can never pass as success.
+  EXPECT_EQ(run.exit_code, 3) << run.output;
+  std::smatch pairs;
+  ASSERT_TRUE(std::regex_search(run.output, pairs, std::regex("IN COLLISION: ([0-9]+) pairs")))
+      << run.output;
+  int listed = 0;
+  for (const char* cls : {"\n  arm-arm  ", "\n  arm-patient  ", "\n  instrument-patient ",
+                          "\n  arm-table  ", "\n  self  "}) {
+    for (std::size_t at = run.output.find(cls); at != std::string::npos &&
+                                                at < run.output.find("clearances (m):");
+         at = run.output.find(cls, at + 1)) {
+      ++listed;
+    }
+  }
+  EXPECT_EQ(listed, std::stoi(pairs[1])) << run.output;
+  EXPECT_NE(run.output.find("0.0000  "), std::string::npos) << "a collision with no zero clearance";
   for (const char* line :
        {"robot davinci_classic_cart: 51 collision bodies", "3 arms, 3 ports (radius 15 mm)",
         "port psm1_rcm at", "instruments aimed at LAD", "clearances (m):", "arm-table"}) {
@@ -442,11 +459,12 @@ TEST(TrocarCheck, PlacesTheCartAtAPatientAndListsCollisionsAndClearances) {
   EXPECT_NE(run.output.find(run.exit_code == 3 ? "IN COLLISION" : "collision-free"),
             std::string::npos)
       << run.output;
-  // A robot alone, at its neutral configuration.
+  // A robot alone, at its neutral configuration: free, and no pair listed.
   const CommandRun alone =
       Trocar("check --robot " + test::SourcePath("robots/davinci-classic/psm.yaml"));
   EXPECT_EQ(alone.exit_code, 0) << alone.output;
   EXPECT_NE(alone.output.find("collision-free"), std::string::npos) << alone.output;
+  EXPECT_EQ(alone.output.find("IN COLLISION"), std::string::npos) << alone.output;
   const CommandRun bad = Trocar("check --patient " + dir + " --port psm1_rcm=0.1,0.2");
   EXPECT_EQ(bad.exit_code, 1);
   EXPECT_NE(bad.output.find("--port psm1_rcm: expected x,y,z"), std::string::npos) << bad.output;

@@ -5,6 +5,9 @@
 #include <random>
 
 #include <gtest/gtest.h>
+#include <sys/resource.h>
+
+#include <csignal>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
@@ -75,6 +78,41 @@ TEST(WriteFileAtomically, WritesWholeFileAndLeavesNoTemporary) {
   int files = 0;
   for (const auto& entry : std::filesystem::directory_iterator(dir)) {
     (void)entry;
+    ++files;
+  }
+  EXPECT_EQ(files, 1);
+  std::filesystem::remove_all(dir);
+}
+
+// A write that fails half-way (the file-size limit of the process stops it after 4 KiB of 1 MiB)
+// leaves the target exactly as it was and no temporary beside it: a writer that wrote the target
+// in place would leave 4 KiB of the new content.
+TEST(WriteFileAtomically, AWriteFailingHalfWayLeavesTheOldContent) {
+  const auto dir = std::filesystem::temp_directory_path() / "trocar_atomic_failure";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const std::string path = (dir / "plan.json").string();
+  WriteFileAtomically(path, "old content");
+  rlimit saved{};
+  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &saved), 0);
+  const auto previous = std::signal(SIGXFSZ, SIG_IGN);  // EFBIG instead of a signal
+  rlimit small = saved;
+  small.rlim_cur = 4096;
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  bool threw = false;
+  try {
+    WriteFileAtomically(path, std::string(1 << 20, 'x'));
+  } catch (const Error& e) {
+    threw = true;
+    EXPECT_NE(std::string(e.what()).find("plan.json"), std::string::npos) << e.what();
+  }
+  setrlimit(RLIMIT_FSIZE, &saved);
+  std::signal(SIGXFSZ, previous);
+  EXPECT_TRUE(threw);
+  EXPECT_EQ(ReadTextFile(path), "old content");
+  int files = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    EXPECT_EQ(entry.path().filename(), "plan.json") << "left behind: " << entry.path();
     ++files;
   }
   EXPECT_EQ(files, 1);

@@ -99,7 +99,8 @@ TEST(Jacobian, MatchesFiniteDifferencesThroughMimicJoints) {
 }
 
 TEST(Jacobian, AngularPartIsTheToolAngularVelocityForEveryFrame) {
-  // Property of geometric Jacobians: the angular rows do not depend on the point.
+  // The angular rows are the link's angular velocity in the world (ω with Ṙ = [ω]× R, by
+  // differences of the rotation: a sign or frame error fails here), whatever the point.
   const RobotModel model = robot::LoadRobot(test::SourcePath("robots/pa10/pa10.yaml"));
   RobotState state(model);
   std::mt19937 rng(7);
@@ -110,6 +111,12 @@ TEST(Jacobian, AngularPartIsTheToolAngularVelocityForEveryFrame) {
     kinematics::ComputeJacobian(model, state, link, Eigen::Vector3d::Zero(), &J1);
     kinematics::ComputeJacobian(model, state, link, Eigen::Vector3d(0.3, -0.2, 0.1), &J2);
     EXPECT_TRUE(test::CompareMatrices(J1.topRows<3>(), J2.topRows<3>(), 0.0));
+    const Eigen::VectorXd q = state.q;
+    const auto fd = FiniteDifferenceJacobian(model, q, link, Eigen::Vector3d::Zero());
+    EXPECT_TRUE(test::CompareMatrices(J1.topRows<3>(), fd.topRows<3>(), kTolerance));
+    // And not merely up to sign: the rows would match their negation only if they were zero.
+    EXPECT_GT(J1.topRows<3>().norm(), 0.5);
+    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok);
   }
 }
 
