@@ -4,6 +4,7 @@
 /// to the case folder, every field validated with the file, line and field named). Internal to
 /// the patient import: ImportPatient is the public entry.
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -43,7 +44,9 @@ struct CaseSpec {
   std::string heart_mask;
   double heart_mask_threshold = 0.5;
   std::string labels, label_names;  // a label map (file or folder of masks) and its names' sidecar
-  bool heart_contrast = true;
+  /// heart.contrast: true (a contrast CT: no blood pool is an error), false (no heart), or unset:
+  /// detected, and without contrast the heart is approximated from the mediastinum (flagged).
+  std::optional<bool> heart_contrast;
   bool check_orientation = true;
   HeartOptions heart;
   double left_side_up = 0.0;

@@ -1,4 +1,5 @@
 // The heart from a contrast CT, and the distance transform it stands on.
+#include <optional>
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -118,6 +119,22 @@ void ReleaseMemory(std::vector<T>* v) {
 }  // namespace
 
 Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg, const HeartOptions& o) {
+  std::optional<Mask> heart = TrySegmentHeartFromContrast(ct, seg, o);
+  const double blood = ct.hounsfield ? o.blood_hu : o.raw_blood;
+  TROCAR_THROW_UNLESS(heart.has_value(),
+                      ct.source << ": heart: no contrast-filled blood pool "
+                                << (ct.hounsfield ? "above " : "above raw ") << blood
+                                << " and thicker than " << 2 * o.opening_radius * 1e3
+                                << " mm in the chest: no contrast detected. Give the heart as a mask "
+                                   "file (patient.yaml heart.mask) or a label map (labels:), leave "
+                                   "heart.contrast unset for an approximation from the mediastinum, "
+                                   "or build without a heart (heart: {contrast: false}; plans will "
+                                   "not avoid it)");
+  return std::move(*heart);
+}
+
+std::optional<Mask> TrySegmentHeartFromContrast(const Volume& ct, const Segmentation& seg,
+                                                const HeartOptions& o) {
   const double blood = ct.hounsfield ? o.blood_hu : o.raw_blood;
   const double soft = ct.hounsfield ? o.soft_hu : o.raw_soft;
   const double bone = seg.bone_threshold;
@@ -166,14 +183,7 @@ Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg, const H
       break;  // largest first
     }
   }
-  TROCAR_THROW_UNLESS(first != nullptr,
-                      ct.source << ": heart: no contrast-filled blood pool "
-                                << (ct.hounsfield ? "above " : "above raw ") << blood
-                                << " and thicker than " << 2 * o.opening_radius * 1e3
-                                << " mm in the chest: no contrast detected. Give the heart as a mask "
-                                   "file (patient.yaml heart.mask) or a label map (labels:), or "
-                                   "build without a heart (heart: {contrast: false}; plans will "
-                                   "not avoid it)");
+  if (first == nullptr) return std::nullopt;  // no contrast-filled blood pool
   // The other chambers: blobs of some size around the first (septa and valves separate them).
   std::vector<std::uint8_t> keep(blobs.size() + 1, 0);
   for (const auto& blob : blobs) {
@@ -205,6 +215,88 @@ Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg, const H
     heart.inside[n] = heart_blood.inside[n] ||
                       (from_blood2[n] <= w2 && seg.body.inside[n] && !is_skeleton(n) &&
                        ct.values[n] > soft && ct.values[n] <= blood_max);
+  }
+  return heart;
+}
+
+Mask ApproximateHeartFromMediastinum(const Volume& ct, const Segmentation& seg,
+                                     const HeartOptions& o) {
+  const double soft = ct.hounsfield ? o.soft_hu : o.raw_soft;
+  const double lung_below = ct.hounsfield ? -400.0 : 0.5 * soft;
+  const long n_voxels = static_cast<long>(ct.values.size());
+  const int nx = ct.size.x(), ny = ct.size.y(), nz = ct.size.z();
+  // Lungs: air inside the body.
+  Mask lung;
+  lung.size = ct.size;
+  lung.inside.assign(ct.values.size(), 0);
+  for (long n = 0; n < n_voxels; ++n) lung.inside[n] = seg.body.inside[n] && ct.values[n] < lung_below;
+  std::vector<int> lung_labels;
+  const auto lung_parts = ConnectedComponents(ct, lung, &lung_labels);
+  std::vector<std::uint8_t> big(lung_parts.size() + 2, 0);
+  Eigen::Vector3d lung_centroid = Eigen::Vector3d::Zero();
+  double lung_volume = 0.0;
+  for (const auto& part : lung_parts) {
+    if (part.volume < 0.1e-3) continue;  // a lung holds litres; 100 ml keeps both halves of a cut one
+    big[part.label] = 1;
+    lung_centroid += part.volume * part.centroid_P;
+    lung_volume += part.volume;
+  }
+  TROCAR_THROW_UNLESS(lung_volume > 0.0, ct.source << ": heart: no contrast and no lungs found "
+                                                      "(air inside the body) to place the "
+                                                      "mediastinum by: give the heart as a mask "
+                                                      "or a label map");
+  lung_centroid /= lung_volume;
+  for (long n = 0; n < n_voxels; ++n) lung.inside[n] = lung_labels[n] > 0 && big[lung_labels[n]];
+  ReleaseMemory(&lung_labels);
+  // The mediastinum: soft tissue with lung on both sides along its row (x), in front of the
+  // lungs' centre (the heart lies forward; behind are the spine and the aorta's descent).
+  Mask region;
+  region.size = ct.size;
+  region.inside.assign(ct.values.size(), 0);
+  for (int k = 0; k < nz; ++k) {
+    for (int j = 0; j < ny; ++j) {
+      int first_lung = -1, last_lung = -1;
+      for (int i = 0; i < nx; ++i) {
+        if (lung.inside[ct.Index(i, j, k)]) {
+          if (first_lung < 0) first_lung = i;
+          last_lung = i;
+        }
+      }
+      if (first_lung < 0) continue;
+      for (int i = first_lung + 1; i < last_lung; ++i) {
+        const long n = ct.Index(i, j, k);
+        if (lung.inside[n] || !seg.body.inside[n] || seg.bone.inside[n]) continue;
+        if (ct.values[n] <= soft) continue;  // fat, air
+        if (ct.PatientPoint(i, j, k).y() > lung_centroid.y()) continue;  // behind: spine, aorta
+        region.inside[n] = 1;
+      }
+    }
+  }
+  ReleaseMemory(&lung.inside);
+  // The heart: the thickest part of it (opened by a 15 mm ball), the largest blob, grown back.
+  const float r2 = 0.015f * 0.015f;
+  Mask outside = region;
+  for (auto& x : outside.inside) x = !x;
+  std::vector<float> depth2 = SquaredDistanceToMask(ct, outside);
+  ReleaseMemory(&outside.inside);
+  Mask core;
+  core.size = ct.size;
+  core.inside.assign(ct.values.size(), 0);
+  for (long n = 0; n < n_voxels; ++n) core.inside[n] = depth2[n] > r2;
+  ReleaseMemory(&depth2);
+  std::vector<int> labels;
+  const auto blobs = ConnectedComponents(ct, core, &labels);
+  TROCAR_THROW_UNLESS(!blobs.empty(), ct.source << ": heart: no contrast, and no soft tissue 3 cm "
+                                                   "thick between the lungs to approximate it by: "
+                                                   "give the heart as a mask or a label map");
+  Mask heart;
+  heart.size = ct.size;
+  heart.inside.assign(ct.values.size(), 0);
+  for (long n = 0; n < n_voxels; ++n) heart.inside[n] = labels[n] == blobs.front().label;
+  ReleaseMemory(&labels);
+  const std::vector<float> from_core2 = SquaredDistanceToMask(ct, heart);
+  for (long n = 0; n < n_voxels; ++n) {
+    heart.inside[n] = region.inside[n] && from_core2[n] <= r2 * 1.0001f;
   }
   return heart;
 }

@@ -151,8 +151,12 @@ bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel*
     if (damage != nullptr) *damage = why;
     return false;
   };
+  if (bytes.size() >= 8 && std::memcmp(bytes.data(), kMagic, 6) == 0 &&
+      std::memcmp(bytes.data(), kMagic, 8) != 0) {
+    return false;  // another version's cache: stale, rebuilt without a word
+  }
   if (bytes.size() < 32 || std::memcmp(bytes.data(), kMagic, 8) != 0) {
-    return damaged("not a cache of this version of trocar");
+    return damaged("not a trocar model cache");
   }
   if (std::memcmp(bytes.data() + bytes.size() - 8, kMagic, 8) != 0) {
     return damaged("truncated (no end marker)");
@@ -274,7 +278,7 @@ std::string SeriesFolder(const std::string& ct) {
 }  // namespace
 
 std::uint64_t CacheKey(const CaseSpec& c, const std::vector<std::string>& ct_files) {
-  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v3");
+  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v4");
   for (const auto& f : InputFiles(c, ct_files)) {
     h = Fnv1a(h, std::filesystem::path(f).filename().string());
     h = Fnv1a(h, ReadBinaryFile(f));

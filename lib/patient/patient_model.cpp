@@ -177,6 +177,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   m.body_max_P = seg.body_max_P;
   Mask heart;
   bool have_heart = false;
+  std::string heart_note;  // an approximated heart says so
   stage("heart", [&] {
     if (!c.heart_mask.empty()) {
       heart = ResampleMask(LoadVolume(c.heart_mask), ct, c.heart_mask_threshold);
@@ -185,8 +186,23 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     } else if (have_labels && labelled.heart.count() > 0) {
       heart = labelled.heart;
       have_heart = true;
-    } else if (c.heart_contrast) {
+    } else if (c.heart_contrast == true) {
       heart = SegmentHeartFromContrast(ct, seg, c.heart);
+      have_heart = true;
+    } else if (!c.heart_contrast.has_value()) {
+      // Contrast detected, not declared: without it the heart is approximated, and says so.
+      if (std::optional<Mask> pool = TrySegmentHeartFromContrast(ct, seg, c.heart)) {
+        heart = std::move(*pool);
+      } else {
+        heart = ApproximateHeartFromMediastinum(ct, seg, c.heart);
+        std::ostringstream w;
+        w << "heart: no contrast detected; the heart is APPROXIMATED from the mediastinum (soft "
+             "tissue between the lungs, in front of them: "
+          << std::lround(heart.count() * std::abs(ct.index_to_P.determinant()) * 1e6)
+          << " ml, the great vessels' roots included). Plans avoid this region; give "
+             "heart.mask or a label map for the heart itself";
+        heart_note = w.str();
+      }
       have_heart = true;
     }
     if (have_heart) {
@@ -240,6 +256,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     m.warnings.push_back("no heart in the model (heart.contrast is false and there is no heart "
                          "mask or label): plans will not avoid it");
   }
+  if (!heart_note.empty()) m.warnings.push_back(heart_note);
   const double voxel = std::abs(ct.index_to_P.determinant());
   auto add = [&](const std::string& name, const Mask& mask, int budget) {
     if (mask.count() == 0) return;

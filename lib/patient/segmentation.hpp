@@ -4,6 +4,7 @@
 /// thresholds and connected components, the heart from a mask volume. Thresholds are Hounsfield
 /// units, or raw values for windowed volumes such as 8-bit CT.
 
+#include <optional>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -133,5 +134,18 @@ struct HeartOptions {
 ///         the heart as a mask file instead).
 Mask SegmentHeartFromContrast(const Volume& ct, const Segmentation& seg,
                               const HeartOptions& options = {});
+
+/// As SegmentHeartFromContrast, but no blood pool (a CT without contrast) is nullopt, not an
+/// error: contrast is detected, not declared.
+std::optional<Mask> TrySegmentHeartFromContrast(const Volume& ct, const Segmentation& seg,
+                                                const HeartOptions& options = {});
+
+/// The heart approximated without contrast: soft tissue between the lungs (lung on both sides
+/// along the row) in front of the lungs' centre, opened by a 15 mm ball, the largest blob grown
+/// back. It holds the heart with the great vessels' roots and mediastinal tissue around them, an
+/// over-estimate that planning avoids; the import flags it as an approximation.
+/// @throws trocar::Error naming the volume when no lungs or no such tissue is found.
+Mask ApproximateHeartFromMediastinum(const Volume& ct, const Segmentation& seg,
+                                     const HeartOptions& options = {});
 
 }  // namespace trocar::patient

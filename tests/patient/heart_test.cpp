@@ -1,6 +1,8 @@
 #include <random>
 
 #include <gtest/gtest.h>
+#include "patient/patient_model.hpp"
+#include <filesystem>
 
 #include "common/error.hpp"
 #include "patient/phantom.hpp"
@@ -134,6 +136,60 @@ TEST(Heart, NoContrastIsAnErrorAskingForAMask) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("plain.nrrd: heart: no contrast-filled blood pool"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("heart.mask"), std::string::npos);
+  }
+}
+
+// Without contrast (the phantom's blood made as dark as muscle), the heart is approximated from
+// the mediastinum: it holds most of the true heart and is not the whole chest; on the contrast
+// phantom detection still takes the blood pool, not the approximation.
+TEST(Heart, WithoutContrastTheMediastinumApproximatesTheHeart) {
+  for (unsigned seed : {1u, 3u, 5u}) {
+    SCOPED_TRACE(seed);
+    patient::PhantomParameters p;
+    p.seed = seed;
+    p.voxel_size = 0.003;
+    patient::Phantom ph = patient::GeneratePhantom(p);
+    EXPECT_TRUE(patient::TrySegmentHeartFromContrast(ph.ct, patient::Segment(ph.ct)).has_value());
+    for (float& v : ph.ct.values) {
+      if (v > 150.0f && v < 450.0f) v = 40.0f;
+    }
+    const auto seg = patient::Segment(ph.ct);
+    EXPECT_FALSE(patient::TrySegmentHeartFromContrast(ph.ct, seg).has_value());
+    const patient::Mask heart = patient::ApproximateHeartFromMediastinum(ph.ct, seg);
+    patient::Mask truth;
+    truth.size = ph.ct.size;
+    truth.inside.assign(ph.ct.voxel_count(), 0);
+    const Eigen::Vector3d c = ph.truth.heart_centre, semi = ph.truth.heart_semi_axes;
+    long both = 0, in_truth = 0;
+    for (int k = 0; k < ph.ct.size.z(); ++k)
+      for (int j = 0; j < ph.ct.size.y(); ++j)
+        for (int i = 0; i < ph.ct.size.x(); ++i) {
+          const long n = ph.ct.Index(i, j, k);
+          truth.inside[n] = (ph.ct.PatientPoint(i, j, k) - c).cwiseQuotient(semi).norm() <= 1.0;
+          in_truth += truth.inside[n];
+          both += truth.inside[n] && heart.inside[n];
+        }
+    const double recall = static_cast<double>(both) / in_truth;
+    std::cout << "seed " << seed << ": approximation " << Millilitres(ph.ct, heart) << " ml, true heart "
+              << Millilitres(ph.ct, truth) << " ml, recall " << recall << ", Dice " << Dice(heart, truth) << "\n";
+    EXPECT_GT(recall, 0.7);
+    EXPECT_LT(Millilitres(ph.ct, heart), 3.0 * Millilitres(ph.ct, truth));
+    EXPECT_LT((Centroid(ph.ct, heart) - c).norm(), 0.03);
+    if (seed != 1) continue;
+    // Imported as a case that says nothing about contrast: detected, approximated, flagged.
+    const std::string dir = ::testing::TempDir() + "/trocar_plain_heart";
+    std::filesystem::remove_all(dir);
+    p.voxel_size = 0.004;
+    patient::Phantom plain = patient::GeneratePhantom(p);
+    for (float& v : plain.ct.values) {
+      if (v > 150.0f && v < 450.0f) v = 40.0f;
+    }
+    patient::WritePhantomCase(plain, dir);
+    const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+    ASSERT_NE(m.Find("heart"), nullptr);
+    bool flagged = false;
+    for (const auto& w : m.warnings) flagged = flagged || w.find("APPROXIMATED from the mediastinum") != std::string::npos;
+    EXPECT_TRUE(flagged);
   }
 }
 
