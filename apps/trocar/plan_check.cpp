@@ -66,13 +66,16 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
                         path << ": missing field '" << name << "'");
     return j.at(name);
   };
-  TROCAR_THROW_UNLESS(doc.is_object() && doc.value("format", "") == "trocar-plan",
+  // Every field is read inside the try: a field of the wrong type ("version": "2") is a malformed
+  // plan named by its file, never an internal error.
+  try {
+  TROCAR_THROW_UNLESS(doc.is_object() && doc.contains("format") && doc["format"].is_string() &&
+                          doc["format"].get<std::string>() == "trocar-plan",
                       path << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
   const int version = field(doc, "version").get<int>();
   TROCAR_THROW_UNLESS(version == planners::kPlanFormatVersion,
                       path << ": plan format version " << version << ", this trocar reads version "
                            << planners::kPlanFormatVersion);
-  try {
     const json& inputs = field(doc, "inputs");
     const std::string plan_dir = ParentDirectory(path);
     auto resolve = [&](const std::string& p) {

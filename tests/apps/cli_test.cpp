@@ -375,6 +375,22 @@ TEST(TrocarPhantom, OutOfMemoryIsAClearError) {
   EXPECT_EQ(output.find("internal error"), std::string::npos) << output;
 }
 
+// A plan whose fields have the wrong type was "internal error" (exit 2): now a malformed plan
+// named by its file (exit 1) (issue #19).
+TEST(TrocarCheck, APlanWithFieldsOfTheWrongTypeIsAClearError) {
+  const std::string dir = ::testing::TempDir() + "/trocar_cli_bad_plan";
+  std::filesystem::create_directories(dir);
+  for (const char* text : {R"({"format": "trocar-plan", "version": "2"})", R"({"format": 5})",
+                           R"({"format": "trocar-plan", "version": 2, "inputs": [1]})"}) {
+    const std::string path = dir + "/plan.json";
+    std::ofstream(path) << text;
+    const CommandRun run = Trocar("check --plan " + path);
+    EXPECT_EQ(run.exit_code, 1) << text << "\n" << run.output;
+    EXPECT_NE(run.output.find(path), std::string::npos) << run.output;
+    EXPECT_EQ(run.output.find("internal error"), std::string::npos) << run.output;
+  }
+}
+
 TEST(TrocarImport, BuildsThenLoadsThePhantomCaseFromItsCache) {
   const std::string dir = ::testing::TempDir() + "/trocar_cli_import";
   std::filesystem::remove_all(dir);
