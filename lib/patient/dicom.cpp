@@ -298,6 +298,8 @@ class Walker {
         Range value;
         const std::uint32_t inner = Header(pos, explicit_vr, value);
         if (inner == Tag32(0xFFFE, 0xE00D)) break;
+        TROCAR_THROW_UNLESS((inner >> 16) != 0xFFFE, file_ << ": " << TagName32(inner) << " at byte "
+                                                           << pos - 8 << " inside an item (garbled file)");
         if (value.length == kUndefinedLength) {
           SkipSequence(pos, explicit_vr, depth + 1);
         } else {
@@ -390,6 +392,10 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
     if (walker.OnlyZerosFrom(at)) break;  // trailing padding
     Range value;
     const std::uint32_t tag = walker.Header(at, explicit_vr, value);
+    // Items and delimiters belong inside sequences: GDCM asserts on one at the top level (found
+    // by fuzz_dicom).
+    TROCAR_THROW_UNLESS((tag >> 16) != 0xFFFE, file << ": " << TagName32(tag) << " at byte " << at - 8
+                                                   << " outside a sequence (garbled file)");
     if (value.length == kUndefinedLength) {
       walker.SkipSequence(at, explicit_vr, 0);
     } else {

@@ -451,6 +451,26 @@ TEST_F(Hostile, AMetaGroupWithoutPreambleIsCheckedBeforeGdcm) {
   EXPECT_HAS(e, "value representation");
 }
 
+// Found by fuzz_dicom (the CI slice): an item tag (FFFE,E000) at the top level of an implicit VR
+// dataset made GDCM assert. Items belong inside sequences: refused by the walk.
+TEST_F(Hostile, AnItemOutsideASequenceIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 2);
+  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+  v.values.assign(32, 0.0f);
+  patient::DicomWriteOptions options;
+  options.implicit_vr = true;
+  patient::WriteDicomSeries(v, dir_ + "/ct", options);
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    std::string bytes = ReadBinaryFile(entry.path().string());
+    std::uint32_t group_length = 0;
+    std::memcpy(&group_length, &bytes[132 + 8], 4);
+    bytes.insert(132 + 12 + group_length, std::string("\xfe\xff\x00\xe0\x00\x00\x00\x00", 8));
+    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "outside a sequence");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed

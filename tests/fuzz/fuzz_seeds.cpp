@@ -148,6 +148,14 @@ int main(int argc, char** argv) {
        "Segment1_Name:=heart\nSegment1_LabelValue:=2\nSegment1_Layer:=0\n\n" +
            std::string("\x00\x01\x02\x01\x00\x01\x02\x00", 8));
   Text(out + "/label_map/names.json", "{\"1\": \"rib_left_5\", \"2\": \"heart\", \"3\": \"aorta\"}");
+  // A plan's skeleton (docs/plan-format.md) naming a case and robot that are not there.
+  Text(out + "/plan/plan.json",
+       R"({"format": "trocar-plan", "version": 2, "inputs": {"case": "no-case", "robot": "no-robot.yaml",
+ "case_hash": "fnv1a64:0000000000000000", "robot_hash": "fnv1a64:0000000000000000",
+ "patient_model_hash": "fnv1a64:0000000000000000"}, "robot": {"arms": [{"name": "psm1",
+ "rcm_frame": "psm1_rcm", "role": "instrument"}]}, "scoring": {"ik_tolerance_m": 0.001,
+ "scope_half_fov_deg": 35, "scope_min_distance_m": 0.02, "scope_max_distance_m": 0.15},
+ "plans": [{"rank": 1, "score": 0.5, "cart": {"x": 0, "y": -0.8, "yaw_deg": 90}, "ports": []}]})");
   fs::remove_all(tmp);
   std::cout << "fuzz seeds written to " << out << "\n";
   return 0;
