@@ -230,7 +230,11 @@ const char* ImageElementVr(std::uint32_t tag) {
       {Tag32(0x0028, 0x0100), "US"}, {Tag32(0x0028, 0x0101), "US"}, {Tag32(0x0028, 0x0102), "US"},
       {Tag32(0x0028, 0x0103), "US"}, {Tag32(0x0028, 0x1050), "DS"}, {Tag32(0x0028, 0x1051), "DS"},
       {Tag32(0x0028, 0x1052), "DS"}, {Tag32(0x0028, 0x1053), "DS"}, {Tag32(0x0028, 0x1054), "LO"},
-      {Tag32(0x3004, 0x000C), "DS"}};
+      {Tag32(0x3004, 0x000C), "DS"}, {Tag32(0x7FE0, 0x0010), "OB/OW"},
+      {Tag32(0x0028, 0x0034), "IS"}, {Tag32(0x0020, 0x000D), "UI"}, {Tag32(0x0020, 0x000E), "UI"},
+      {Tag32(0x0008, 0x0018), "UI"}, {Tag32(0x0002, 0x0010), "UI"}, {Tag32(0x5200, 0x9229), "SQ"},
+      {Tag32(0x5200, 0x9230), "SQ"}, {Tag32(0x0028, 0x9110), "SQ"}, {Tag32(0x0020, 0x9113), "SQ"},
+      {Tag32(0x0020, 0x9116), "SQ"}};
   const auto it = kVr.find(tag);
   return it == kVr.end() ? nullptr : it->second;
 }
@@ -264,8 +268,11 @@ class Walker {
       // GDCM's image helpers assert that these carry their dictionary VR (found by fuzzing:
       // pixel spacing written as US aborted the process).
       const char* expected = ImageElementVr(tag);
-      TROCAR_THROW_UNLESS(expected == nullptr || (vr[0] == expected[0] && vr[1] == expected[1]) ||
-                              (vr[0] == 'U' && vr[1] == 'N'),
+      const std::string allowed = expected == nullptr ? "" : expected;  // "OB/OW": either
+      const bool fits = expected == nullptr || (vr[0] == 'U' && vr[1] == 'N') ||
+                        (allowed.find(std::string(vr, 2)) != std::string::npos &&
+                         allowed.find(std::string(vr, 2)) % 3 == 0);
+      TROCAR_THROW_UNLESS(fits,
                           file_ << ": element " << TagName32(tag) << " at byte " << pos - 4
                                 << " has value representation " << std::string(vr, 2)
                                 << ", expected " << expected);
@@ -385,6 +392,7 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
   const Walker walker(data, file, ts == "1.2.840.10008.1.2.2");
   const bool explicit_vr = ts != "1.2.840.10008.1.2";
   std::map<std::uint32_t, Range> top;  // top-level elements of defined length
+  bool has_pixels = false;
   // GDCM asserts on a file that ends right after its meta information (found by fuzz_dicom).
   TROCAR_THROW_UNLESS(walker.Has(at, 8) && !walker.OnlyZerosFrom(at),
                       file << ": no dataset after the file meta information (truncated?)");
@@ -396,11 +404,23 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
     // by fuzz_dicom).
     TROCAR_THROW_UNLESS((tag >> 16) != 0xFFFE, file << ": " << TagName32(tag) << " at byte " << at - 8
                                                    << " outside a sequence (garbled file)");
+    if (tag == Tag32(0x7FE0, 0x0010)) has_pixels = true;
     if (value.length == kUndefinedLength) {
       walker.SkipSequence(at, explicit_vr, 0);
     } else {
       walker.Skip(at, value.length);
       top[tag] = value;
+    }
+  }
+  // An image's pixel description is required, not defaulted: GDCM fills gaps with defaults that
+  // can contradict each other and then asserts (bits stored above bits allocated; fuzz_dicom).
+  if (has_pixels) {
+    for (const auto& [element, name] : {std::make_pair(0x0010, "rows"), std::make_pair(0x0011, "columns"),
+                                        std::make_pair(0x0100, "bits allocated"),
+                                        std::make_pair(0x0101, "bits stored")}) {
+      TROCAR_THROW_UNLESS(top.count(Tag32(0x0028, static_cast<std::uint16_t>(element))),
+                          file << ": an image without " << name << " "
+                               << TagName32(Tag32(0x0028, static_cast<std::uint16_t>(element))));
     }
   }
   // The image pixel module, which GDCM asserts on rather than checks: values in range here.

@@ -471,6 +471,34 @@ TEST_F(Hostile, AnItemOutsideASequenceIsRefused) {
   EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "outside a sequence");
 }
 
+// Found by fuzz_dicom: an image without bits allocated and bits stored, which GDCM defaults
+// inconsistently and then asserts on (bits stored above bits allocated). The 40 bytes it found.
+TEST_F(Hostile, AnImageWithoutItsPixelDescriptionIsRefused) {
+  const std::string path = Write("bits/x.dcm", std::string("\x08\x00\x28\x00\x10\x00\x00\x00\x02\x00\x10\x00\x00\x00\x00\xff\xff\xff\xff\xff\xff\xff\x26\x00\xe0\x7f\x10\x00\x00\x00\x00\x00\xe0\x7f\x10\x00\x00\x00\x00\x00", 40));
+  const std::string e = ErrorOf([&] { patient::LoadDicomSeries(path); });
+  EXPECT_HAS(e, "x.dcm");
+}
+
+// Found by fuzz_dicom (the CI slice): pixel data (7FE0,0010) written as a sequence (VR SQ) made
+// GDCM assert. Pixel data must be OB or OW.
+TEST_F(Hostile, PixelDataWithAnotherValueRepresentationIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 2);
+  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+  v.values.assign(32, 0.0f);
+  patient::WriteDicomSeries(v, dir_ + "/ct");
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    std::string bytes = ReadBinaryFile(entry.path().string());
+    const std::size_t at = bytes.find(std::string("\xe0\x7f\x10\x00", 4));
+    ASSERT_NE(at, std::string::npos);
+    bytes[at + 4] = 'S';
+    bytes[at + 5] = 'Q';
+    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }),
+             "has value representation SQ, expected OB/OW");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed
