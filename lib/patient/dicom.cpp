@@ -463,6 +463,25 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
   TROCAR_THROW_UNLESS(photometric.empty() || photometric == "MONOCHROME2" || photometric == "MONOCHROME1",
                       file << ": photometric interpretation (0028,0004) '" << photometric
                            << "', expected MONOCHROME2");
+  // Rescale: GDCM asserts on a zero slope, or on an intercept without a slope (which it takes as
+  // 0; both found by fuzz_dicom): they come together, as numbers.
+  TROCAR_THROW_UNLESS(top.count(Tag32(0x0028, 0x1052)) == top.count(Tag32(0x0028, 0x1053)),
+                      file << ": rescale intercept (0028,1052) and rescale slope (0028,1053) must "
+                              "be given together");
+  for (const auto& [element, name] : {std::make_pair(0x1053, "rescale slope"),
+                                      std::make_pair(0x1052, "rescale intercept")}) {
+    const std::string value = text(0x0028, static_cast<std::uint16_t>(element));
+    if (value.empty()) continue;
+    const std::string first = value.substr(0, value.find('\\'));
+    char* end = nullptr;
+    const double x = std::strtod(first.c_str(), &end);
+    while (end != nullptr && *end == ' ') ++end;
+    TROCAR_THROW_UNLESS(end != first.c_str() && end != nullptr && *end == '\0' && std::isfinite(x) &&
+                            (element != 0x1053 || x != 0.0),
+                        file << ": " << name << " " << TagName32(Tag32(0x0028, static_cast<std::uint16_t>(element)))
+                             << " is '" << value << "', expected a finite number"
+                             << (element == 0x1053 ? " other than 0" : ""));
+  }
   if (const std::string frames = text(0x0028, 0x0008); !frames.empty()) {
     char* end = nullptr;
     const long n = std::strtol(frames.c_str(), &end, 10);

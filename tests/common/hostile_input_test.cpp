@@ -499,6 +499,39 @@ TEST_F(Hostile, PixelDataWithAnotherValueRepresentationIsRefused) {
              "has value representation SQ, expected OB/OW");
 }
 
+// Found by fuzz_dicom: a rescale slope of 0 made GDCM assert. Refused by name.
+TEST_F(Hostile, AZeroRescaleSlopeIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 2);
+  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+  for (int i = 0; i < 32; ++i) v.values.push_back(0.5f * i);  // non-integers: a slope is written
+  patient::WriteDicomSeries(v, dir_ + "/ct");
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    std::string bytes = ReadBinaryFile(entry.path().string());
+    const std::size_t at = bytes.find(std::string("\x28\x00\x53\x10" "DS", 6));
+    ASSERT_NE(at, std::string::npos);
+    std::uint16_t length = 0;
+    std::memcpy(&length, &bytes[at + 6], 2);
+    bytes.replace(at + 8, length, std::string(length, ' ').replace(0, 1, "0"));
+    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "rescale slope");
+  // An intercept without a slope (GDCM took the slope as 0 and asserted): the slope's tag made
+  // a private one.
+  fs::remove_all(dir_ + "/ct");
+  patient::WriteDicomSeries(v, dir_ + "/ct");
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    std::string bytes = ReadBinaryFile(entry.path().string());
+    const std::size_t at = bytes.find(std::string("\x28\x00\x53\x10" "DS", 6));
+    ASSERT_NE(at, std::string::npos);
+    bytes[at] = '\x29';
+    bytes[at + 4] = 'L';
+    bytes[at + 5] = 'O';
+    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "must be given together");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed
