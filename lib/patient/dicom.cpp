@@ -360,6 +360,15 @@ std::string InflateRaw(const std::string& data, const std::string& file) {
   return out;
 }
 
+// A UID value: digits and dots, at most 64 characters, padded with one NUL or space; empty is
+// allowed (anonymised series blank them: totalseg-dicom-j2k).
+void CheckUid(std::string value, const std::string& file, std::uint32_t tag) {
+  while (!value.empty() && (value.back() == '\0' || value.back() == ' ')) value.pop_back();
+  TROCAR_THROW_UNLESS(value.size() <= 64 &&
+                          value.find_first_not_of("0123456789.") == std::string::npos,
+                      file << ": " << TagName32(tag) << " is not a UID (digits and dots)");
+}
+
 // Walks every element of a file (meta group, then the dataset in its transfer syntax's encoding).
 // @throws trocar::Error naming the file and where the structure breaks.
 void CheckStructure(const std::string& bytes, const std::string& file, Sniff sniff) {
@@ -380,6 +389,9 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
       if (tag == Tag32(0x0002, 0x0010)) {
         ts = bytes.substr(value.offset, value.length);
         while (!ts.empty() && (ts.back() == ' ' || ts.back() == '\0')) ts.pop_back();
+      }
+      if (tag == Tag32(0x0002, 0x0002) || tag == Tag32(0x0002, 0x0003) || tag == Tag32(0x0002, 0x0010)) {
+        CheckUid(bytes.substr(value.offset, value.length), file, tag);
       }
     }
     TROCAR_THROW_UNLESS(!ts.empty(), file << ": file meta information has no transfer syntax (0002,0010)");
@@ -411,6 +423,21 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
       walker.Skip(at, value.length);
       top[tag] = value;
     }
+  }
+  // UIDs are digits and dots (GDCM takes an unknown SOP class for ACR-NEMA and then asserts on
+  // the recognition code; found by fuzz_dicom); the retired recognition code, when there, is
+  // ACR-NEMA's.
+  for (const std::uint32_t uid : {Tag32(0x0008, 0x0016), Tag32(0x0008, 0x0018), Tag32(0x0020, 0x000D),
+                                  Tag32(0x0020, 0x000E)}) {
+    if (const auto it = top.find(uid); it != top.end()) {
+      CheckUid(data.substr(it->second.offset, it->second.length), file, uid);
+    }
+  }
+  if (const auto it = top.find(Tag32(0x0008, 0x0010)); it != top.end()) {
+    const std::string code = data.substr(it->second.offset, it->second.length);
+    TROCAR_THROW_UNLESS(code.rfind("ACR-NEMA", 0) == 0 || code.rfind("ACRNEMA", 0) == 0 ||
+                            code.rfind("MIPS 2.0", 0) == 0,
+                        file << ": recognition code (0008,0010) is not ACR-NEMA's (garbled file)");
   }
   // An image's pixel description is required, not defaulted: GDCM fills gaps with defaults that
   // can contradict each other and then asserts (bits stored above bits allocated; fuzz_dicom).

@@ -532,6 +532,25 @@ TEST_F(Hostile, AZeroRescaleSlopeIsRefused) {
   EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "must be given together");
 }
 
+// Found by fuzz_dicom: a media storage SOP class UID with garbage in it made GDCM take the file
+// for ACR-NEMA and assert on its recognition code. UIDs are checked (empty ones, as anonymised
+// series have, stay allowed).
+TEST_F(Hostile, AGarbledUidIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 2);
+  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+  v.values.assign(32, 0.0f);
+  patient::WriteDicomSeries(v, dir_ + "/ct");
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    std::string bytes = ReadBinaryFile(entry.path().string());
+    const std::size_t at = bytes.find(std::string("\x02\x00\x02\x00" "UI", 6));
+    ASSERT_NE(at, std::string::npos);
+    bytes[at + 8 + 5] = '(';
+    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "(0002,0002) is not a UID");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed
