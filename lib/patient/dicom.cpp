@@ -15,6 +15,7 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <set>
 #include <sstream>
 
 #include <unistd.h>
@@ -405,6 +406,7 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
   const bool explicit_vr = ts != "1.2.840.10008.1.2";
   std::map<std::uint32_t, Range> top;  // top-level elements of defined length
   bool has_pixels = false;
+  std::set<std::uint32_t> seen;
   // GDCM asserts on a file that ends right after its meta information (found by fuzz_dicom).
   TROCAR_THROW_UNLESS(walker.Has(at, 8) && !walker.OnlyZerosFrom(at),
                       file << ": no dataset after the file meta information (truncated?)");
@@ -417,6 +419,9 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
     TROCAR_THROW_UNLESS((tag >> 16) != 0xFFFE, file << ": " << TagName32(tag) << " at byte " << at - 8
                                                    << " outside a sequence (garbled file)");
     if (tag == Tag32(0x7FE0, 0x0010)) has_pixels = true;
+    // GDCM keeps the first of a repeated element, this walk would check the last: refuse both
+    // (a repeated samples-per-pixel passed here and made GDCM assert; fuzz_dicom).
+    TROCAR_THROW_UNLESS(seen.insert(tag).second, file << ": " << TagName32(tag) << " appears twice");
     if (value.length == kUndefinedLength) {
       walker.SkipSequence(at, explicit_vr, 0);
     } else {

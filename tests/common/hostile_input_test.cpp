@@ -551,6 +551,26 @@ TEST_F(Hostile, AGarbledUidIsRefused) {
   EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "(0002,0002) is not a UID");
 }
 
+// Found by fuzz_dicom: samples per pixel given twice, garbage first; GDCM used the first and
+// asserted, the walk had checked the last. A repeated element is refused.
+TEST_F(Hostile, ARepeatedElementIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 2);
+  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+  v.values.assign(32, 0.0f);
+  patient::DicomWriteOptions options;
+  options.implicit_vr = true;
+  patient::WriteDicomSeries(v, dir_ + "/ct", options);
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    std::string bytes = ReadBinaryFile(entry.path().string());
+    const std::size_t at = bytes.find(std::string("\x28\x00\x02\x00\x02\x00\x00\x00", 8));
+    ASSERT_NE(at, std::string::npos);
+    bytes.insert(at, std::string("\x28\x00\x02\x00\x02\x00\x00\x00\x07\x00", 10));
+    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "(0028,0002) appears twice");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed
