@@ -514,11 +514,23 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
                              << " is '" << value << "', expected a finite number"
                              << (element == 0x1053 ? " other than 0" : ""));
   }
+  long frame_count = 1;
   if (const std::string frames = text(0x0028, 0x0008); !frames.empty()) {
     char* end = nullptr;
     const long n = std::strtol(frames.c_str(), &end, 10);
     TROCAR_THROW_UNLESS(end && *end == '\0' && n >= 1 && n <= 65535,
                         file << ": number of frames (0028,0008) '" << frames << "', expected 1 to 65535");
+    frame_count = n;
+  }
+  // Native (not encapsulated) pixel data holds every pixel the header describes: GDCM's raw codec
+  // copies that many bytes whatever the element's length (a heap over-read; fuzz_dicom).
+  if (const auto it = top.find(Tag32(0x7FE0, 0x0010)); it != top.end()) {
+    const std::uint64_t needed = static_cast<std::uint64_t>(rows) * columns * (allocated / 8) *
+                                 samples * static_cast<std::uint64_t>(frame_count);
+    TROCAR_THROW_UNLESS(it->second.length >= needed,
+                        file << ": pixel data (7FE0,0010) has " << it->second.length << " bytes, "
+                             << rows << " x " << columns << " pixels of " << allocated
+                             << " bits x " << frame_count << " frame(s) need " << needed);
   }
 }
 

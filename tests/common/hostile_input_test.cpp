@@ -571,6 +571,30 @@ TEST_F(Hostile, ARepeatedElementIsRefused) {
   EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "(0028,0002) appears twice");
 }
 
+// Found by fuzz_dicom (ASan: a heap over-read in GDCM's raw codec): native pixel data shorter
+// than the rows, columns and bits describe. Refused with both sizes.
+TEST_F(Hostile, ShortNativePixelDataIsRefused) {
+  patient::Volume v;
+  v.size = Eigen::Vector3i(4, 4, 2);
+  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+  v.values.assign(32, 0.0f);
+  patient::WriteDicomSeries(v, dir_ + "/ct");
+  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
+    std::string bytes = ReadBinaryFile(entry.path().string());
+    const std::size_t at = bytes.find(std::string("\xe0\x7f\x10\x00", 4));
+    ASSERT_NE(at, std::string::npos);
+    std::uint32_t length = 0;
+    std::memcpy(&length, &bytes[at + 8], 4);
+    ASSERT_EQ(length, 32u);
+    length -= 8;
+    std::memcpy(&bytes[at + 8], &length, 4);
+    bytes.resize(bytes.size() - 8);
+    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }),
+             "pixel data (7FE0,0010) has 24 bytes, 4 x 4 pixels of 16 bits x 1 frame(s) need 32");
+}
+
 // ---- Interrupted or repeated commands -----------------------------------------------------------
 
 // A first-use phantom generation killed between the CT and the markups left a case that failed
