@@ -8,6 +8,9 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <vector>
+#include <stdexcept>
+#include <functional>
 
 #include <gtest/gtest.h>
 #include <zlib.h>
@@ -41,6 +44,41 @@ class Hostile : public ::testing::Test {
     fs::create_directories(fs::path(path).parent_path());
     std::ofstream(path, std::ios::binary) << bytes;
     return path;
+  }
+  // A 4 × 4 × 2 DICOM series (1 mm voxels) in dir_/ct with every file's bytes passed through
+  // `damage`, the corruption under test; returns the folder.
+  std::string DamagedSeries(const std::function<void(std::string&)>& damage, bool implicit_vr = false,
+                            std::vector<float> values = std::vector<float>(32, 0.0f)) {
+    patient::Volume v;
+    v.size = Eigen::Vector3i(4, 4, 2);
+    v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
+    v.values = std::move(values);
+    patient::DicomWriteOptions options;
+    options.implicit_vr = implicit_vr;
+    const std::string folder = dir_ + "/ct";
+    fs::remove_all(folder);
+    patient::WriteDicomSeries(v, folder, options);
+    int files = 0;
+    for (const auto& entry : fs::directory_iterator(folder)) {
+      std::string bytes = ReadBinaryFile(entry.path().string());
+      damage(bytes);
+      std::ofstream(entry.path(), std::ios::binary | std::ios::trunc) << bytes;
+      ++files;
+    }
+    EXPECT_EQ(files, 2);
+    return folder;
+  }
+  // Where `needle` is in `bytes`; throws (failing the test) when it is not.
+  static std::size_t Find(const std::string& bytes, const std::string& needle) {
+    const std::size_t at = bytes.find(needle);
+    if (at == std::string::npos) throw std::runtime_error("element to damage not found");
+    return at;
+  }
+  // The end of a file's meta information: (0002,0000) group length after preamble and magic.
+  static std::size_t MetaEnd(const std::string& bytes) {
+    std::uint32_t group_length = 0;
+    std::memcpy(&group_length, &bytes[132 + 8], 4);
+    return 132 + 12 + group_length;
   }
   template <typename F>
   std::string ErrorOf(F&& f) {
@@ -401,44 +439,19 @@ TEST_F(Hostile, DegenerateVoxelSpacingIsRefused) {
 // Found by fuzz_dicom: pixel spacing (0028,0030) with another VR than DS made GDCM's image
 // helper assert, aborting the process. Now refused by the structure walk, by element and VR.
 TEST_F(Hostile, AnImageElementWithTheWrongValueRepresentationIsRefused) {
-  patient::Volume v;
-  v.size = Eigen::Vector3i(4, 4, 2);
-  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
-  v.values.assign(32, 0.0f);
-  patient::WriteDicomSeries(v, dir_ + "/ct");
-  int changed = 0;
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    std::string bytes = ReadBinaryFile(entry.path().string());
-    const std::string spacing("\x28\x00\x30\x00" "DS", 6);
-    const std::size_t at = bytes.find(spacing);
-    ASSERT_NE(at, std::string::npos);
-    bytes[at + 4] = 'U';
-    bytes[at + 5] = 'S';
-    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
-    ++changed;
-  }
-  ASSERT_EQ(changed, 2);
-  const std::string e = ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); });
+  const std::string ct = DamagedSeries([](std::string& bytes) {
+    const std::size_t at = Find(bytes, std::string("\x28\x00\x30\x00" "DS", 6));
+    bytes.replace(at + 4, 2, "US");
+  });
+  const std::string e = ErrorOf([&] { patient::LoadVolume(ct); });
   EXPECT_HAS(e, "(0028,0030)");
   EXPECT_HAS(e, "has value representation US, expected DS");
 }
 
 // Found by fuzz_dicom: a file that ends right after its file meta information made GDCM assert.
 TEST_F(Hostile, ADicomFileWithOnlyItsMetaInformationIsRefused) {
-  patient::Volume v;
-  v.size = Eigen::Vector3i(4, 4, 2);
-  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
-  v.values.assign(32, 0.0f);
-  patient::WriteDicomSeries(v, dir_ + "/ct");
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    const std::string bytes = ReadBinaryFile(entry.path().string());
-    // (0002,0000) group length right after the preamble and magic: the meta ends there.
-    std::uint32_t group_length = 0;
-    std::memcpy(&group_length, &bytes[132 + 8], 4);
-    { std::ofstream(entry.path(), std::ios::binary) << bytes.substr(0, 132 + 12 + group_length); }
-  }
-  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }),
-             "no dataset after the file meta information");
+  const std::string ct = DamagedSeries([](std::string& bytes) { bytes.resize(MetaEnd(bytes)); });
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(ct); }), "no dataset after the file meta information");
 }
 
 // Found by fuzz_dicom: eight bytes starting like a file meta group (0002,00F5) without the
@@ -454,21 +467,12 @@ TEST_F(Hostile, AMetaGroupWithoutPreambleIsCheckedBeforeGdcm) {
 // Found by fuzz_dicom (the CI slice): an item tag (FFFE,E000) at the top level of an implicit VR
 // dataset made GDCM assert. Items belong inside sequences: refused by the walk.
 TEST_F(Hostile, AnItemOutsideASequenceIsRefused) {
-  patient::Volume v;
-  v.size = Eigen::Vector3i(4, 4, 2);
-  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
-  v.values.assign(32, 0.0f);
-  patient::DicomWriteOptions options;
-  options.implicit_vr = true;
-  patient::WriteDicomSeries(v, dir_ + "/ct", options);
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    std::string bytes = ReadBinaryFile(entry.path().string());
-    std::uint32_t group_length = 0;
-    std::memcpy(&group_length, &bytes[132 + 8], 4);
-    bytes.insert(132 + 12 + group_length, std::string("\xfe\xff\x00\xe0\x00\x00\x00\x00", 8));
-    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
-  }
-  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "outside a sequence");
+  const std::string ct = DamagedSeries(
+      [](std::string& bytes) {
+        bytes.insert(MetaEnd(bytes), std::string("\xfe\xff\x00\xe0\x00\x00\x00\x00", 8));
+      },
+      /*implicit_vr=*/true);
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(ct); }), "outside a sequence");
 }
 
 // Found by fuzz_dicom: an image without bits allocated and bits stored, which GDCM defaults
@@ -482,116 +486,73 @@ TEST_F(Hostile, AnImageWithoutItsPixelDescriptionIsRefused) {
 // Found by fuzz_dicom (the CI slice): pixel data (7FE0,0010) written as a sequence (VR SQ) made
 // GDCM assert. Pixel data must be OB or OW.
 TEST_F(Hostile, PixelDataWithAnotherValueRepresentationIsRefused) {
-  patient::Volume v;
-  v.size = Eigen::Vector3i(4, 4, 2);
-  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
-  v.values.assign(32, 0.0f);
-  patient::WriteDicomSeries(v, dir_ + "/ct");
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    std::string bytes = ReadBinaryFile(entry.path().string());
-    const std::size_t at = bytes.find(std::string("\xe0\x7f\x10\x00", 4));
-    ASSERT_NE(at, std::string::npos);
-    bytes[at + 4] = 'S';
-    bytes[at + 5] = 'Q';
-    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
-  }
-  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }),
-             "has value representation SQ, expected OB/OW");
+  const std::string ct = DamagedSeries([](std::string& bytes) {
+    bytes.replace(Find(bytes, std::string("\xe0\x7f\x10\x00", 4)) + 4, 2, "SQ");
+  });
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(ct); }), "has value representation SQ, expected OB/OW");
 }
 
 // Found by fuzz_dicom: a rescale slope of 0 made GDCM assert. Refused by name.
 TEST_F(Hostile, AZeroRescaleSlopeIsRefused) {
-  patient::Volume v;
-  v.size = Eigen::Vector3i(4, 4, 2);
-  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
-  for (int i = 0; i < 32; ++i) v.values.push_back(0.5f * i);  // non-integers: a slope is written
-  patient::WriteDicomSeries(v, dir_ + "/ct");
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    std::string bytes = ReadBinaryFile(entry.path().string());
-    const std::size_t at = bytes.find(std::string("\x28\x00\x53\x10" "DS", 6));
-    ASSERT_NE(at, std::string::npos);
-    std::uint16_t length = 0;
-    std::memcpy(&length, &bytes[at + 6], 2);
-    bytes.replace(at + 8, length, std::string(length, ' ').replace(0, 1, "0"));
-    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
-  }
-  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "rescale slope");
+  std::vector<float> values;
+  for (int i = 0; i < 32; ++i) values.push_back(0.5f * i);  // non-integers: a slope is written
+  const std::string slope("\x28\x00\x53\x10" "DS", 6);
+  std::string ct = DamagedSeries(
+      [&](std::string& bytes) {
+        const std::size_t at = Find(bytes, slope);
+        std::uint16_t length = 0;
+        std::memcpy(&length, &bytes[at + 6], 2);
+        bytes.replace(at + 8, length, std::string(length, ' ').replace(0, 1, "0"));
+      },
+      false, values);
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(ct); }), "rescale slope");
   // An intercept without a slope (GDCM took the slope as 0 and asserted): the slope's tag made
   // a private one.
-  fs::remove_all(dir_ + "/ct");
-  patient::WriteDicomSeries(v, dir_ + "/ct");
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    std::string bytes = ReadBinaryFile(entry.path().string());
-    const std::size_t at = bytes.find(std::string("\x28\x00\x53\x10" "DS", 6));
-    ASSERT_NE(at, std::string::npos);
-    bytes[at] = '\x29';
-    bytes[at + 4] = 'L';
-    bytes[at + 5] = 'O';
-    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
-  }
-  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "must be given together");
+  ct = DamagedSeries(
+      [&](std::string& bytes) {
+        const std::size_t at = Find(bytes, slope);
+        bytes[at] = '\x29';
+        bytes.replace(at + 4, 2, "LO");
+      },
+      false, values);
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(ct); }), "must be given together");
 }
 
 // Found by fuzz_dicom: a media storage SOP class UID with garbage in it made GDCM take the file
 // for ACR-NEMA and assert on its recognition code. UIDs are checked (empty ones, as anonymised
 // series have, stay allowed).
 TEST_F(Hostile, AGarbledUidIsRefused) {
-  patient::Volume v;
-  v.size = Eigen::Vector3i(4, 4, 2);
-  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
-  v.values.assign(32, 0.0f);
-  patient::WriteDicomSeries(v, dir_ + "/ct");
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    std::string bytes = ReadBinaryFile(entry.path().string());
-    const std::size_t at = bytes.find(std::string("\x02\x00\x02\x00" "UI", 6));
-    ASSERT_NE(at, std::string::npos);
-    bytes[at + 8 + 5] = '(';
-    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
-  }
-  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "(0002,0002) is not a UID");
+  const std::string ct = DamagedSeries([](std::string& bytes) {
+    bytes[Find(bytes, std::string("\x02\x00\x02\x00" "UI", 6)) + 8 + 5] = '(';
+  });
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(ct); }), "(0002,0002) is not a UID");
 }
 
 // Found by fuzz_dicom: samples per pixel given twice, garbage first; GDCM used the first and
 // asserted, the walk had checked the last. A repeated element is refused.
 TEST_F(Hostile, ARepeatedElementIsRefused) {
-  patient::Volume v;
-  v.size = Eigen::Vector3i(4, 4, 2);
-  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
-  v.values.assign(32, 0.0f);
-  patient::DicomWriteOptions options;
-  options.implicit_vr = true;
-  patient::WriteDicomSeries(v, dir_ + "/ct", options);
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    std::string bytes = ReadBinaryFile(entry.path().string());
-    const std::size_t at = bytes.find(std::string("\x28\x00\x02\x00\x02\x00\x00\x00", 8));
-    ASSERT_NE(at, std::string::npos);
-    bytes.insert(at, std::string("\x28\x00\x02\x00\x02\x00\x00\x00\x07\x00", 10));
-    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
-  }
-  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }), "(0028,0002) appears twice");
+  const std::string ct = DamagedSeries(
+      [](std::string& bytes) {
+        bytes.insert(Find(bytes, std::string("\x28\x00\x02\x00\x02\x00\x00\x00", 8)),
+                     std::string("\x28\x00\x02\x00\x02\x00\x00\x00\x07\x00", 10));
+      },
+      /*implicit_vr=*/true);
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(ct); }), "(0028,0002) appears twice");
 }
 
 // Found by fuzz_dicom (ASan: a heap over-read in GDCM's raw codec): native pixel data shorter
 // than the rows, columns and bits describe. Refused with both sizes.
 TEST_F(Hostile, ShortNativePixelDataIsRefused) {
-  patient::Volume v;
-  v.size = Eigen::Vector3i(4, 4, 2);
-  v.index_to_P = 1e-3 * Eigen::Matrix3d::Identity();
-  v.values.assign(32, 0.0f);
-  patient::WriteDicomSeries(v, dir_ + "/ct");
-  for (const auto& entry : fs::directory_iterator(dir_ + "/ct")) {
-    std::string bytes = ReadBinaryFile(entry.path().string());
-    const std::size_t at = bytes.find(std::string("\xe0\x7f\x10\x00", 4));
-    ASSERT_NE(at, std::string::npos);
+  const std::string ct = DamagedSeries([](std::string& bytes) {
+    const std::size_t at = Find(bytes, std::string("\xe0\x7f\x10\x00", 4));
     std::uint32_t length = 0;
     std::memcpy(&length, &bytes[at + 8], 4);
-    ASSERT_EQ(length, 32u);
+    EXPECT_EQ(length, 32u);
     length -= 8;
     std::memcpy(&bytes[at + 8], &length, 4);
     bytes.resize(bytes.size() - 8);
-    { std::ofstream(entry.path(), std::ios::binary) << bytes; }
-  }
-  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/ct"); }),
+  });
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(ct); }),
              "pixel data (7FE0,0010) has 24 bytes, 4 x 4 pixels of 16 bits x 1 frame(s) need 32");
 }
 
