@@ -30,6 +30,7 @@
 #include <gdcmTransferSyntax.h>
 
 #include "common/error.hpp"
+#include "common/isolate.hpp"
 #include "common/limits.hpp"
 #include "common/file_util.hpp"
 #include "patient/volume.hpp"
@@ -537,6 +538,9 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
 // Reads one file into its slices (one, or one per frame). Returns false when it is not a DICOM
 // image (not DICOM, or a DICOMDIR, a report, a presentation state), so that folders may hold
 // such files beside the slices.
+bool DecodeIsolated(const std::string& bytes_read, const std::string& file, Sniff sniff,
+                    std::vector<Slice>* out);
+
 bool ReadFile(const std::string& file, std::vector<Slice>* out) {
   QuietGdcm();
   const Sniff sniff = SniffFile(file);
@@ -549,6 +553,12 @@ bool ReadFile(const std::string& file, std::vector<Slice>* out) {
                            << " a DICOM image file may have here");
   const std::string bytes_read = ReadBinaryFile(file);
   CheckStructure(bytes_read, file, sniff);
+  return DecodeIsolated(bytes_read, file, sniff, out);
+}
+
+// GDCM's part of reading one file: parse `bytes_read`, decode the pixels, fill the slices.
+bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Sniff sniff,
+                    std::vector<Slice>* out) {
   std::istringstream stream(bytes_read);
   gdcm::ImageReader reader;
   reader.SetStream(stream);
@@ -730,6 +740,132 @@ bool ReadFile(const std::string& file, std::vector<Slice>* out) {
     out->push_back(std::move(fs));
   }
   return true;
+}
+
+// The slices of one file, sent from the decoder process to trocar: plain bytes in this machine's
+// order (both ends are this program). Every frame of a file shares one array of values.
+class SliceWriter {
+ public:
+  explicit SliceWriter(std::string* out) : out_(out) {}
+  template <typename T>
+  void Put(const T& v) {
+    out_->append(reinterpret_cast<const char*>(&v), sizeof v);
+  }
+  void Put(const std::string& s) {
+    Put<std::uint64_t>(s.size());
+    out_->append(s);
+  }
+  void Put(const Eigen::Vector3d& v) { out_->append(reinterpret_cast<const char*>(v.data()), sizeof(double) * 3); }
+  void Put(const Eigen::Vector2d& v) { out_->append(reinterpret_cast<const char*>(v.data()), sizeof(double) * 2); }
+
+ private:
+  std::string* out_;
+};
+
+class SliceReader {
+ public:
+  SliceReader(const std::string& in, const std::string& file) : in_(in), file_(file) {}
+  void Raw(void* to, std::size_t n) {
+    TROCAR_THROW_UNLESS(n <= in_.size() - at_, file_ << ": the DICOM decoder's answer is truncated");
+    std::memcpy(to, in_.data() + at_, n);
+    at_ += n;
+  }
+  template <typename T>
+  T Get() {
+    T v;
+    Raw(&v, sizeof v);
+    return v;
+  }
+  std::string String() {
+    const auto n = Get<std::uint64_t>();
+    TROCAR_THROW_UNLESS(n <= in_.size() - at_, file_ << ": the DICOM decoder's answer is truncated");
+    std::string s = in_.substr(at_, n);
+    at_ += n;
+    return s;
+  }
+  bool AtEnd() const { return at_ == in_.size(); }
+
+ private:
+  const std::string& in_;
+  const std::string& file_;
+  std::size_t at_ = 0;
+};
+
+// Decodes one file in a child process (lib/common/isolate): Debian's GDCM asserts (aborts) on
+// many damaged files that trocar's structure walk cannot all foresee; an abort there is an error
+// naming the file, not the end of trocar.
+bool DecodeIsolated(const std::string& bytes_read, const std::string& file, Sniff sniff,
+                    std::vector<Slice>* out) {
+  IsolateOptions options;
+  // The answer: 4 bytes a voxel (float) plus the header of each frame.
+  options.max_output_bytes = Limits().max_voxels * sizeof(float) + (std::uint64_t{1} << 20);
+  options.timeout_s = 60.0 + static_cast<double>(bytes_read.size()) / 1e6;  // 1 s a MB beyond
+  const std::string answer = RunIsolated(file, [&](std::string* o) {
+    std::vector<Slice> slices;
+    const bool image = DecodeWithGdcm(bytes_read, file, sniff, &slices);
+    SliceWriter w(o);
+    w.Put<std::uint8_t>(image ? 1 : 0);
+    w.Put<std::uint64_t>(slices.size());
+    for (const Slice& s : slices) {
+      w.Put(s.frame);
+      w.Put(s.frames);
+      w.Put(s.series_uid);
+      w.Put(s.modality);
+      w.Put(s.description);
+      w.Put(s.rows);
+      w.Put(s.columns);
+      w.Put<std::uint8_t>(s.is_signed ? 1 : 0);
+      w.Put(s.slope);
+      w.Put(s.intercept);
+      w.Put(s.position_mm);
+      w.Put(s.row_direction);
+      w.Put(s.column_direction);
+      w.Put(s.spacing_mm);
+      w.Put(s.instance);
+    }
+    const std::vector<float> none;
+    const std::vector<float>& values = slices.empty() || !slices.front().values ? none : *slices.front().values;
+    w.Put<std::uint64_t>(values.size());
+    o->append(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float));
+  }, options);
+
+  SliceReader r(answer, file);
+  const bool image = r.Get<std::uint8_t>() != 0;
+  const auto count = r.Get<std::uint64_t>();
+  TROCAR_THROW_UNLESS(count <= answer.size(), file << ": the DICOM decoder's answer is damaged");
+  std::vector<Slice> slices(count);
+  std::uint64_t voxels = 0;
+  for (Slice& s : slices) {
+    s.file = file;
+    s.frame = r.Get<int>();
+    s.frames = r.Get<int>();
+    s.series_uid = r.String();
+    s.modality = r.String();
+    s.description = r.String();
+    s.rows = r.Get<int>();
+    s.columns = r.Get<int>();
+    s.is_signed = r.Get<std::uint8_t>() != 0;
+    s.slope = r.Get<double>();
+    s.intercept = r.Get<double>();
+    r.Raw(s.position_mm.data(), sizeof(double) * 3);
+    r.Raw(s.row_direction.data(), sizeof(double) * 3);
+    r.Raw(s.column_direction.data(), sizeof(double) * 3);
+    r.Raw(s.spacing_mm.data(), sizeof(double) * 2);
+    s.instance = r.Get<int>();
+    voxels += static_cast<std::uint64_t>(s.rows) * static_cast<std::uint64_t>(s.columns);
+  }
+  const auto n = r.Get<std::uint64_t>();
+  TROCAR_THROW_UNLESS(n == voxels && n * sizeof(float) <= answer.size(),
+                      file << ": the DICOM decoder's answer is damaged (" << n << " values for "
+                           << voxels << " pixels)");
+  auto values = std::make_shared<std::vector<float>>(n);
+  r.Raw(values->data(), n * sizeof(float));
+  TROCAR_THROW_UNLESS(r.AtEnd(), file << ": the DICOM decoder's answer is damaged (trailing bytes)");
+  for (Slice& s : slices) {
+    s.values = values;
+    out->push_back(std::move(s));
+  }
+  return image;
 }
 
 // Decimal string of at most 16 characters (the DS limit), as precise as fits.
