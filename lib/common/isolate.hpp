@@ -5,8 +5,9 @@
 /// files) ends in a trocar::Error naming the file instead of taking trocar down with it.
 ///
 /// The child is a fork of this process: it sees the caller's memory as it was (the bytes already
-/// read and checked), runs `work`, and sends back the bytes `work` produced through a pipe. The
-/// parent bounds what it accepts (`max_output_bytes`) and how long it waits (`timeout_s`).
+/// read and checked), runs `work`, and leaves the bytes `work` produced in an in-memory file
+/// (memfd) sealed at `max_output_bytes`; the parent reads them once the child has ended, within
+/// `timeout_s`. What the child prints to its standard error is kept (64 KiB) for the message.
 
 #include <cstdint>
 #include <functional>

@@ -767,6 +767,7 @@ class SliceReader {
   SliceReader(const std::string& in, const std::string& file) : in_(in), file_(file) {}
   void Raw(void* to, std::size_t n) {
     TROCAR_THROW_UNLESS(n <= in_.size() - at_, file_ << ": the DICOM decoder's answer is truncated");
+    if (n == 0) return;  // `to` may be the null data of an empty vector
     std::memcpy(to, in_.data() + at_, n);
     at_ += n;
   }

@@ -18,8 +18,14 @@
 namespace trocar::fuzz {
 
 /// A folder of this process's own (several fuzzers may run at once), made on first use.
+/// TROCAR_FUZZ_DIR names it outright: the paths a reader sees (and compares, which libFuzzer
+/// records) are then the same from run to run, so a seeded run of a fixed count repeats.
 inline const std::string& WorkDir() {
   static const std::string dir = [] {
+    if (const char* fixed = std::getenv("TROCAR_FUZZ_DIR"); fixed != nullptr && *fixed != '\0') {
+      std::filesystem::create_directories(fixed);
+      return std::string(fixed);
+    }
     const char* base = std::getenv("TMPDIR");
     std::string d = std::string(base != nullptr ? base : "/tmp") + "/trocar-fuzz-" +
                     std::to_string(::getpid());
