@@ -12,7 +12,9 @@ ControlLoop::ControlLoop(const robot::RobotModel& model, std::unique_ptr<Control
       state_(model),
       qdot_(Eigen::VectorXd::Zero(model.num_positions())),
       qdot_command_(Eigen::VectorXd::Zero(model.num_positions())),
+      qdot_applied_(Eigen::VectorXd::Zero(model.num_positions())),
       q_next_(Eigen::VectorXd::Zero(model.num_positions())) {
+  workspace_.Resize(model.num_positions());
   TROCAR_THROW_UNLESS(controller_ != nullptr, "ControlLoop: no controller");
   state_.X_WB = X_WB;
   const auto result = kinematics::ForwardKinematics(model_, q0, &state_);
@@ -28,12 +30,11 @@ StepReport ControlLoop::Step(const TaskTarget& target, double dt) {
   StepReport report;
   if (dt > 0.0) {
     controller_->ComputeVelocity(model_, state_, target, &workspace_, &qdot_command_);
-    Eigen::VectorXd applied;
     report.limits =
-        ApplyJointLimits(model_, state_.q, qdot_, qdot_command_, dt, &applied, &q_next_);
+        ApplyJointLimits(model_, state_.q, qdot_, qdot_command_, dt, &qdot_applied_, &q_next_);
     const auto result = kinematics::SetConfiguration(model_, q_next_, &state_);
     if (result.ok) {
-      qdot_ = applied;
+      qdot_ = qdot_applied_;
       kinematics::ForwardKinematics(model_, &state_);
     } else {
       report.closure_refused = true;  // state unchanged: hold

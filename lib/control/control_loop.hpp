@@ -46,6 +46,7 @@ class ControlLoop {
   ControllerWorkspace workspace_;
   Eigen::VectorXd qdot_;
   Eigen::VectorXd qdot_command_;
+  Eigen::VectorXd qdot_applied_;
   Eigen::VectorXd q_next_;
 };
 

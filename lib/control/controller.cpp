@@ -1,14 +1,29 @@
 #include "control/controller.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/Eigenvalues>
-#include <Eigen/QR>
 
 #include "common/error.hpp"
 #include "kinematics/forward_kinematics.hpp"
 
 namespace trocar::control {
+
+void ControllerWorkspace::Resize(int n) {
+  if (J.cols() == n && frozen.size() == static_cast<std::size_t>(n)) return;
+  J.setZero(6, n);
+  J_task.setZero(6, n);
+  J_a.setZero(6, n);
+  J_b.setZero(6, n);
+  pinv2.setZero(n, 2);
+  N.setZero(n, n);
+  a.setZero(n);
+  b.setZero(n);
+  c.setZero(n);
+  frozen.assign(static_cast<std::size_t>(n), 0);
+  sigma_direction.setZero();
+}
 
 namespace {
 
@@ -19,6 +34,89 @@ Vector6d ToolTaskVelocity(const robot::RobotModel& model, const robot::RobotStat
   kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &ws->J);
   return target.V_WD +
          gains.asDiagonal() * TaskError(target.X_WD, kinematics::FramePose(state, model.tool_frame()));
+}
+
+// The rows of a task: all six, or the three linear ones (position only), as R × n views on the
+// top rows of a 6 × n buffer, so that R × R products and solves are fixed-size (on the stack).
+template <int R>
+using Rows = Eigen::Block<kinematics::Matrix6Xd, R, Eigen::Dynamic, false>;
+template <int R>
+using ConstRows = Eigen::Block<const kinematics::Matrix6Xd, R, Eigen::Dynamic, false>;
+
+// y = (J Jᵀ + λ² I)⁻¹ v with λ growing smoothly as the smallest singular value of J drops below
+// `threshold` (at most `max_damping`); q̇ = Jᵀ y is then the damped least-squares solution.
+// σ_min² (the smallest eigenvalue of J Jᵀ) comes from inverse iteration on the factorisation the
+// solve needs anyway, started from the last step's direction (`warm`): one or two iterations
+// when the arm moves smoothly. Its estimate never falls below the true value; it stops when two
+// estimates agree to 1e-4 (relative). A full eigen-decomposition per step cost more than the
+// rest of the step.
+template <int R, typename JacobianRows>
+Eigen::Matrix<double, R, 1> DampedSolve(const JacobianRows& J, const Eigen::Matrix<double, R, 1>& v,
+                                        double max_damping, double threshold, Vector6d* warm) {
+  using Vector = Eigen::Matrix<double, R, 1>;
+  Eigen::Matrix<double, R, R> JJt;
+  JJt.noalias() = J * J.transpose();
+  JJt.diagonal().array() += 1e-12;
+  // Cholesky: J Jᵀ + εI is symmetric positive definite (no pivoting needed; cheaper than LDLT).
+  Eigen::LLT<Eigen::Matrix<double, R, R>> chol(JJt);
+  Vector x = warm->head<R>();
+  if (!(x.squaredNorm() > 0.5)) x = Vector::Constant(1.0 / std::sqrt(static_cast<double>(R)));
+  double lambda_min = HUGE_VAL;
+  for (int iteration = 0; iteration < 100; ++iteration) {
+    const Vector y = chol.solve(x);
+    const double norm = y.norm();
+    if (!(norm > 0.0) || !std::isfinite(norm)) {  // singular to working precision
+      lambda_min = 0.0;
+      break;
+    }
+    const double estimate = 1.0 / norm;  // ≥ λ_min for a unit x
+    x = y / norm;
+    const bool settled = std::abs(lambda_min - estimate) <= 1e-4 * estimate;
+    lambda_min = estimate;
+    if (settled) break;
+  }
+  warm->head<R>() = x;
+  const double sigma_min = std::sqrt(std::max(0.0, lambda_min - 1e-12));
+  if (sigma_min >= threshold) return chol.solve(v);
+  const double ratio = sigma_min / threshold;
+  const double lambda2 = (1.0 - ratio * ratio) * max_damping * max_damping;
+  JJt.diagonal().array() += lambda2;
+  return JJt.llt().solve(v);
+}
+
+// x -= J⁺ J x (the projection of x onto the null space of J), with J⁺ = Jᵀ (J Jᵀ)⁺ and the
+// pseudo-inverse of the R × R J Jᵀ from its eigen-decomposition: exact, no damping (damping would
+// leak into the task), directions with σ below 1e-6 σ_max treated as lost.
+template <int R, typename JacobianRows>
+void ProjectOntoNullSpace(const JacobianRows& J, Eigen::VectorXd* x) {
+  Eigen::Matrix<double, R, R> JJt;
+  JJt.noalias() = J * J.transpose();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, R, R>> eig(JJt);
+  const double largest = eig.eigenvalues()[R - 1];
+  if (!(largest > 0.0)) return;  // J = 0: everything is null space
+  Eigen::Matrix<double, R, 1> y = eig.eigenvectors().transpose() * (J * *x);
+  for (int i = 0; i < R; ++i) {
+    const double l = eig.eigenvalues()[i];
+    y[i] = l > 1e-12 * largest ? y[i] / l : 0.0;
+  }
+  const Eigen::Matrix<double, R, 1> z = eig.eigenvectors() * y;
+  x->noalias() -= J.transpose() * z;
+}
+
+template <int R>
+void SolveRows(const kinematics::Matrix6Xd& J, const Vector6d& v, bool use_frozen, double max_damping,
+               double threshold, ControllerWorkspace* ws, Eigen::VectorXd* qdot) {
+  const int n = static_cast<int>(J.cols());
+  Rows<R> Jr = ws->J_task.topRows<R>();
+  Jr = J.bottomRows<R>();  // R = 6: all rows; R = 3: the linear ones
+  if (use_frozen) {
+    for (int k = 0; k < n; ++k) {
+      if (ws->frozen[static_cast<std::size_t>(k)]) Jr.col(k).setZero();
+    }
+  }
+  const Eigen::Matrix<double, R, 1> task = v.tail<R>();
+  const Eigen::Matrix<double, R, 1> y = DampedSolve<R>(Jr, task, max_damping, threshold, &ws->sigma_direction);
+  qdot->noalias() = Jr.transpose() * y;
 }
 
 }  // namespace
@@ -36,34 +134,22 @@ void JacobianTransposeController::ComputeVelocity(const robot::RobotModel& model
                                                   const TaskTarget& target,
                                                   ControllerWorkspace* ws,
                                                   Eigen::VectorXd* qdot) const {
+  ws->Resize(model.num_positions());
+  qdot->resize(model.num_positions());
   kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &ws->J);
   Vector6d e = TaskError(target.X_WD, kinematics::FramePose(state, model.tool_frame()));
   if (target.position_only) e.head<3>().setZero();
   qdot->noalias() = ws->J.transpose() * (gains_.asDiagonal() * e);
 }
 
-Eigen::VectorXd DampedLeastSquaresController::Solve(const kinematics::Matrix6Xd& J_full,
-                                                    const Vector6d& v, bool position_only,
-                                                    const std::vector<bool>& frozen) const {
-  const int rows = position_only ? 3 : 6;
-  Eigen::MatrixXd J = position_only ? Eigen::MatrixXd(J_full.bottomRows<3>())
-                                    : Eigen::MatrixXd(J_full);
-  for (std::size_t k = 0; k < frozen.size(); ++k) {
-    if (frozen[k]) J.col(static_cast<Eigen::Index>(k)).setZero();
+void DampedLeastSquaresController::Solve(const kinematics::Matrix6Xd& J, const Vector6d& v,
+                                         bool position_only, bool use_frozen,
+                                         ControllerWorkspace* ws, Eigen::VectorXd* qdot) const {
+  if (position_only) {
+    SolveRows<3>(J, v, use_frozen, max_damping_, singular_threshold_, ws, qdot);
+  } else {
+    SolveRows<6>(J, v, use_frozen, max_damping_, singular_threshold_, ws, qdot);
   }
-  const Eigen::VectorXd task = position_only ? Eigen::VectorXd(v.tail<3>()) : Eigen::VectorXd(v);
-  Eigen::MatrixXd JJt = J * J.transpose();
-  // Damping grows smoothly as the smallest singular value drops below the threshold.
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(JJt, Eigen::EigenvaluesOnly);
-  const double sigma_min = std::sqrt(std::max(0.0, eig.eigenvalues()[0]));
-  double lambda2 = 0.0;
-  if (sigma_min < singular_threshold_) {
-    const double ratio = sigma_min / singular_threshold_;
-    lambda2 = (1.0 - ratio * ratio) * max_damping_ * max_damping_;
-  }
-  JJt.diagonal().array() += lambda2 + 1e-12;
-  (void)rows;
-  return J.transpose() * JJt.ldlt().solve(task);
 }
 
 void DampedLeastSquaresController::ComputeVelocity(const robot::RobotModel& model,
@@ -71,7 +157,10 @@ void DampedLeastSquaresController::ComputeVelocity(const robot::RobotModel& mode
                                                    const TaskTarget& target,
                                                    ControllerWorkspace* ws,
                                                    Eigen::VectorXd* qdot) const {
-  *qdot = Solve(ws->J, ToolTaskVelocity(model, state, target, gains_, ws), target.position_only, {});
+  ws->Resize(model.num_positions());
+  qdot->resize(model.num_positions());
+  const Vector6d v = ToolTaskVelocity(model, state, target, gains_, ws);
+  Solve(ws->J, v, target.position_only, false, ws, qdot);
 }
 
 void JointLimitAvoidanceController::ComputeVelocity(const robot::RobotModel& model,
@@ -79,49 +168,51 @@ void JointLimitAvoidanceController::ComputeVelocity(const robot::RobotModel& mod
                                                     const TaskTarget& target,
                                                     ControllerWorkspace* ws,
                                                     Eigen::VectorXd* qdot) const {
-  const Vector6d v = ToolTaskVelocity(model, state, target, gains_, ws);
   const int n = model.num_positions();
+  ws->Resize(n);
+  qdot->resize(n);
+  const Vector6d v = ToolTaskVelocity(model, state, target, gains_, ws);
   // Secondary motion: the gradient of Σ ((q − mid) / range)², pushing toward mid-range.
-  Eigen::VectorXd q0 = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd& q0 = ws->a;
+  q0.setZero();
   for (int i = 0; i < n; ++i) {
     const auto& l = model.joint(model.active_joints()[i]).limits;
     if (!std::isfinite(l.lower) || !std::isfinite(l.upper) || l.upper <= l.lower) continue;
     const double range = l.upper - l.lower;
     q0[i] = -avoidance_gain_ * (state.q[i] - 0.5 * (l.lower + l.upper)) / (range * range) * 4.0;
   }
-  std::vector<bool> frozen(n, false);
-  const Eigen::MatrixXd J_task = target.position_only ? Eigen::MatrixXd(ws->J.bottomRows<3>())
-                                                      : Eigen::MatrixXd(ws->J);
+  std::fill(ws->frozen.begin(), ws->frozen.end(), 0);
+  Eigen::VectorXd& primary = ws->b;
+  Eigen::VectorXd& secondary = ws->c;
   for (int pass = 0; pass <= n; ++pass) {
-    Eigen::VectorXd primary = Solve(ws->J, v, target.position_only, frozen);
+    // The primary solve leaves the task's rows, frozen columns zeroed, in ws->J_task.
+    Solve(ws->J, v, target.position_only, true, ws, &primary);
     // Null-space projection of the secondary motion through the same (frozen) Jacobian.
-    Eigen::MatrixXd J = J_task;
+    secondary = q0;
     for (int k = 0; k < n; ++k) {
-      if (frozen[k]) J.col(k).setZero();
+      if (ws->frozen[static_cast<std::size_t>(k)]) secondary[k] = 0.0;
     }
-    Eigen::VectorXd secondary = q0;
-    for (int k = 0; k < n; ++k) {
-      if (frozen[k]) secondary[k] = 0.0;
+    if (target.position_only) {
+      ProjectOntoNullSpace<3>(ConstRows<3>(ws->J_task, 0, 0, 3, n), &secondary);
+    } else {
+      ProjectOntoNullSpace<6>(ConstRows<6>(ws->J_task, 0, 0, 6, n), &secondary);
     }
-    // Exact projection onto the null space (no damping here: it would leak into the task).
-    const Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> cod(J);
-    secondary -= cod.solve(J * secondary);
     *qdot = primary + secondary;
     bool changed = false;
     for (int i = 0; i < n; ++i) {
-      if (frozen[i]) continue;
+      if (ws->frozen[static_cast<std::size_t>(i)]) continue;
       const auto& l = model.joint(model.active_joints()[i]).limits;
       const bool at_upper = state.q[i] >= l.upper - 1e-6 && (*qdot)[i] > 0;
       const bool at_lower = state.q[i] <= l.lower + 1e-6 && (*qdot)[i] < 0;
       if (at_upper || at_lower) {
-        frozen[i] = true;
+        ws->frozen[static_cast<std::size_t>(i)] = 1;
         changed = true;
       }
     }
     if (!changed) break;
   }
   for (int i = 0; i < n; ++i) {
-    if (frozen[i]) (*qdot)[i] = 0.0;
+    if (ws->frozen[static_cast<std::size_t>(i)]) (*qdot)[i] = 0.0;
   }
 }
 
@@ -135,11 +226,35 @@ double SoftwareRcmController::RcmError(const robot::RobotModel& model,
   return (d - d.dot(u) * u).norm();
 }
 
+namespace {
+
+// The tool task in the RCM constraint's null space: q̇ = q1 + N (J_t N)⁺_damped (v_t − J_t q1).
+template <int R>
+void RcmTask(const kinematics::Matrix6Xd& J, const Vector6d& v, double max_damping,
+             ControllerWorkspace* ws, Eigen::VectorXd* qdot) {
+  const int n = static_cast<int>(J.cols());
+  const ConstRows<R> J_t(J, 6 - R, 0, R, n);  // all rows, or the linear ones
+  Rows<R> J_tN = ws->J_task.topRows<R>();
+  J_tN.noalias() = J_t * ws->N;
+  const Eigen::Matrix<double, R, 1> residual = v.tail<R>() - J_t * ws->a;
+  Eigen::Matrix<double, R, R> JJt;
+  JJt.noalias() = J_tN * J_tN.transpose();
+  JJt.diagonal().array() += max_damping * max_damping;
+  const Eigen::Matrix<double, R, 1> y = JJt.llt().solve(residual);
+  ws->b.noalias() = J_tN.transpose() * y;
+  *qdot = ws->a;
+  qdot->noalias() += ws->N * ws->b;
+}
+
+}  // namespace
+
 void SoftwareRcmController::ComputeVelocity(const robot::RobotModel& model,
                                             const robot::RobotState& state,
                                             const TaskTarget& target, ControllerWorkspace* ws,
                                             Eigen::VectorXd* qdot) const {
   const int n = model.num_positions();
+  ws->Resize(n);
+  qdot->resize(n);
   // The shaft is the line through A (p_LS on the shaft link) and B (the shaft link's origin).
   const Eigen::Vector3d A = state.X_WL[shaft_link_] * p_LS_;
   const Eigen::Vector3d B = state.X_WL[shaft_link_].translation();
@@ -150,31 +265,33 @@ void SoftwareRcmController::ComputeVelocity(const robot::RobotModel& model,
   if (n1.norm() < 0.1) n1 = u.cross(Eigen::Vector3d::UnitY());
   n1.normalize();
   const Eigen::Vector3d n2 = u.cross(n1);
-  kinematics::Matrix6Xd J_A, J_B;
-  kinematics::ComputeJacobian(model, state, shaft_link_, p_LS_, &J_A);
-  kinematics::ComputeJacobian(model, state, shaft_link_, Eigen::Vector3d::Zero(), &J_B);
-  // Velocity of the shaft point nearest the port, across the shaft.
-  const Eigen::MatrixXd J_P = (1.0 - lambda) * J_A.bottomRows<3>() + lambda * J_B.bottomRows<3>();
-  Eigen::MatrixXd J_rcm(2, n);
-  J_rcm.row(0) = n1.transpose() * J_P;
-  J_rcm.row(1) = n2.transpose() * J_P;
+  kinematics::ComputeJacobian(model, state, shaft_link_, p_LS_, &ws->J_a);
+  kinematics::ComputeJacobian(model, state, shaft_link_, Eigen::Vector3d::Zero(), &ws->J_b);
+  // Velocity of the shaft point nearest the port, across the shaft: J_rcm (2 × n), built in the
+  // top rows of J_task.
+  auto J_rcm = ws->J_task.topRows<2>();
+  J_rcm.row(0).noalias() = n1.transpose() * ((1.0 - lambda) * ws->J_a.bottomRows<3>() +
+                                             lambda * ws->J_b.bottomRows<3>());
+  J_rcm.row(1).noalias() = n2.transpose() * ((1.0 - lambda) * ws->J_a.bottomRows<3>() +
+                                             lambda * ws->J_b.bottomRows<3>());
   const Eigen::Vector3d P = A + lambda * AB;
   const Eigen::Vector2d e_rcm(n1.dot(p_WR_ - P), n2.dot(p_WR_ - P));
-  auto dls_pinv = [](const Eigen::MatrixXd& J, double damping) {
-    Eigen::MatrixXd JJt = J * J.transpose();
-    JJt.diagonal().array() += damping * damping;
-    return Eigen::MatrixXd(J.transpose() * JJt.ldlt().solve(Eigen::MatrixXd::Identity(J.rows(), J.rows())));
-  };
-  const Eigen::MatrixXd J_rcm_pinv = dls_pinv(J_rcm, 1e-3);
-  const Eigen::VectorXd q1 = J_rcm_pinv * (rcm_gain_ * e_rcm);
-  const Eigen::MatrixXd N = Eigen::MatrixXd::Identity(n, n) - J_rcm_pinv * J_rcm;
+  // Damped pseudo-inverse of the constraint: J_rcmᵀ (J_rcm J_rcmᵀ + d² I)⁻¹ (n × 2).
+  Eigen::Matrix2d JJt;
+  JJt.noalias() = J_rcm * J_rcm.transpose();
+  JJt.diagonal().array() += 1e-3 * 1e-3;
+  const Eigen::Matrix2d JJt_inverse = JJt.llt().solve(Eigen::Matrix2d::Identity());
+  ws->pinv2.noalias() = J_rcm.transpose() * JJt_inverse;
+  ws->a.noalias() = ws->pinv2 * (rcm_gain_ * e_rcm);  // q1: back onto the port
+  ws->N.setIdentity();
+  ws->N.noalias() -= ws->pinv2 * J_rcm;
   // Tool task in the constraint's null space.
   const Vector6d v = ToolTaskVelocity(model, state, target, gains_, ws);
-  Eigen::MatrixXd J_t = target.position_only ? Eigen::MatrixXd(ws->J.bottomRows<3>())
-                                             : Eigen::MatrixXd(ws->J);
-  const Eigen::VectorXd v_t = target.position_only ? Eigen::VectorXd(v.tail<3>()) : Eigen::VectorXd(v);
-  const Eigen::MatrixXd J_tN = J_t * N;
-  *qdot = q1 + N * (dls_pinv(J_tN, max_damping_) * (v_t - J_t * q1));
+  if (target.position_only) {
+    RcmTask<3>(ws->J, v, max_damping_, ws, qdot);
+  } else {
+    RcmTask<6>(ws->J, v, max_damping_, ws, qdot);
+  }
 }
 
 std::unique_ptr<Controller> MakeController(const std::string& name,

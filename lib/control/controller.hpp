@@ -28,10 +28,20 @@ struct TaskTarget {
   bool position_only = false;
 };
 
-/// Reusable buffers so that a control step does not allocate.
+/// Reusable buffers so that a control step does not allocate: sized on the first step of a
+/// robot (Resize), then only written.
 struct ControllerWorkspace {
-  kinematics::Matrix6Xd J;
-  Eigen::MatrixXd scratch;
+  kinematics::Matrix6Xd J;        ///< the tool's Jacobian
+  kinematics::Matrix6Xd J_task;   ///< the rows the task uses (top rows), frozen columns zeroed
+  kinematics::Matrix6Xd J_a, J_b; ///< Jacobians of two points (the RCM controller's shaft)
+  Eigen::Matrix<double, Eigen::Dynamic, 2> pinv2;  ///< n × 2 (the RCM constraint's inverse)
+  Eigen::MatrixXd N;              ///< n × n null-space projector
+  Eigen::VectorXd a, b, c;        ///< n-vectors
+  std::vector<char> frozen;       ///< per active joint (joint-limit avoidance)
+  /// The last direction of least singular value of the task's J Jᵀ (a warm start; zero at first).
+  Vector6d sigma_direction = Vector6d::Zero();
+  /// Sizes every buffer for `n` joints; nothing happens when they already are.
+  void Resize(int n);
 };
 
 class Controller {
@@ -80,9 +90,10 @@ class DampedLeastSquaresController : public Controller {
                        Eigen::VectorXd* qdot) const override;
 
  protected:
-  /// DLS solve of J q̇ = v for the rows selected by the target; returns q̇.
-  Eigen::VectorXd Solve(const kinematics::Matrix6Xd& J, const Vector6d& v, bool position_only,
-                        const std::vector<bool>& frozen) const;
+  /// DLS solve of J q̇ = v for the rows selected by the target, the joints marked in
+  /// `ws->frozen` held still (when `use_frozen`); q̇ into `qdot` (sized n). Allocates nothing.
+  void Solve(const kinematics::Matrix6Xd& J, const Vector6d& v, bool position_only,
+             bool use_frozen, ControllerWorkspace* ws, Eigen::VectorXd* qdot) const;
   Vector6d gains_;
   double max_damping_;
   double singular_threshold_;

@@ -43,10 +43,11 @@ LimitReport ApplyJointLimits(const robot::RobotModel& model, const Eigen::Vector
       if (std::abs(v) > l.velocity) ++report.velocity_limited;
       v = std::clamp(v, -l.velocity, l.velocity);
     }
-    const double up = std::isfinite(l.upper) ? BrakingSpeed(l.upper - q[i], l.acceleration, dt)
-                                             : HUGE_VAL;
-    const double down = std::isfinite(l.lower) ? BrakingSpeed(q[i] - l.lower, l.acceleration, dt)
-                                               : HUGE_VAL;
+    // Only the limit the joint moves toward can bind (BrakingSpeed is never negative).
+    const double up = v > 0.0 && std::isfinite(l.upper)
+                          ? BrakingSpeed(l.upper - q[i], l.acceleration, dt) : HUGE_VAL;
+    const double down = v < 0.0 && std::isfinite(l.lower)
+                            ? BrakingSpeed(q[i] - l.lower, l.acceleration, dt) : HUGE_VAL;
     if (v > up || v < -down) ++report.position_limited;
     v = std::clamp(v, -down, up);
     (*qdot)[i] = v;

@@ -1,11 +1,11 @@
 #include "kinematics/forward_kinematics.hpp"
 
 #include <cmath>
-#include <optional>
 #include <sstream>
 
 #include "common/error.hpp"
 #include "kinematics/four_bar.hpp"
+#include "kinematics/sin_cos.hpp"
 
 namespace trocar::kinematics {
 
@@ -49,11 +49,24 @@ ConfigurationResult ResolvePassive(const RobotModel& model, RobotState* state) {
   return {};
 }
 
-// Runs ResolvePassive, restoring the state when a closure refuses.
-ConfigurationResult ResolveOrRestore(const RobotModel& model, RobotState* state,
-                                     const RobotState* backup) {
+// Keeps what SetConfiguration and SetHeldJoint change, in the state's own undo buffers (same
+// sizes: no allocation).
+void KeepForUndo(RobotState* state) {
+  state->undo.q = state->q;
+  state->undo.joint_values = state->joint_values;
+  state->undo.closure_drivers = state->closure_drivers;
+  state->undo.dvalues_dq = state->dvalues_dq;
+}
+
+// Runs ResolvePassive, restoring the kept values when a closure refuses.
+ConfigurationResult ResolveOrRestore(const RobotModel& model, RobotState* state, bool kept) {
   ConfigurationResult result = ResolvePassive(model, state);
-  if (!result.ok && backup != nullptr) *state = *backup;
+  if (!result.ok && kept) {
+    state->q = state->undo.q;
+    state->joint_values = state->undo.joint_values;
+    state->closure_drivers = state->undo.closure_drivers;
+    state->dvalues_dq = state->undo.dvalues_dq;
+  }
   return result;
 }
 
@@ -64,21 +77,23 @@ ConfigurationResult SetConfiguration(const RobotModel& model, const Eigen::Vecto
   TROCAR_THROW_UNLESS(q.size() == model.num_positions(),
                       "robot '" << model.name() << "': configuration has " << q.size()
                                 << " values, expected " << model.num_positions());
-  for (int i = 0; i < q.size(); ++i) {
-    TROCAR_THROW_UNLESS(std::isfinite(q[i]),
-                        "robot '" << model.name() << "': configuration value " << i
-                                  << " (joint '" << model.joint(model.active_joints()[i]).name
-                                  << "') is " << q[i] << ", expected a finite number");
+  if (!q.allFinite()) {
+    for (int i = 0; i < q.size(); ++i) {
+      TROCAR_THROW_UNLESS(std::isfinite(q[i]),
+                          "robot '" << model.name() << "': configuration value " << i
+                                    << " (joint '" << model.joint(model.active_joints()[i]).name
+                                    << "') is " << q[i] << ", expected a finite number");
+    }
   }
-  // Only closures can refuse; keep a copy to undo the step only when there are some.
-  std::optional<RobotState> backup;
-  if (!model.closures().empty()) backup = *state;
+  // Only closures can refuse; keep what changes to undo the step only when there are some.
+  const bool keep = !model.closures().empty();
+  if (keep) KeepForUndo(state);
   state->q = q;
   for (int i = 0; i < q.size(); ++i) {
     const Joint& joint = model.joint(model.active_joints()[i]);
     state->joint_values[joint.dof_index] = q[i];
   }
-  return ResolveOrRestore(model, state, backup ? &*backup : nullptr);
+  return ResolveOrRestore(model, state, keep);
 }
 
 ConfigurationResult SetHeldJoint(const RobotModel& model, const std::string& name, double value,
@@ -94,9 +109,9 @@ ConfigurationResult SetHeldJoint(const RobotModel& model, const std::string& nam
                       "robot '" << model.name() << "': joint '" << name << "' value " << value
                                 << " is outside its limits [" << joint.limits.lower << ", "
                                 << joint.limits.upper << "]");
-  RobotState backup = *state;
+  KeepForUndo(state);
   state->joint_values[joint.dof_index] = value;
-  return ResolveOrRestore(model, state, &backup);
+  return ResolveOrRestore(model, state, true);
 }
 
 void ForwardKinematics(const RobotModel& model, RobotState* state) {
@@ -107,22 +122,22 @@ void ForwardKinematics(const RobotModel& model, RobotState* state) {
     Eigen::Isometry3d& X_WC = X_WL[joint.child_link];
     switch (joint.type) {
       case JointType::kFixed:
-        X_WC = X_WP * joint.X_PJ;
+        X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
+        X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
+        X_WC.translation() += X_WP.translation();
         break;
       case JointType::kRevolute: {
         const double value = state->joint_values[joint.dof_index];
-        const double c = std::cos(value), s = std::sin(value);
+        double s, c;
+        SinCos(value, &s, &c);
         const Eigen::Matrix3d& R_PJ = joint.X_PJ.linear();
         Eigen::Matrix3d R_PC;
         if (joint.axis_J.z() == 1.0) {  // the common case (DH, most URDFs): no Rodrigues
           R_PC.col(0) = c * R_PJ.col(0) + s * R_PJ.col(1);
           R_PC.col(1) = c * R_PJ.col(1) - s * R_PJ.col(0);
           R_PC.col(2) = R_PJ.col(2);
-        } else {
-          const Eigen::Vector3d& a = joint.axis_J;
-          Eigen::Matrix3d K;
-          K << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
-          R_PC = R_PJ * (Eigen::Matrix3d::Identity() + s * K + (1.0 - c) * (K * K));
+        } else {  // Rodrigues, with the joint's constant terms from the model
+          R_PC = c * (R_PJ - joint.rodrigues_M) + s * joint.rodrigues_N + joint.rodrigues_M;
         }
         X_WC.linear().noalias() = X_WP.linear() * R_PC;
         X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();

@@ -15,7 +15,10 @@ void ComputeJacobian(const robot::RobotModel& model, const robot::RobotState& st
   for (int j : model.movable_path(link)) {
     const Joint& joint = model.joint(j);
     const Eigen::Isometry3d& X_WC = state.X_WL[joint.child_link];
-    const Eigen::Vector3d e_W = X_WC.linear() * joint.axis_J;
+    // The joint's axis in the world: the child frame's z column in the common case (DH, most
+    // URDFs), else the rotated axis.
+    const Eigen::Vector3d e_W =
+        joint.axis_J.z() == 1.0 ? Eigen::Vector3d(X_WC.linear().col(2)) : Eigen::Vector3d(X_WC.linear() * joint.axis_J);
     Eigen::Matrix<double, 6, 1> column;
     if (joint.type == JointType::kRevolute) {
       column.head<3>() = e_W;

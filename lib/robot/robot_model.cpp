@@ -125,7 +125,8 @@ RobotState::RobotState(const RobotModel& model)
       joint_values(Eigen::VectorXd::Zero(model.num_dofs())),
       dvalues_dq(Eigen::MatrixXd::Zero(model.num_dofs(), model.num_positions())),
       X_WL(model.num_links(), Eigen::Isometry3d::Identity()),
-      closure_drivers(Eigen::VectorXd::Zero(static_cast<int>(model.closures().size()))) {
+      closure_drivers(Eigen::VectorXd::Zero(static_cast<int>(model.closures().size()))),
+      undo{q, joint_values, closure_drivers, dvalues_dq} {
   for (const Joint& joint : model.joints()) {
     if (!joint.movable()) continue;
     if (joint.drive == JointDrive::kActive) {
@@ -447,6 +448,13 @@ RobotModel RobotModelBuilder::Build() const {
     joint.X_PJ = js.X_PJ;
     joint.X_PJ.linear() = Eigen::Quaterniond(js.X_PJ.linear()).normalized().toRotationMatrix();
     joint.axis_J = js.type == JointType::kFixed ? Eigen::Vector3d::UnitZ() : js.axis.normalized();
+    {
+      const Eigen::Vector3d& a = joint.axis_J;
+      Eigen::Matrix3d K;
+      K << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
+      joint.rodrigues_M = joint.X_PJ.linear() * (a * a.transpose());
+      joint.rodrigues_N = joint.X_PJ.linear() * K;
+    }
     joint.limits = js.limits;
     const int index = model.num_joints();
     joint_index[joint.name] = index;

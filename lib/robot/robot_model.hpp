@@ -64,6 +64,12 @@ struct Joint {
   int closure = -1;    ///< closure index when drive == kClosure
   int q_index = -1;    ///< position in q when drive == kActive
   int dof_index = -1;  ///< position in the full joint-value vector; -1 for fixed joints
+  /// Rodrigues' terms of a revolute joint in its parent (derived from X_PJ and axis_J when the
+  /// model is built): R_PC(θ) = R_PJ (cos θ I + sin θ [a]× + (1 − cos θ) a aᵀ)
+  /// = cos θ (R_PJ − rodrigues_M) + sin θ rodrigues_N + rodrigues_M, with M = R_PJ a aᵀ and
+  /// N = R_PJ [a]×: forward kinematics then needs no matrix product for the joint's rotation.
+  Eigen::Matrix3d rodrigues_M = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d rodrigues_N = Eigen::Matrix3d::Zero();
 
   bool movable() const { return type != JointType::kFixed; }
 };

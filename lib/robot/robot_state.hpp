@@ -28,6 +28,13 @@ struct RobotState {
   std::vector<Eigen::Isometry3d> X_WL;
   /// Driver value at which each closure was last solved (0: the assembled zero configuration).
   Eigen::VectorXd closure_drivers;
+
+  /// What setting a configuration changes, kept to undo a step a closure refuses; sized like
+  /// the fields above so that keeping it copies without allocating (kinematics only).
+  struct Undo {
+    Eigen::VectorXd q, joint_values, closure_drivers;
+    Eigen::MatrixXd dvalues_dq;
+  } undo;
 };
 
 }  // namespace trocar::robot
