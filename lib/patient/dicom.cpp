@@ -538,10 +538,12 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
 // Reads one file into its slices (one, or one per frame). Returns false when it is not a DICOM
 // image (not DICOM, or a DICOMDIR, a report, a presentation state), so that folders may hold
 // such files beside the slices.
-bool DecodeIsolated(const std::string& bytes_read, const std::string& file, Sniff sniff,
-                    std::vector<Slice>* out);
+bool DecodeIsolated(IsolatedWorker* decoder, const std::string& bytes_read,
+                    const std::string& file, Sniff sniff, std::vector<Slice>* out);
 
-bool ReadFile(const std::string& file, std::vector<Slice>* out) {
+// Reads one file: sniffed, size-checked and structure-walked here, decoded by GDCM in the
+// decoder process. False for a file that is not a DICOM image (skipped).
+bool ReadFile(const std::string& file, IsolatedWorker* decoder, std::vector<Slice>* out) {
   QuietGdcm();
   const Sniff sniff = SniffFile(file);
   if (sniff == Sniff::kNotDicom) return false;
@@ -553,7 +555,7 @@ bool ReadFile(const std::string& file, std::vector<Slice>* out) {
                            << " a DICOM image file may have here");
   const std::string bytes_read = ReadBinaryFile(file);
   CheckStructure(bytes_read, file, sniff);
-  return DecodeIsolated(bytes_read, file, sniff, out);
+  return DecodeIsolated(decoder, bytes_read, file, sniff, out);
 }
 
 // GDCM's part of reading one file: parse `bytes_read`, decode the pixels, fill the slices.
@@ -792,43 +794,62 @@ class SliceReader {
   std::size_t at_ = 0;
 };
 
-// Decodes one file in a child process (lib/common/isolate): Debian's GDCM asserts (aborts) on
+// The decoder process's side of one request (sniff, file name, bytes): GDCM parses and decodes,
+// the slices go back as bytes.
+void DecodeRequest(const std::string& request, std::string* o) {
+  const std::string what = "the decoder's request";  // SliceReader keeps a reference
+  SliceReader in(request, what);
+  const auto sniff = static_cast<Sniff>(in.Get<std::uint8_t>());
+  const std::string file = in.String();
+  const std::string bytes_read = in.String();
+  std::vector<Slice> slices;
+  const bool image = DecodeWithGdcm(bytes_read, file, sniff, &slices);
+  SliceWriter w(o);
+  w.Put<std::uint8_t>(image ? 1 : 0);
+  w.Put<std::uint64_t>(slices.size());
+  for (const Slice& s : slices) {
+    w.Put(s.frame);
+    w.Put(s.frames);
+    w.Put(s.series_uid);
+    w.Put(s.modality);
+    w.Put(s.description);
+    w.Put(s.rows);
+    w.Put(s.columns);
+    w.Put<std::uint8_t>(s.is_signed ? 1 : 0);
+    w.Put(s.slope);
+    w.Put(s.intercept);
+    w.Put(s.position_mm);
+    w.Put(s.row_direction);
+    w.Put(s.column_direction);
+    w.Put(s.spacing_mm);
+    w.Put(s.instance);
+  }
+  const std::vector<float> none;
+  const std::vector<float>& values = slices.empty() || !slices.front().values ? none : *slices.front().values;
+  w.Put<std::uint64_t>(values.size());
+  o->append(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float));
+}
+
+// The decoder process for one series (lib/common/isolate): Debian's GDCM asserts (aborts) on
 // many damaged files that trocar's structure walk cannot all foresee; an abort there is an error
-// naming the file, not the end of trocar.
-bool DecodeIsolated(const std::string& bytes_read, const std::string& file, Sniff sniff,
-                    std::vector<Slice>* out) {
+// naming the file, not the end of trocar. One process serves the whole series.
+IsolateOptions DecoderOptions() {
   IsolateOptions options;
   // The answer: 4 bytes a voxel (float) plus the header of each frame.
   options.max_output_bytes = Limits().max_voxels * sizeof(float) + (std::uint64_t{1} << 20);
-  options.timeout_s = 60.0 + static_cast<double>(bytes_read.size()) / 1e6;  // 1 s a MB beyond
-  const std::string answer = RunIsolated(file, [&](std::string* o) {
-    std::vector<Slice> slices;
-    const bool image = DecodeWithGdcm(bytes_read, file, sniff, &slices);
-    SliceWriter w(o);
-    w.Put<std::uint8_t>(image ? 1 : 0);
-    w.Put<std::uint64_t>(slices.size());
-    for (const Slice& s : slices) {
-      w.Put(s.frame);
-      w.Put(s.frames);
-      w.Put(s.series_uid);
-      w.Put(s.modality);
-      w.Put(s.description);
-      w.Put(s.rows);
-      w.Put(s.columns);
-      w.Put<std::uint8_t>(s.is_signed ? 1 : 0);
-      w.Put(s.slope);
-      w.Put(s.intercept);
-      w.Put(s.position_mm);
-      w.Put(s.row_direction);
-      w.Put(s.column_direction);
-      w.Put(s.spacing_mm);
-      w.Put(s.instance);
-    }
-    const std::vector<float> none;
-    const std::vector<float>& values = slices.empty() || !slices.front().values ? none : *slices.front().values;
-    w.Put<std::uint64_t>(values.size());
-    o->append(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float));
-  }, options);
+  return options;
+}
+
+// Decodes one file in the decoder process.
+bool DecodeIsolated(IsolatedWorker* decoder, const std::string& bytes_read,
+                    const std::string& file, Sniff sniff, std::vector<Slice>* out) {
+  std::string request;
+  SliceWriter req(&request);
+  req.Put<std::uint8_t>(static_cast<std::uint8_t>(sniff));
+  req.Put(file);
+  req.Put(bytes_read);
+  const double timeout_s = 60.0 + static_cast<double>(bytes_read.size()) / 1e6;  // 1 s a MB more
+  const std::string answer = decoder->Call(file, request, timeout_s);
 
   SliceReader r(answer, file);
   const bool image = r.Get<std::uint8_t>() != 0;
@@ -937,11 +958,12 @@ Volume LoadDicomSeries(const std::string& path) {
   const bool is_folder = fs::is_directory(path, ec);
   const std::string folder = is_folder ? path : ParentDirectory(path);
   TROCAR_THROW_UNLESS(is_folder || IsRegularFile(path), path << ": DICOM series not found");
+  IsolatedWorker decoder(DecodeRequest, DecoderOptions());
   std::string wanted_series;
   std::vector<std::string> files;
   if (!is_folder) {
     std::vector<Slice> chosen;
-    TROCAR_THROW_UNLESS(ReadFile(path, &chosen), path << ": not a DICOM image file");
+    TROCAR_THROW_UNLESS(ReadFile(path, &decoder, &chosen), path << ": not a DICOM image file");
     wanted_series = chosen.front().series_uid;
     // A multi-frame file is a whole series by itself.
     if (chosen.size() > 1) files.push_back(path);
@@ -957,7 +979,7 @@ Volume LoadDicomSeries(const std::string& path) {
   int skipped = 0;
   for (const auto& f : files) {
     std::vector<Slice> slices;
-    if (!ReadFile(f, &slices)) {
+    if (!ReadFile(f, &decoder, &slices)) {
       ++skipped;
       continue;
     }

@@ -99,3 +99,53 @@ TEST(Isolate, AnExitWithoutAnswerIsAnError) {
 
 }  // namespace
 }  // namespace trocar
+
+namespace trocar {
+namespace {
+
+TEST(IsolatedWorker, OneChildServesManyRequestsAndADeadOneIsReplaced) {
+  IsolatedWorker worker([](const std::string& request, std::string* answer) {
+    if (request == "abort") std::abort();
+    if (request == "refuse") throw Error("refused: " + request);
+    *answer = "echo " + request + " from " + std::to_string(::getpid());
+  });
+  std::string first_pid;
+  for (int k = 0; k < 50; ++k) {
+    const std::string answer = worker.Call("item", std::to_string(k));
+    ASSERT_EQ(answer.rfind("echo " + std::to_string(k) + " from ", 0), 0u) << answer;
+    const std::string pid = answer.substr(answer.rfind(' ') + 1);
+    if (k == 0) first_pid = pid;
+    EXPECT_EQ(pid, first_pid);  // the same process throughout
+    EXPECT_NE(pid, std::to_string(::getpid()));  // and not this one
+  }
+  EXPECT_EQ(worker.started(), 1);
+  try {
+    worker.Call("item", "refuse");
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_STREQ(e.what(), "refused: refuse");
+  }
+  EXPECT_EQ(worker.started(), 1);  // a refusal is an answer: the child lives on
+  try {
+    worker.Call("slice_0042.dcm", "abort");
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("slice_0042.dcm: the decoder crashed"), std::string::npos) << e.what();
+  }
+  const std::string after = worker.Call("item", "x");  // a new child
+  EXPECT_EQ(worker.started(), 2);
+  EXPECT_NE(after.substr(after.rfind(' ') + 1), first_pid);
+}
+
+TEST(IsolatedWorker, LargeRequestsAndAnswersBothWays) {
+  IsolatedWorker worker([](const std::string& request, std::string* answer) {
+    answer->assign(request.rbegin(), request.rend());
+  });
+  std::string request;
+  for (unsigned k = 0; k < 5000000u; ++k) request.push_back(static_cast<char>(k * 31u % 251u));
+  const std::string answer = worker.Call("big", request);
+  EXPECT_EQ(answer, std::string(request.rbegin(), request.rend()));
+}
+
+}  // namespace
+}  // namespace trocar
