@@ -62,6 +62,7 @@ Eigen::Isometry3d TransZ(double distance) {
 }
 
 double WrapAngle(double angle) {
+  if (angle > -M_PI && angle <= M_PI) return angle;  // the common case, exactly as below
   double a = std::remainder(angle, 2.0 * M_PI);
   if (a <= -M_PI) a += 2.0 * M_PI;
   return a;

@@ -4,6 +4,7 @@
 #include <sstream>
 
 #include "common/geometry.hpp"
+#include "kinematics/sin_cos.hpp"
 
 namespace trocar::kinematics {
 namespace {
@@ -11,7 +12,8 @@ namespace {
 using robot::FourBarClosure;
 
 Eigen::Vector2d Rotate2(double angle, const Eigen::Vector2d& v) {
-  const double c = std::cos(angle), s = std::sin(angle);
+  double s, c;
+  SinCos(angle, &s, &c);
   return {c * v.x() - s * v.y(), s * v.x() + c * v.y()};
 }
 
@@ -27,9 +29,8 @@ DistanceRange Range(const FourBarClosure& c) {
   return {std::abs(c.L23 - c.L34) + tol, c.L23 + c.L34 - tol};
 }
 
-double DistanceP2P4(const FourBarClosure& c, double theta) {
-  return (c.P4 - (c.P1 + Rotate2(theta, c.c0))).norm();
-}
+// The crank's end P2 for driver value theta.
+Eigen::Vector2d CrankEnd(const FourBarClosure& c, double theta) { return c.P1 + Rotate2(theta, c.c0); }
 
 }  // namespace
 
@@ -40,10 +41,11 @@ FourBarSolution SolveFourBar(const robot::RobotModel& model, const FourBarClosur
   const DistanceRange range = Range(c);
   // |P4 - P2| is extremal where the crank is aligned with P1→P4; check those inside the swept
   // interval as well as its ends, so that no change point is jumped over in one step.
-  auto feasible = [&](double theta) {
-    const double d = DistanceP2P4(c, theta);
+  auto feasible_at = [&](const Eigen::Vector2d& P2) {
+    const double d = (c.P4 - P2).norm();
     return d >= range.min && d <= range.max;
   };
+  auto feasible = [&](double theta) { return feasible_at(CrankEnd(c, theta)); };
   auto refuse = [&](double theta, const char* why) {
     std::ostringstream msg;
     msg << "closure '" << c.name << "': driver '" << model.joint(c.driver).name << "' at "
@@ -53,10 +55,11 @@ FourBarSolution SolveFourBar(const robot::RobotModel& model, const FourBarClosur
     out.message = msg.str();
     return out;
   };
-  if (!feasible(driver)) return refuse(driver, "the coupler and rocker cannot meet");
+  const Eigen::Vector2d P2 = CrankEnd(c, driver);
+  if (!feasible_at(P2)) return refuse(driver, "the coupler and rocker cannot meet");
   const Eigen::Vector2d D = c.P4 - c.P1;
   if (D.norm() > 1e-12) {
-    const double phase = Angle2(c.c0) - Angle2(D);
+    const double phase = c.change_phase;
     const double lo = std::min(previous_driver, driver), hi = std::max(previous_driver, driver);
     // Extremes at theta = k*pi - phase.
     for (double k = std::ceil((lo + phase) / M_PI); k * M_PI - phase <= hi; k += 1.0) {
@@ -64,7 +67,6 @@ FourBarSolution SolveFourBar(const robot::RobotModel& model, const FourBarClosur
       if (!feasible(theta)) return refuse(theta, "a change point lies on the way");
     }
   }
-  const Eigen::Vector2d P2 = c.P1 + Rotate2(driver, c.c0);
   const Eigen::Vector2d to_rocker = c.P4 - P2;
   const double d = to_rocker.norm();
   const Eigen::Vector2d e = to_rocker / d;

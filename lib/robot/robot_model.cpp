@@ -584,6 +584,8 @@ RobotModel RobotModelBuilder::Build() const {
                         where << ": the loop is at a change point (coupler and rocker aligned) in "
                                  "the zero configuration; its branch is undefined");
     c.branch_sign = side > 0 ? 1.0 : -1.0;
+    const Eigen::Vector2d D = c.P4 - c.P1;
+    c.change_phase = D.norm() > 1e-12 ? Angle2(c.c0) - Angle2(D) : 0.0;
     model.closures_.push_back(c);
   }
 

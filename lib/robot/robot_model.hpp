@@ -136,6 +136,9 @@ struct FourBarClosure {
   double coupler_sign = 1.0;      ///< +1 when the coupler axis points along n_G, else −1
   double rocker_sign = 1.0;
   double branch_sign = 1.0;       ///< side of line P2→P4 on which P3 lies (kept, never flipped)
+  /// Driver values where |P4 − P2| is extremal are k π − change_phase (the crank aligned with
+  /// P1→P4); undefined (0) when P1 = P4.
+  double change_phase = 0.0;
 };
 
 /// Controller settings carried by a robot description (trocar YAML sidecar `controller:`).
