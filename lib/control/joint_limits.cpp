@@ -22,6 +22,16 @@ double BrakingSpeed(double distance, double acceleration, double dt) {
   return std::min(best, distance / dt);
 }
 
+bool CanStopWithin(double speed, double distance, double acceleration, double dt) {
+  // Braking from `speed` in steps of a·dt takes m ≤ speed/(a·dt) + 1 steps, each moving at most
+  // speed·dt: the distance is at most speed²/a + speed·dt. Within `distance`, the speed is at or
+  // below BrakingSpeed(distance), which is monotone in the distance.
+  if (!(speed >= 0.0) || !(distance > 0.0)) return false;
+  if (speed * dt > distance) return false;
+  if (!std::isfinite(acceleration)) return true;
+  return speed * speed / acceleration + speed * dt <= distance;
+}
+
 LimitReport ApplyJointLimits(const robot::RobotModel& model, const Eigen::VectorXd& q,
                              const Eigen::VectorXd& qdot_previous,
                              const Eigen::VectorXd& qdot_command, double dt,
@@ -43,10 +53,13 @@ LimitReport ApplyJointLimits(const robot::RobotModel& model, const Eigen::Vector
       if (std::abs(v) > l.velocity) ++report.velocity_limited;
       v = std::clamp(v, -l.velocity, l.velocity);
     }
-    // Only the limit the joint moves toward can bind (BrakingSpeed is never negative).
-    const double up = v > 0.0 && std::isfinite(l.upper)
+    // Only the limit the joint moves toward can bind (BrakingSpeed is never negative), and only
+    // when the joint is near it: CanStopWithin is a cheap sufficient test.
+    const double up = v > 0.0 && std::isfinite(l.upper) &&
+                              !CanStopWithin(v, l.upper - q[i], l.acceleration, dt)
                           ? BrakingSpeed(l.upper - q[i], l.acceleration, dt) : HUGE_VAL;
-    const double down = v < 0.0 && std::isfinite(l.lower)
+    const double down = v < 0.0 && std::isfinite(l.lower) &&
+                                !CanStopWithin(-v, q[i] - l.lower, l.acceleration, dt)
                             ? BrakingSpeed(q[i] - l.lower, l.acceleration, dt) : HUGE_VAL;
     if (v > up || v < -down) ++report.position_limited;
     v = std::clamp(v, -down, up);

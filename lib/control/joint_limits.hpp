@@ -29,4 +29,9 @@ LimitReport ApplyJointLimits(const robot::RobotModel& model, const Eigen::Vector
 /// most `acceleration`·dt each, still stop before it (exact for a constant dt).
 double BrakingSpeed(double distance, double acceleration, double dt);
 
+/// A cheap sufficient test that `speed` (≥ 0) is at or below BrakingSpeed(distance, ...): true
+/// when speed²/acceleration + speed·dt (a bound on the discrete braking distance) and speed·dt
+/// fit within `distance`. False says nothing (compute BrakingSpeed).
+bool CanStopWithin(double speed, double distance, double acceleration, double dt);
+
 }  // namespace trocar::control

@@ -266,6 +266,32 @@ TEST(JointLimits, BrakingSpeedStopsExactlyAtTheLimit) {
   }
 }
 
+// The cheap test used before BrakingSpeed is sound: whenever it says a speed can stop within a
+// distance, simulating the braking steps stops within it; and it says so for most speeds well
+// inside the bound (else it would save nothing).
+TEST(JointLimits, CanStopWithinIsASoundShortcut) {
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<double> dist(0.0, 0.5), acc(0.5, 50.0), speed(0.0, 3.0);
+  int accepted = 0;
+  for (int trial = 0; trial < 20000; ++trial) {
+    const double d = dist(rng), a = acc(rng), dt = 1e-3, v0 = speed(rng);
+    if (!control::CanStopWithin(v0, d, a, dt)) continue;
+    ++accepted;
+    double v = v0, x = 0.0;
+    while (v > 0) {
+      x += v * dt;
+      v -= a * dt;
+    }
+    ASSERT_LE(x, d) << "v " << v0 << " d " << d << " a " << a;
+    ASSERT_LE(v0, control::BrakingSpeed(d, a, dt) * (1 + 1e-12) + 1e-15);
+  }
+  EXPECT_GT(accepted, 5000);
+  EXPECT_FALSE(control::CanStopWithin(1.0, 0.0, 10.0, 1e-3));  // at the limit: never
+  EXPECT_TRUE(control::CanStopWithin(0.0, 1e-9, 10.0, 1e-3));
+  EXPECT_TRUE(control::CanStopWithin(1.0, 1.0, HUGE_VAL, 1e-3));
+  EXPECT_FALSE(control::CanStopWithin(2000.0, 1.0, HUGE_VAL, 1e-3));  // a step beyond it
+}
+
 // ---- Orientation beyond 180 degrees ---------------------------------------------------------
 
 TEST(Tracking, ARotationOfMoreThan180DegreesIsFollowed) {
