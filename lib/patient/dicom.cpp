@@ -759,6 +759,11 @@ class SliceWriter {
   }
   void Put(const Eigen::Vector3d& v) { out_->append(reinterpret_cast<const char*>(v.data()), sizeof(double) * 3); }
   void Put(const Eigen::Vector2d& v) { out_->append(reinterpret_cast<const char*>(v.data()), sizeof(double) * 2); }
+  void Put(const bool& b) { Put<std::uint8_t>(b ? 1 : 0); }
+  template <typename T>
+  void operator()(const T& v) {  // for SliceFields
+    Put(v);
+  }
 
  private:
   std::string* out_;
@@ -787,12 +792,40 @@ class SliceReader {
     return s;
   }
   bool AtEnd() const { return at_ == in_.size(); }
+  // For SliceFields.
+  void operator()(std::string& v) { v = String(); }
+  void operator()(bool& v) { v = Get<std::uint8_t>() != 0; }
+  void operator()(Eigen::Vector3d& v) { Raw(v.data(), sizeof(double) * 3); }
+  void operator()(Eigen::Vector2d& v) { Raw(v.data(), sizeof(double) * 2); }
+  void operator()(int& v) { v = Get<int>(); }
+  void operator()(double& v) { v = Get<double>(); }
 
  private:
   const std::string& in_;
   const std::string& file_;
   std::size_t at_ = 0;
 };
+
+// The fields of a slice that cross from the decoder process, listed once for both directions
+// (`io` is a SliceWriter or a SliceReader). The file name and the values travel separately.
+template <typename Io, typename S>
+void SliceFields(Io& io, S& s) {
+  io(s.frame);
+  io(s.frames);
+  io(s.series_uid);
+  io(s.modality);
+  io(s.description);
+  io(s.rows);
+  io(s.columns);
+  io(s.is_signed);
+  io(s.slope);
+  io(s.intercept);
+  io(s.position_mm);
+  io(s.row_direction);
+  io(s.column_direction);
+  io(s.spacing_mm);
+  io(s.instance);
+}
 
 // The decoder process's side of one request (sniff, file name, bytes): GDCM parses and decodes,
 // the slices go back as bytes.
@@ -807,23 +840,7 @@ void DecodeRequest(const std::string& request, std::string* o) {
   SliceWriter w(o);
   w.Put<std::uint8_t>(image ? 1 : 0);
   w.Put<std::uint64_t>(slices.size());
-  for (const Slice& s : slices) {
-    w.Put(s.frame);
-    w.Put(s.frames);
-    w.Put(s.series_uid);
-    w.Put(s.modality);
-    w.Put(s.description);
-    w.Put(s.rows);
-    w.Put(s.columns);
-    w.Put<std::uint8_t>(s.is_signed ? 1 : 0);
-    w.Put(s.slope);
-    w.Put(s.intercept);
-    w.Put(s.position_mm);
-    w.Put(s.row_direction);
-    w.Put(s.column_direction);
-    w.Put(s.spacing_mm);
-    w.Put(s.instance);
-  }
+  for (const Slice& s : slices) SliceFields(w, s);
   const std::vector<float> none;
   const std::vector<float>& values = slices.empty() || !slices.front().values ? none : *slices.front().values;
   w.Put<std::uint64_t>(values.size());
@@ -859,21 +876,10 @@ bool DecodeIsolated(IsolatedWorker* decoder, const std::string& bytes_read,
   std::uint64_t voxels = 0;
   for (Slice& s : slices) {
     s.file = file;
-    s.frame = r.Get<int>();
-    s.frames = r.Get<int>();
-    s.series_uid = r.String();
-    s.modality = r.String();
-    s.description = r.String();
-    s.rows = r.Get<int>();
-    s.columns = r.Get<int>();
-    s.is_signed = r.Get<std::uint8_t>() != 0;
-    s.slope = r.Get<double>();
-    s.intercept = r.Get<double>();
-    r.Raw(s.position_mm.data(), sizeof(double) * 3);
-    r.Raw(s.row_direction.data(), sizeof(double) * 3);
-    r.Raw(s.column_direction.data(), sizeof(double) * 3);
-    r.Raw(s.spacing_mm.data(), sizeof(double) * 2);
-    s.instance = r.Get<int>();
+    SliceFields(r, s);
+    TROCAR_THROW_UNLESS(s.rows > 0 && s.columns > 0 && s.rows <= 65535 && s.columns <= 65535,
+                        file << ": the DICOM decoder's answer is damaged (" << s.rows << " x "
+                             << s.columns << " pixels)");
     voxels += static_cast<std::uint64_t>(s.rows) * static_cast<std::uint64_t>(s.columns);
   }
   const auto n = r.Get<std::uint64_t>();
