@@ -359,13 +359,16 @@ Eigen::Isometry3d FrameFromAxis(const Eigen::Vector3d& origin, const Eigen::Vect
 
 }  // namespace
 
-RobotModel RobotModelBuilder::Build() const {
-  RobotModel model;
-  model.name_ = name_;
-  model.source_ = source_;
+
+// ---------------------------------------------------------------------------------------------
+// RobotModelBuilder::Build, stage by stage
+
+// 1. The tree: every joint's links exist, each link has at most one parent joint, exactly one
+// root, every link reached from it; joints' origins, axes and limits valid. Returns the
+// depth-first order of the link and joint specs.
+RobotModelBuilder::TreeOrder RobotModelBuilder::ValidateTree() const {
   const std::string& src = source_;
   TROCAR_THROW_UNLESS(!links_.empty(), src << ": robot '" << name_ << "' has no links");
-
   // --- Tree structure: each link has at most one parent joint; exactly one root.
   std::map<std::string, int> link_spec_index;
   for (std::size_t i = 0; i < links_.size(); ++i) link_spec_index[links_[i].name] = int(i);
@@ -407,8 +410,9 @@ RobotModel RobotModelBuilder::Build() const {
   }
 
   // --- Depth-first order of links and joints.
-  std::vector<int> link_order;        // spec indices
-  std::vector<int> joint_order;       // spec indices
+  TreeOrder order;
+  std::vector<int>& link_order = order.links;
+  std::vector<int>& joint_order = order.joints;
   std::function<void(int)> visit = [&](int link_spec) {
     link_order.push_back(link_spec);
     for (int j : child_specs[link_spec]) {
@@ -420,8 +424,19 @@ RobotModel RobotModelBuilder::Build() const {
   TROCAR_THROW_UNLESS(link_order.size() == links_.size(),
                       src << ": some links are not connected to the root link '"
                           << links_[roots[0]].name << "'");
+  return order;
+}
 
-  std::map<std::string, int> link_index, joint_index;
+// 2. Links (their geometry checked) and joints in depth-first order, with the model's indices.
+RobotModelBuilder::NameIndex RobotModelBuilder::AddLinksAndJoints(const TreeOrder& order,
+                                                                  RobotModel* out) const {
+  const std::string& src = source_;
+  RobotModel& model = *out;
+  NameIndex names;
+  std::map<std::string, int>& link_index = names.links;
+  std::map<std::string, int>& joint_index = names.joints;
+  const std::vector<int>& link_order = order.links;
+  const std::vector<int>& joint_order = order.joints;
   for (int spec : link_order) {
     Link link;
     link.name = links_[spec].name;
@@ -466,26 +481,39 @@ RobotModel RobotModelBuilder::Build() const {
     }
     model.joints_.push_back(std::move(joint));
   }
+  return names;
+}
 
-  auto movable_joint = [&](const std::string& name, const std::string& role) -> int {
-    TROCAR_THROW_UNLESS(joint_index.count(name),
-                        src << ": " << role << ": no joint named '" << name << "'");
-    const int j = joint_index[name];
-    TROCAR_THROW_UNLESS(model.joints_[j].movable(),
-                        src << ": " << role << ": joint '" << name << "' is fixed");
-    return j;
-  };
+// A movable joint by name, for a role ("closure 'x' driver"), or an error naming both.
+int RobotModelBuilder::MovableJoint(const NameIndex& names, const RobotModel& model,
+                                    const std::string& name, const std::string& role) const {
+  const std::string& src = source_;
+  const auto found = names.joints.find(name);
+  TROCAR_THROW_UNLESS(found != names.joints.end(),
+                      src << ": " << role << ": no joint named '" << name << "'");
+  const int j = found->second;
+  TROCAR_THROW_UNLESS(model.joints_[j].movable(),
+                      src << ": " << role << ": joint '" << name << "' is fixed");
+  return j;
+}
 
+// 3. Drives declared per joint: mimic (master, multiplier, offset) and held.
+void RobotModelBuilder::AssignDrives(const TreeOrder& order, const NameIndex& names,
+                                     RobotModel* out) const {
+  const std::string& src = source_;
+  RobotModel& model = *out;
+  const std::vector<int>& joint_order = order.joints;
+  const std::map<std::string, int>& joint_index = names.joints;
   // --- Drives: mimic, closure, held, active.
   for (int spec : joint_order) {
     const JointSpec& js = joints_[spec];
-    Joint& joint = model.joints_[joint_index[js.name]];
+    Joint& joint = model.joints_[joint_index.at(js.name)];
     if (!joint.movable()) continue;
     if (js.mimic_master) {
       const std::string role = "joint '" + js.name + "' mimic";
       joint.drive = JointDrive::kMimic;
-      joint.mimic.master = movable_joint(*js.mimic_master, role);
-      TROCAR_THROW_UNLESS(joint.mimic.master != joint_index[js.name],
+      joint.mimic.master = MovableJoint(names, model, *js.mimic_master, role);
+      TROCAR_THROW_UNLESS(joint.mimic.master != joint_index.at(js.name),
                           src << ": " << role << ": a joint cannot mimic itself");
       TROCAR_THROW_UNLESS(std::isfinite(js.mimic_multiplier) && std::isfinite(js.mimic_offset),
                           src << ": " << role << ": multiplier " << js.mimic_multiplier
@@ -496,15 +524,20 @@ RobotModel RobotModelBuilder::Build() const {
       joint.drive = JointDrive::kHeld;
     }
   }
+}
 
-  const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+// 4. Four-bar closures: their joints (revolute, parallel axes, the right links), their drive,
+// and their planar geometry in the ground link at the zero configuration.
+void RobotModelBuilder::BuildClosures(const NameIndex& names, RobotModel* out) const {
+  const std::string& src = source_;
+  RobotModel& model = *out;
   for (const FourBarSpec& spec : four_bars_) {
     const std::string where = src + ": closure '" + spec.name + "'";
     FourBarClosure c;
     c.name = spec.name;
-    c.driver = movable_joint(spec.driver, "closure '" + spec.name + "' driver");
-    c.coupler = movable_joint(spec.coupler, "closure '" + spec.name + "' coupler");
-    c.rocker = movable_joint(spec.rocker, "closure '" + spec.name + "' rocker");
+    c.driver = MovableJoint(names, model, spec.driver, "closure '" + spec.name + "' driver");
+    c.coupler = MovableJoint(names, model, spec.coupler, "closure '" + spec.name + "' coupler");
+    c.rocker = MovableJoint(names, model, spec.rocker, "closure '" + spec.name + "' rocker");
     const Joint& jd = model.joints_[c.driver];
     Joint& jc = model.joints_[c.coupler];
     Joint& jr = model.joints_[c.rocker];
@@ -588,12 +621,19 @@ RobotModel RobotModelBuilder::Build() const {
     c.change_phase = D.norm() > 1e-12 ? Angle2(c.c0) - Angle2(D) : 0.0;
     model.closures_.push_back(c);
   }
+}
 
+// 5. Active joints: the plain movable ones in depth-first order, or the description's list
+// (the others held).
+void RobotModelBuilder::AssignActiveJoints(const NameIndex& names, RobotModel* out) const {
+  const std::string& src = source_;
+  RobotModel& model = *out;
+  const std::map<std::string, int>& joint_index = names.joints;
   // Active joints: the plain movable ones in depth-first order, or the sidecar's list.
   if (active_order_) {
     std::set<int> listed;
     for (const std::string& name : *active_order_) {
-      const int j = movable_joint(name, "active_joints");
+      const int j = MovableJoint(names, model, name, "active_joints");
       Joint& joint = model.joints_[j];
       TROCAR_THROW_UNLESS(joint.drive != JointDrive::kMimic && joint.drive != JointDrive::kClosure,
                           src << ": active_joints: joint '" << name << "' is driven by "
@@ -607,7 +647,7 @@ RobotModel RobotModelBuilder::Build() const {
       if (joint.drive == JointDrive::kActive && !listed.count(j)) joint.drive = JointDrive::kHeld;
     }
     for (const std::string& name : *active_order_) {
-      const int j = joint_index[name];
+      const int j = joint_index.at(name);
       model.joints_[j].q_index = int(model.active_joints_.size());
       model.active_joints_.push_back(j);
     }
@@ -619,7 +659,13 @@ RobotModel RobotModelBuilder::Build() const {
       model.active_joints_.push_back(j);
     }
   }
+}
 
+// 6. The order in which mimic and closure joints are resolved (dependencies first, cycles
+// refused).
+void RobotModelBuilder::OrderResolution(RobotModel* out) const {
+  const std::string& src = source_;
+  RobotModel& model = *out;
   // --- Resolution order for mimic and closure joints (dependencies first, cycles refused).
   {
     std::vector<int> state(model.joints_.size(), 0);  // 0 new, 1 visiting, 2 done
@@ -647,7 +693,12 @@ RobotModel RobotModelBuilder::Build() const {
     };
     for (int j : model.dof_joints_) resolve(j, "");
   }
+}
 
+// 7. Kinematic frames per body (thesis §2.4.2).
+void RobotModelBuilder::AddKinematicFrames(RobotModel* out) const {
+  RobotModel& model = *out;
+  const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
   // --- Kinematic frames per body (thesis §2.4.2).
   for (int l = 0; l < model.num_links(); ++l) {
     Link& link = model.links_[l];
@@ -680,7 +731,11 @@ RobotModel RobotModelBuilder::Build() const {
       link.X_LK = I;
     }
   }
+}
 
+// 8. Paths of movable joints from the base to each link, used by Jacobians.
+void RobotModelBuilder::AddMovablePaths(RobotModel* out) const {
+  RobotModel& model = *out;
   // --- Paths from the base, used by Jacobians.
   model.movable_paths_.resize(model.links_.size());
   for (int l = 1; l < model.num_links(); ++l) {
@@ -688,7 +743,15 @@ RobotModel RobotModelBuilder::Build() const {
     model.movable_paths_[l] = model.movable_paths_[joint.parent_link];
     if (joint.movable()) model.movable_paths_[l].push_back(model.links_[l].parent_joint);
   }
+}
 
+// 9. Named frames: the tool (declared, a link named 'tool', or the tip of the chain below the
+// last active joint), the RCM, declared frames, and one frame per link.
+void RobotModelBuilder::AddNamedFrames(const NameIndex& names, RobotModel* out) const {
+  const std::string& src = source_;
+  RobotModel& model = *out;
+  const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+  const std::map<std::string, int>& link_index = names.links;
   // --- Named frames.
   auto make_frame = [&](const FrameSpec& spec, const std::string& role) {
     TROCAR_THROW_UNLESS(link_index.count(spec.link), src << ": " << role << " '" << spec.name
@@ -696,7 +759,7 @@ RobotModel RobotModelBuilder::Build() const {
                                                          << "'");
     TROCAR_THROW_UNLESS(spec.X_LF.matrix().allFinite(),
                         src << ": " << role << " '" << spec.name << "': pose is not finite");
-    return Frame{spec.name, link_index[spec.link], spec.X_LF};
+    return Frame{spec.name, link_index.at(spec.link), spec.X_LF};
   };
   // A declared frame named like a link must be that link's own frame: otherwise one name would
   // mean two poses (`--frame tool` giving the wrong link).
@@ -757,7 +820,12 @@ RobotModel RobotModelBuilder::Build() const {
   for (int l = 0; l < model.num_links(); ++l) {
     model.link_frames_.push_back(Frame{model.links_[l].name, l, I});
   }
+}
 
+// 10. Defaults for sessions: the home configuration (within the limits) and controller gains.
+void RobotModelBuilder::SetDefaults(RobotModel* out) const {
+  const std::string& src = source_;
+  RobotModel& model = *out;
   if (home_) {
     TROCAR_THROW_UNLESS(static_cast<int>(home_->size()) == model.num_positions(),
                         src << ": home: " << home_->size() << " values, expected "
@@ -786,6 +854,22 @@ RobotModel RobotModelBuilder::Build() const {
   for (const auto& [name, gains] : model.controller_.gains) {
     check_gains(gains, "controller.gains." + name);
   }
+}
+
+RobotModel RobotModelBuilder::Build() const {
+  RobotModel model;
+  model.name_ = name_;
+  model.source_ = source_;
+  const TreeOrder order = ValidateTree();
+  const NameIndex names = AddLinksAndJoints(order, &model);
+  AssignDrives(order, names, &model);
+  BuildClosures(names, &model);
+  AssignActiveJoints(names, &model);
+  OrderResolution(&model);
+  AddKinematicFrames(&model);
+  AddMovablePaths(&model);
+  AddNamedFrames(names, &model);
+  SetDefaults(&model);
   return model;
 }
 

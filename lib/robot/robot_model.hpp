@@ -312,11 +312,33 @@ class RobotModelBuilder {
   void Attach(const RobotModelBuilder& other, const std::string& prefix,
               const std::string& parent_link, const Eigen::Isometry3d& X_PC);
 
-  /// Validates and builds. Default tool frame: the child link of the last active joint,
-  /// followed down single fixed joints.
+  /// Validates and builds, in named stages (each below, each throwing errors that name the
+  /// source and the element): the tree, links and joints, drives, closures, active joints,
+  /// resolution order, kinematic frames, movable paths, named frames, defaults. Default tool
+  /// frame: a link named 'tool', else the tip of the chain below the last active joint,
+  /// followed through fixed and mimic joints while the chain does not branch.
   RobotModel Build() const;
 
  private:
+  struct TreeOrder {
+    std::vector<int> links, joints;  ///< spec indices, depth first from the root
+  };
+  struct NameIndex {
+    std::map<std::string, int> links, joints;  ///< name → index in the model
+  };
+  TreeOrder ValidateTree() const;
+  NameIndex AddLinksAndJoints(const TreeOrder& order, RobotModel* model) const;
+  int MovableJoint(const NameIndex& names, const RobotModel& model, const std::string& name,
+                   const std::string& role) const;
+  void AssignDrives(const TreeOrder& order, const NameIndex& names, RobotModel* model) const;
+  void BuildClosures(const NameIndex& names, RobotModel* model) const;
+  void AssignActiveJoints(const NameIndex& names, RobotModel* model) const;
+  void OrderResolution(RobotModel* model) const;
+  void AddKinematicFrames(RobotModel* model) const;
+  void AddMovablePaths(RobotModel* model) const;
+  void AddNamedFrames(const NameIndex& names, RobotModel* model) const;
+  void SetDefaults(RobotModel* model) const;
+
   std::string name_;
   std::string source_;
   std::vector<LinkSpec> links_;
