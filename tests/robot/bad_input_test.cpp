@@ -125,6 +125,50 @@ TEST_F(BadInput, UnknownMimicMasterIsNamed) {
   EXPECT_CONTAINS(LoadError(path), "joint 'j' mimic: no joint named 'ghost'");
 }
 
+TEST_F(BadInput, AMimicCycleIsRefusedNamingTheJoints) {
+  const std::string path = Write("cycle.urdf", R"(<robot name="m"><link name="a"/><link name="b"/>
+      <link name="c"/><link name="d"/>
+      <joint name="drive" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+      <joint name="j1" type="revolute"><parent link="b"/><child link="c"/><axis xyz="0 0 1"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/><mimic joint="j2"/></joint>
+      <joint name="j2" type="revolute"><parent link="c"/><child link="d"/><axis xyz="0 0 1"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/><mimic joint="j1"/></joint></robot>)");
+  const std::string message = LoadError(path);
+  EXPECT_EQ(message, path + ": joints depend on each other in a cycle: j1 -> j2 -> j1");
+}
+
+TEST_F(BadInput, AClosedLoopTheSidecarDoesNotDeclareIsRefused) {
+  // Link c hangs from two joints: a loop in the URDF's tree, which trocar models only as a
+  // declared four-bar closure.
+  const std::string path = Write("loop.urdf", R"(<robot name="l"><link name="a"/><link name="b"/>
+      <link name="c"/>
+      <joint name="ab" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+      <joint name="bc" type="revolute"><parent link="b"/><child link="c"/><axis xyz="0 0 1"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+      <joint name="ac" type="revolute"><parent link="a"/><child link="c"/><axis xyz="0 0 1"/>
+      <limit lower="-1" upper="1" velocity="1" effort="1"/></joint></robot>)");
+  EXPECT_EQ(LoadError(path), path + ": joint 'bc': link 'c' already has parent joint 'ac' (a "
+                                    "kinematic tree; close loops with a four-bar closure)");
+}
+
+TEST_F(BadInput, AHomeOutsideTheLimitsNamesTheJointAndTheValue) {
+  const std::string urdf = Write("home.urdf", WithLower("-0.5"));
+  const std::string path = Write("home.yaml", "urdf: " + urdf + "\nhome: [1.5]\n");
+  const std::string message = LoadError(path);
+  EXPECT_CONTAINS(message, "home: joint 'j1' value 1.5 is outside its limits [-0.5, 0.9]");
+}
+
+TEST_F(BadInput, AnInfiniteOrNanVelocityLimitIsNamed) {
+  std::string text = WithLower("-0.5");
+  text.replace(text.find("velocity=\"1\""), 12, "velocity=\"nan\"");
+  const std::string path = Write("velocity.urdf", text);
+  const std::string message = LoadError(path);
+  EXPECT_CONTAINS(message, path);
+  EXPECT_CONTAINS(message, "j1");
+}
+
 TEST_F(BadInput, YamlSyntaxErrorGivesLineAndColumn) {
   const std::string path = Write("syntax.yaml", "name: x\ndh: [unclosed\n");
   EXPECT_CONTAINS(LoadError(path), path + ":3:1: YAML syntax error");
