@@ -1,5 +1,6 @@
 #include "robot/urdf_loader.hpp"
 
+#include <algorithm>
 #include <cctype>
 #include <cmath>
 #include <cstring>
@@ -78,9 +79,19 @@ XmlCensus ScanUrdfXml(const std::string& xml, const std::string& path) {
   std::vector<std::string> stack;
   std::vector<std::string> link_names;  // name attribute of each open element
   std::size_t at = 0;
+  // TinyXML (under urdfdom) reads past the end of a document that stops inside a tag, an
+  // attribute value, a comment or a CDATA section (a heap over-read found by fuzzing): such a
+  // document is refused here, naming the line where the unfinished construct starts.
+  auto line_of = [&](std::size_t offset) {
+    return 1 + std::count(xml.begin(), xml.begin() + static_cast<std::ptrdiff_t>(offset), '\n');
+  };
   auto skip_past = [&](const char* end) {
     const std::size_t found = xml.find(end, at);
-    at = found == std::string::npos ? xml.size() : found + std::strlen(end);
+    TROCAR_THROW_UNLESS(found != std::string::npos,
+                        path << ":" << line_of(at) << ": not a valid URDF: '"
+                             << xml.substr(at, std::min<std::size_t>(9, xml.size() - at))
+                             << "' is never closed by '" << end << "' (the file ends first)");
+    at = found + std::strlen(end);
   };
   while ((at = xml.find('<', at)) != std::string::npos) {
     if (xml.compare(at, 4, "<!--") == 0) { skip_past("-->"); continue; }
@@ -108,7 +119,12 @@ XmlCensus ScanUrdfXml(const std::string& xml, const std::string& path) {
         break;
       }
     }
-    if (end >= xml.size()) break;  // unterminated: the parser reports it
+    TROCAR_THROW_UNLESS(end < xml.size(),
+                        path << ":" << line_of(at) << ": not a valid URDF: the tag '"
+                             << xml.substr(at, std::min<std::size_t>(24, xml.size() - at))
+                             << "' is never closed"
+                             << (quote != 0 ? " (an attribute value is still open)" : "")
+                             << " (the file ends first)");
     const std::string tag = xml.substr(at + 1, end - at - 1);
     at = end + 1;
     if (!tag.empty() && tag[0] == '/') {

@@ -169,6 +169,33 @@ TEST_F(BadInput, AnInfiniteOrNanVelocityLimitIsNamed) {
   EXPECT_CONTAINS(message, "j1");
 }
 
+// TinyXML (under urdfdom) reads past the end of a document that stops inside a construct (an
+// ASan heap over-read found by fuzzing, tests/fuzz/regressions/urdf): trocar refuses such a
+// document first, naming the line where the unfinished construct starts.
+TEST_F(BadInput, ADocumentEndingInsideATagOrCommentIsRefusedBeforeTheXmlParser) {
+  const std::string head = "<robot name=\"x\"><link name=\"a\"/>\n";
+  struct Case {
+    const char* tail;
+    const char* expected;
+  };
+  for (const Case& c : {
+           Case{"<link name=\"b", ": not a valid URDF: the tag '<link name=\"b' is never closed (an "
+                                  "attribute value is still open) (the file ends first)"},
+           Case{"<link name=\"b\"", ": not a valid URDF: the tag '<link name=\"b\"' is never closed (the "
+                                     "file ends first)"},
+           Case{"<!-- a comment", ": not a valid URDF: '<!-- a co' is never closed by '-->' (the file "
+                                  "ends first)"},
+           Case{"<![CDATA[ data", ": not a valid URDF: '<![CDATA[' is never closed by ']]>' (the file "
+                                  "ends first)"},
+       }) {
+    const std::string path = Write("truncated.urdf", head + c.tail);
+    EXPECT_EQ(LoadError(path), path + ":2" + c.expected);
+  }
+  const std::string finding =
+      test::SourcePath("tests/fuzz/regressions/urdf/tinyxml-overread-unclosed-attribute.urdf");
+  EXPECT_CONTAINS(LoadError(finding), "not a valid URDF");
+}
+
 TEST_F(BadInput, YamlSyntaxErrorGivesLineAndColumn) {
   const std::string path = Write("syntax.yaml", "name: x\ndh: [unclosed\n");
   EXPECT_CONTAINS(LoadError(path), path + ":3:1: YAML syntax error");
