@@ -63,7 +63,7 @@ std::string Tail(const std::string& err) {
 IsolatedWorker::IsolatedWorker(Work work, IsolateOptions options)
     : work_(std::move(work)), options_(options) {}
 
-IsolatedWorker::~IsolatedWorker() { Stop(false); }
+IsolatedWorker::~IsolatedWorker() { Stop(); }
 
 void IsolatedWorker::Start(const std::string& what) {
   int channel[2], err_pipe[2];
@@ -137,10 +137,13 @@ void IsolatedWorker::Serve() {
   ::_exit(0);
 }
 
-void IsolatedWorker::Stop(bool kill) {
+void IsolatedWorker::Stop() {
   if (pid_ < 0) return;
-  if (kill) ::kill(pid_, SIGKILL);
-  ::close(to_child_);  // the child reads the end of its requests and exits
+  // Killed, not asked to leave: closing our end is not an end of file for the child when a
+  // later child (another worker's) holds a copy of it, and waiting for that would hang. The
+  // child holds nothing that needs a clean exit.
+  ::kill(pid_, SIGKILL);
+  ::close(to_child_);
   ::close(child_err_);
   int status = 0;
   while (::waitpid(pid_, &status, 0) < 0 && errno == EINTR) {
@@ -222,7 +225,7 @@ std::string IsolatedWorker::Call(const std::string& what, const std::string& req
   }
 
   if (timed_out) {
-    Stop(true);
+    Stop();
     TROCAR_THROW(what << ": the decoder did not finish within " << limit_s
                       << " s and was stopped (a damaged or hostile file?)");
   }

@@ -5,9 +5,10 @@
 /// in a trocar::Error naming the file instead of taking trocar down with it.
 ///
 /// The child is a fork of this process. An IsolatedWorker forks once and then serves requests
-/// (bytes in, bytes out, over two pipes) one after another, so a series of hundreds of files
-/// costs one fork, made while the caller is still small (fork copies the page tables of all the
-/// memory the caller holds: 15 ms at 300 MB). A child that dies is replaced at the next request.
+/// (bytes in, bytes out, over a Unix socket; its standard error through a pipe) one after
+/// another, so a series of hundreds of files costs one fork, made while the caller is still
+/// small (fork copies the page tables of all the memory the caller holds: 16 ms at 300 MB). A
+/// child that dies is replaced at the next request; the worker's end kills its child.
 /// The parent bounds the answer it accepts (`max_output_bytes`) and how long it waits
 /// (`timeout_s`, per request). What the child prints to its standard error is kept (the last
 /// 2 KiB) for the message.
@@ -51,7 +52,7 @@ class IsolatedWorker {
 
  private:
   void Start(const std::string& what);
-  void Stop(bool kill);
+  void Stop();
   [[noreturn]] void Serve();
 
   Work work_;

@@ -62,7 +62,9 @@ Eigen::Matrix<double, R, 1> DampedSolve(const JacobianRows& J, const Eigen::Matr
   Vector x = warm->head<R>();
   if (!(x.squaredNorm() > 0.5)) x = Vector::Constant(1.0 / std::sqrt(static_cast<double>(R)));
   double lambda_min = HUGE_VAL;
-  for (int iteration = 0; iteration < 100; ++iteration) {
+  // A factorisation that failed (J J^T singular to rounding) is a singular arm: full damping.
+  if (chol.info() != Eigen::Success) lambda_min = 0.0;
+  for (int iteration = 0; iteration < 100 && lambda_min > 0.0; ++iteration) {
     const Vector y = chol.solve(x);
     const double norm = y.norm();
     if (!(norm > 0.0) || !std::isfinite(norm)) {  // singular to working precision

@@ -535,14 +535,13 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
   }
 }
 
-// Reads one file into its slices (one, or one per frame). Returns false when it is not a DICOM
-// image (not DICOM, or a DICOMDIR, a report, a presentation state), so that folders may hold
-// such files beside the slices.
 bool DecodeIsolated(IsolatedWorker* decoder, const std::string& bytes_read,
                     const std::string& file, Sniff sniff, std::vector<Slice>* out);
 
-// Reads one file: sniffed, size-checked and structure-walked here, decoded by GDCM in the
-// decoder process. False for a file that is not a DICOM image (skipped).
+// Reads one file into its slices (one, or one per frame): sniffed, size-checked and
+// structure-walked here, decoded by GDCM in the decoder process. Returns false when it is not a
+// DICOM image (not DICOM, or a DICOMDIR, a report, a presentation state), so that folders may
+// hold such files beside the slices.
 bool ReadFile(const std::string& file, IsolatedWorker* decoder, std::vector<Slice>* out) {
   QuietGdcm();
   const Sniff sniff = SniffFile(file);

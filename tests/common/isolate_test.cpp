@@ -10,6 +10,8 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <future>
+#include <memory>
 #include <string>
 
 #include "common/error.hpp"
@@ -135,6 +137,21 @@ TEST(IsolatedWorker, OneChildServesManyRequestsAndADeadOneIsReplaced) {
   const std::string after = worker.Call("item", "x");  // a new child
   EXPECT_EQ(worker.started(), 2);
   EXPECT_NE(after.substr(after.rfind(' ') + 1), first_pid);
+}
+
+// A worker's child forked while another worker lives holds a copy of that worker's socket end:
+// closing it is then no end of file for the first child. Ending the first worker must not wait
+// for one (it hung before the worker killed its child).
+TEST(IsolatedWorker, EndingOneWorkerWhileAnotherLivesDoesNotHang) {
+  auto echo = [](const std::string& request, std::string* answer) { *answer = request; };
+  auto first = std::make_unique<IsolatedWorker>(echo);
+  EXPECT_EQ(first->Call("a", "1"), "1");
+  IsolatedWorker second(echo);
+  EXPECT_EQ(second.Call("b", "2"), "2");  // forked with a copy of the first's end
+  auto done = std::async(std::launch::async, [&first] { first.reset(); });
+  ASSERT_EQ(done.wait_for(std::chrono::seconds(20)), std::future_status::ready)
+      << "ending the first worker hangs";
+  EXPECT_EQ(second.Call("b", "3"), "3");
 }
 
 TEST(IsolatedWorker, LargeRequestsAndAnswersBothWays) {
