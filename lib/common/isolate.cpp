@@ -143,6 +143,10 @@ void IsolatedWorker::Stop() {
   // later child (another worker's) holds a copy of it, and waiting for that would hang. The
   // child holds nothing that needs a clean exit.
   ::kill(pid_, SIGKILL);
+  Reap();
+}
+
+int IsolatedWorker::Reap() {
   ::close(to_child_);
   ::close(child_err_);
   int status = 0;
@@ -150,6 +154,7 @@ void IsolatedWorker::Stop() {
   }
   pid_ = -1;
   to_child_ = from_child_ = child_err_ = -1;
+  return status;
 }
 
 std::string IsolatedWorker::Call(const std::string& what, const std::string& request,
@@ -242,13 +247,7 @@ std::string IsolatedWorker::Call(const std::string& what, const std::string& req
       err_.append(buffer, static_cast<std::size_t>(n));
     }
     if (err_.size() > kStderrTail) err_.erase(0, err_.size() - kStderrTail);
-    ::close(to_child_);
-    ::close(child_err_);
-    int status = 0;
-    while (::waitpid(pid_, &status, 0) < 0 && errno == EINTR) {
-    }
-    pid_ = -1;
-    to_child_ = from_child_ = child_err_ = -1;
+    const int status = Reap();  // it has ended: nothing to kill
     TROCAR_THROW_UNLESS(!WIFSIGNALED(status),
                         what << ": the decoder crashed on it (signal " << WTERMSIG(status) << ", "
                              << ::strsignal(WTERMSIG(status)) << ")" << Tail(err_)

@@ -53,6 +53,7 @@ class IsolatedWorker {
  private:
   void Start(const std::string& what);
   void Stop();
+  int Reap();  // closes our ends, waits for the child, returns its status
   [[noreturn]] void Serve();
 
   Work work_;
