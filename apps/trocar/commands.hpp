@@ -6,6 +6,8 @@
 #include <ostream>
 #include <string>
 
+#include "motion/verify.hpp"
+
 namespace trocar::apps {
 
 /// `trocar robot info FILE`, `trocar robot fk FILE q1 … qn`.
@@ -27,8 +29,20 @@ void AddCheckCommand(CLI::App* app);
 /// `trocar plan CASE --out DIR [...]`: ports and cart pose by optimisation.
 void AddPlanCommand(CLI::App* app);
 
+/// `trocar bench SPEC.yaml --out DB`, `trocar bench --summary DB`.
+void AddBenchCommand(CLI::App* app);
+
+/// `trocar verify PLAN.json`: verified motions for a plan's ranked plans.
+void AddVerifyCommand(CLI::App* app);
+
 /// Re-checks every claim of a plan file (trocar check --plan); prints what fails.
 /// @return 0 when every claim holds, 3 otherwise. @throws trocar::Error for a malformed file.
 int CheckPlanFile(const std::string& path, std::ostream& out);
+
+/// The motion options of `plan` and `verify` (--planner, --motion-time, --motion-seed,
+/// --motion-threads).
+void AddMotionOptions(CLI::App* cmd, planners::MotionOptions* options, int* threads);
+/// A plan's verification in a few lines: motions verified, served share, main failures.
+void PrintVerification(const planners::PlanVerification& verification, std::ostream& out);
 
 }  // namespace trocar::apps

@@ -16,6 +16,8 @@ int main(int argc, char** argv) {
   trocar::apps::AddPatientCommands(&app);
   trocar::apps::AddCheckCommand(&app);
   trocar::apps::AddPlanCommand(&app);
+  trocar::apps::AddVerifyCommand(&app);
+  trocar::apps::AddBenchCommand(&app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

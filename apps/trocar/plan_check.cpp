@@ -346,6 +346,97 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         if (n > 0)
           fail(where + "claimed reached, but " + std::to_string(n) + " pairs collide: " + which);
       }
+      // Verified motions (trocar verify): each solved path starts at the nominal pose, ends at
+      // its target, and is collision-free and within limits at every state of its segments cut
+      // at the re-check step — checked here with this file's own checker, not the planner's.
+      if (plan.contains("verification")) {
+        const json& v = plan["verification"];
+        const double step = field(v, "recheck_step").get<double>();
+        const double weight = field(v, "prismatic_weight_per_m").get<double>();
+        TROCAR_THROW_UNLESS(step > 0 && weight > 0, path << ": bad verification steps");
+        int solved = 0, total = 0;
+        for (const auto& m : field(v, "motions")) {
+          ++total;
+          if (!field(m, "solved").get<bool>()) continue;
+          ++solved;
+          ++claims;
+          const std::string arm_name = field(m, "arm").get<std::string>();
+          const int sample = field(m, "sample").get<int>();
+          TROCAR_THROW_UNLESS(sample >= 0 && sample < static_cast<int>(aims.size()),
+                              path << ": motion sample " << sample << " out of range");
+          const std::string where =
+              tag + arm_name + " motion to sample " + std::to_string(sample) + ": ";
+          int a = -1;
+          for (std::size_t i = 0; i < arms.size(); ++i) {
+            if (arms[i].at("name") == arm_name) a = static_cast<int>(i);
+          }
+          TROCAR_THROW_UNLESS(a >= 0, path << ": motion names unknown arm '" << arm_name << "'");
+          std::vector<int> qi;
+          std::vector<double> scale;
+          for (const auto& name : field(m, "joints")) {
+            const robot::Joint& joint = robot->joint(robot->GetJoint(name.get<std::string>()));
+            TROCAR_THROW_UNLESS(joint.q_index >= 0, path << ": motion joint " << name
+                                                         << " is not an active joint");
+            qi.push_back(joint.q_index);
+            scale.push_back(joint.type == robot::JointType::kPrismatic ? weight : 1.0);
+          }
+          std::vector<Eigen::VectorXd> waypoints;
+          for (const auto& w : field(m, "waypoints")) {
+            TROCAR_THROW_UNLESS(w.is_array() && w.size() == qi.size(),
+                                path << ": " << where << "a waypoint of the wrong size");
+            Eigen::VectorXd q(qi.size());
+            for (std::size_t c = 0; c < qi.size(); ++c) q[c] = w[c].get<double>();
+            waypoints.push_back(q);
+          }
+          if (waypoints.size() < 2) {
+            fail(where + "solved, but its path has fewer than two waypoints");
+            continue;
+          }
+          double start_off = 0.0;
+          for (std::size_t c = 0; c < qi.size(); ++c)
+            start_off = std::max(start_off, std::abs(waypoints[0][c] - nominal.q[qi[c]]));
+          if (start_off > 1e-6) fail(where + "does not start at the nominal pose");
+          const robot::Frame& tool =
+              robot->GetFrame(field(arms[a], "tool_frame").get<std::string>());
+          std::string first_failure;
+          auto check_state = [&](const Eigen::VectorXd& q_arm) {
+            state = nominal;
+            for (std::size_t c = 0; c < qi.size(); ++c) state.q[qi[c]] = q_arm[c];
+            const auto limits = kinematics::LimitViolations(*robot, state.q);
+            if (!limits.empty()) return limits.front();
+            const auto f = kinematics::ForwardKinematics(*robot, state.q, &state);
+            if (!f.ok) return f.message;
+            const auto [n, which] = collisions(state, pivots);
+            return n > 0 ? "collision: " + which : std::string();
+          };
+          for (std::size_t k = 1; k < waypoints.size() && first_failure.empty(); ++k) {
+            double largest = 0.0;
+            for (std::size_t c = 0; c < qi.size(); ++c)
+              largest = std::max(largest, std::abs(waypoints[k][c] - waypoints[k - 1][c]) * scale[c]);
+            const int n = std::max(1, static_cast<int>(std::ceil(largest / step)));
+            for (int i = (k == 1 ? 0 : 1); i <= n && first_failure.empty(); ++i) {
+              const double t = static_cast<double>(i) / n;
+              first_failure = check_state((1 - t) * waypoints[k - 1] + t * waypoints[k]);
+              if (!first_failure.empty())
+                first_failure = "segment " + std::to_string(k) + ": " + first_failure;
+            }
+          }
+          if (!first_failure.empty()) {
+            fail(where + "claimed verified, but " + first_failure);
+            continue;
+          }
+          check_state(waypoints.back());
+          const double tip_error =
+              (kinematics::FramePose(state, tool).translation() - aims[sample]).norm();
+          if (tip_error > ik_tolerance + kSlack)
+            fail(where + "ends with the tool tip " + Mm(tip_error) + " from the target");
+        }
+        ++claims;
+        const double coverage = field(v, "verified_coverage").get<double>();
+        if (total > 0 && std::abs(coverage - static_cast<double>(solved) / total) > 1e-9)
+          fail(tag + "verified coverage " + std::to_string(coverage) + " is not " +
+               std::to_string(solved) + " of " + std::to_string(total) + " motions");
+      }
       out << tag
           << (failures.size() == failures_before
                   ? "every claim holds"

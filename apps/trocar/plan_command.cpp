@@ -29,6 +29,9 @@ struct PlanOptions {
   planners::PortPlacementOptions optimizer;
   int samples = 0;
   bool no_robustness = false;
+  bool no_verify = false;
+  planners::MotionOptions motion;
+  int motion_threads = 0;
   bool quiet = false;
 };
 
@@ -43,6 +46,7 @@ int RunPlan(PlanOptions o) {
   const auto t0 = Clock::now();
   // Everything the command line says is checked before any work.
   planners::ValidateOptions(o.optimizer);
+  if (!o.no_verify) planners::ValidateMotionOptions(o.motion);
   TROCAR_THROW_UNLESS(!o.out.empty(), "--out: an output folder is required");
   TROCAR_THROW_UNLESS(std::filesystem::is_directory(o.case_dir),
                       o.case_dir << ": not a case folder (expected a folder with patient.yaml)");
@@ -85,7 +89,19 @@ int RunPlan(PlanOptions o) {
                 << std::flush;
     };
   }
-  const planners::PortPlacementResult result = planners::OptimizePorts(problem, o.optimizer);
+  planners::PortPlacementResult result = planners::OptimizePorts(problem, o.optimizer);
+  // Verified motions for every ranked plan (unless --no-verify), then the plans re-ranked with
+  // the verified coverage in place of the claimed one.
+  std::vector<planners::PlanVerification> verifications;
+  if (!o.no_verify) {
+    for (std::size_t k = 0; k < result.plans.size(); ++k) {
+      if (o.optimizer.progress) o.optimizer.progress(static_cast<double>(k) / result.plans.size(), "verifying motions");
+      verifications.push_back(planners::VerifyPlan(problem, result.plans[k], o.motion,
+                                                   o.optimizer.suitable_fraction,
+                                                   o.motion_threads));
+    }
+    planners::RankByVerification(&result, &verifications);
+  }
   if (terminal) std::cerr << "\r" << std::string(70, ' ') << "\r" << std::flush;
 
   planners::PlanInputs inputs;
@@ -94,7 +110,13 @@ int RunPlan(PlanOptions o) {
   inputs.case_hash = planners::HashFile(JoinPath(o.case_dir, "patient.yaml"));
   inputs.robot_hash = planners::HashFile(o.robot);
   inputs.model_hash = planners::HashPatientModel(*patient);
-  planners::WritePlanFolder(o.out, problem, result, o.optimizer, inputs);
+  planners::WritePlanFolder(o.out, problem, result, o.optimizer, inputs,
+                            [&](const std::string& text) {
+                              return verifications.empty()
+                                         ? text
+                                         : planners::AddVerificationJson(text, problem,
+                                                                         verifications);
+                            });
 
   std::cout << std::fixed;
   for (std::size_t k = 0; k < result.plans.size(); ++k) {
@@ -121,16 +143,27 @@ int RunPlan(PlanOptions o) {
                 << std::setw(9) << t.unit << std::right << " score " << t.score << "  x "
                 << std::setprecision(2) << t.weight << "\n";
     }
+    if (k < verifications.size()) PrintVerification(verifications[k], std::cout);
   }
   std::cout << "\nverdict: " << result.verdict.summary << "\n";
   for (const auto& r : result.verdict.reasons) std::cout << "  " << r << "\n";
+  bool suitable = result.verdict.suitable;
+  if (!verifications.empty()) {
+    // The verdict that counts is the one from verified motions.
+    suitable = verifications.front().suitable;
+    std::cout << "verified verdict: " << (suitable ? "suitable" : "not suitable")
+              << " (plan 1: " << std::setprecision(0)
+              << verifications.front().verified_coverage * 100
+              << " % of instrument motions verified)\n";
+    for (const auto& r : verifications.front().reasons) std::cout << "  " << r << "\n";
+  }
   std::cout << std::setprecision(1) << "evaluations: " << result.evaluations << " in "
             << std::chrono::duration<double>(Clock::now() - t0).count() << " s on "
             << result.threads << " thread" << (result.threads == 1 ? "" : "s")
             << (result.time_limit_hit ? " (time limit reached)" : "") << "\n";
   std::cout << "written: " << JoinPath(o.out, "plan.json") << ", "
             << JoinPath(o.out, "ports.mrk.json") << "\n";
-  return result.verdict.suitable ? 0 : 4;
+  return suitable ? 0 : 4;
 }
 
 }  // namespace
@@ -172,10 +205,13 @@ void AddPlanCommand(CLI::App* app) {
   cmd->add_option("--samples", o->samples,
                   "target samples per target (default: the case's, else 8)");
   cmd->add_flag("--no-robustness", o->no_robustness, "skip re-scoring with the targets moved");
+  cmd->add_flag("--no-verify", o->no_verify,
+                "skip the verified motions (OMPL) to every target sample of each plan");
+  AddMotionOptions(cmd, &o->motion, &o->motion_threads);
   cmd->add_flag("--quiet", o->quiet, "print only the verdict");
   cmd->footer(
-      "Exit status: 0 a plan serves the patient; 4 no plan serves the patient (plans and verdict "
-      "are written); "
+      "Exit status: 0 a plan serves the patient (by verified motions, unless --no-verify); 4 no "
+      "plan serves the patient (plans and verdict are written); "
       "1 bad input; 2 internal error.");
   cmd->callback([o]() {
     const int code = RunPlan(*o);

@@ -206,6 +206,21 @@ void ValidateOptions(const PortPlacementOptions& o) {
                       "suitable fraction: " << o.suitable_fraction << ", expected 0 to 1");
 }
 
+Evaluation EvaluateFinalPlan(const PortPlacementProblem& problem, const Placement& placement,
+                             Workspace* ws, bool* full_effort) {
+  // Detailed, once with the setup-joint effort the optimiser scored it with (so that its score
+  // is reproduced) and once with the solver's full effort, which may land on another of the
+  // setup arms' redundant solutions; the better one is the plan.
+  PortPlacementProblem::EvaluateOptions how;
+  how.detailed = true;
+  Evaluation ev = problem.Evaluate(placement, ws, how);
+  how.full_solver = true;
+  Evaluation full = problem.Evaluate(placement, ws, how);
+  const bool use_full = full.score > ev.score;
+  if (full_effort) *full_effort = use_full;
+  return use_full ? full : ev;
+}
+
 PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
                                   const PortPlacementOptions& options) {
   ValidateOptions(options);
@@ -439,17 +454,9 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
   for (int i = 0; i < static_cast<int>(finals.size()); ++i) {
     Workspace ws(problem);
     RankedPlan& plan = finals[i];
-    // Detailed, once with the setup-joint effort the optimiser scored it with (so that its score
-    // is reproduced) and once with the solver's full effort, which may land on another of the
-    // setup arms' redundant solutions; the better one is the plan.
-    PortPlacementProblem::EvaluateOptions how;
-    how.detailed = true;
-    plan.evaluation = problem.Evaluate(plan.placement, &ws, how);
-    how.full_solver = true;
-    Evaluation full = problem.Evaluate(plan.placement, &ws, how);
+    bool use_full = false;
+    plan.evaluation = EvaluateFinalPlan(problem, plan.placement, &ws, &use_full);
     final_evaluations += 2;
-    const bool use_full = full.score > plan.evaluation.score;
-    if (use_full) plan.evaluation = std::move(full);
     double sum = 0;
     for (std::size_t k = 0; k < shifts.size(); ++k) {
       const Eigen::Vector3d& d_P = shifts[k];

@@ -103,6 +103,12 @@ struct PortPlacementResult {
 PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
                                   const PortPlacementOptions& options);
 
+/// The detailed evaluation a final plan gets (the better of the optimiser's setup-joint effort
+/// and the full effort); what `trocar verify` and `trocar bench` re-evaluate a recorded plan
+/// with. `full_effort` (optional) tells which one it is.
+Evaluation EvaluateFinalPlan(const PortPlacementProblem& problem, const Placement& placement,
+                             Workspace* workspace, bool* full_effort = nullptr);
+
 /// Checks options before any work (same errors as OptimizePorts).
 void ValidateOptions(const PortPlacementOptions& options);
 

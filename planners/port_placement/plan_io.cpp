@@ -304,13 +304,15 @@ void WritePortMarkups(const PortPlacementProblem& problem, const PortPlacementRe
 
 void WritePlanFolder(const std::string& dir, const PortPlacementProblem& problem,
                      const PortPlacementResult& result, const PortPlacementOptions& options,
-                     const PlanInputs& inputs) {
+                     const PlanInputs& inputs,
+                     const std::function<std::string(const std::string&)>& finish) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   TROCAR_THROW_UNLESS(!ec && std::filesystem::is_directory(dir),
                       dir << ": cannot make the output folder (" << ec.message() << ")");
   WritePortMarkups(problem, result, JoinPath(dir, "ports.mrk.json"));
-  WriteFileAtomically(JoinPath(dir, "plan.json"), PlanJson(problem, result, options, inputs));
+  const std::string text = PlanJson(problem, result, options, inputs);
+  WriteFileAtomically(JoinPath(dir, "plan.json"), finish ? finish(text) : text);
 }
 
 }  // namespace trocar::planners

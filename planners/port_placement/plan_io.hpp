@@ -4,6 +4,7 @@
 /// Both are written atomically (temporary name, then rename); `plan.json` last, so a folder that
 /// already holds a plan never holds half of a new one.
 
+#include <functional>
 #include <string>
 
 #include "port_placement/optimizer.hpp"
@@ -43,9 +44,11 @@ void WritePortMarkups(const PortPlacementProblem& problem, const PortPlacementRe
                       const std::string& path);
 
 /// Writes `dir/ports.mrk.json` then `dir/plan.json` (each atomically), creating `dir`.
+/// `finish`, when given, adds to the plan's JSON text before it is written (the verification).
 /// @throws trocar::Error naming the path when the folder cannot be made or a file written.
 void WritePlanFolder(const std::string& dir, const PortPlacementProblem& problem,
                      const PortPlacementResult& result, const PortPlacementOptions& options,
-                     const PlanInputs& inputs);
+                     const PlanInputs& inputs,
+                     const std::function<std::string(const std::string&)>& finish = nullptr);
 
 }  // namespace trocar::planners

@@ -366,6 +366,21 @@ std::shared_ptr<const collision::CollisionWorld> PortPlacementProblem::WorldWith
   return collision::CollisionWorld::Build(&moved, robot_, world_options_);
 }
 
+std::string PortPlacementProblem::SolveReach(int a, const Placement& placement,
+                                             const TargetSample& sample,
+                                             robot::RobotState* state) const {
+  TROCAR_THROW_UNLESS(a >= 0 && a < static_cast<int>(arms_.size()) &&
+                          placement.sites.size() == arms_.size(),
+                      "SolveReach: arm " << a << " of " << arms_.size());
+  const PlanArm& arm = arms_[a];
+  const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+  const Eigen::Vector3d p_aim = sample.p_W + options_.standoff * sample.n_W;
+  const IkOutcome ik = planners::SolveReach(*robot_, arm, p_aim, port, options_.ik_iterations,
+                                            options_.ik_tolerance, state);
+  if (ik.converged) return "";
+  return ReachFailure(*robot_, arm, *state, p_aim, port, max_reach_[a], ik);
+}
+
 void PortPlacementProblem::SetPorts(const Placement& placement,
                                     collision::CollisionChecker* checker) const {
   for (std::size_t a = 0; a < arms_.size() && a < placement.sites.size(); ++a) {
@@ -644,7 +659,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
               ? Eigen::Vector3d(aim_W_ - options_.scope_working_distance * dir)
               : Eigen::Vector3d(port + kNominalDepth * dir);
       const IkOutcome ik =
-          SolveReach(robot, arm, p, port, options_.ik_iterations * 2, 0.005, &state);
+          planners::SolveReach(robot, arm, p, port, options_.ik_iterations * 2, 0.005, &state);
       nominal_ok[a] = ik.converged;
     }
     kinematics::ForwardKinematics(robot, state.q, &state);
@@ -837,7 +852,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
       const Eigen::Vector3d p_aim = samples[s].p_W + options_.standoff * samples[s].n_W;
       const Eigen::Vector3d dir = (p_aim - port).normalized();
       r.approach = std::acos(std::clamp(dir.dot(-samples[s].n_W), -1.0, 1.0));
-      const IkOutcome ik = SolveReach(robot, arm, p_aim, port, options_.ik_iterations,
+      const IkOutcome ik = planners::SolveReach(robot, arm, p_aim, port, options_.ik_iterations,
                                       options_.ik_tolerance, &state);
       r.tip_error = ik.error;
       r.q_arm.resize(arm.q_indices.size());

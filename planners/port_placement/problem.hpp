@@ -239,6 +239,15 @@ class PortPlacementProblem {
   /// verdict ("insertion limit exceeded from every candidate port").
   double MaxReach(int arm) const;
 
+  /// Inverse kinematics of one arm's tool to a target sample's aim point (its point `standoff`
+  /// out along its normal), starting from state->q: damped least squares on the arm's joints,
+  /// clamped to their limits, a software-RCM arm's shaft kept through its port (as Evaluate
+  /// does). Leaves the solution's q and poses in `state`. Not a collision check.
+  /// @return empty when it converged within the options' tolerance, else why not ("insertion
+  ///         limit (240 mm) exceeded: ...", "joint limit 'x' (upper), 12 mm short", ...).
+  std::string SolveReach(int arm, const Placement& placement, const TargetSample& sample,
+                         robot::RobotState* state) const;
+
   /// Puts the collision checker's ports (where instruments may touch the skin) at the sites'
   /// pivots with their skin allowances; call after every CollisionChecker::SetRobotState.
   void SetPorts(const Placement& placement, collision::CollisionChecker* checker) const;

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <regex>
 #include <random>
 #include <iomanip>
@@ -643,6 +644,64 @@ TEST(TrocarPlan, AFolderHoldingAPlanIsNeverSeenHalfOverwritten) {
   for (const auto& entry : std::filesystem::directory_iterator(out))
     EXPECT_EQ(entry.path().filename().string().find(".tmp"), std::string::npos) << entry.path();
   RecordProperty("reads_while_writing", reads);
+}
+
+// trocar verify: verified motions added to a plan, re-ranked, confirmed by check --plan (its own
+// collision checker at every re-check step); a path moved into a collision is caught; a plan
+// whose robot changed is refused.
+TEST(TrocarVerify, AddsMotionsThatCheckConfirmsAndCatchesATamperedPath) {
+  const std::string out = ::testing::TempDir() + "trocar_verify_cli";
+  std::filesystem::remove_all(out);
+  const CommandRun plan =
+      Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+             " --arms psm1 --samples 3 --evaluations 120 --starts 2 --polish-evaluations 10 "
+             "--top 2 --no-robustness --no-verify");
+  ASSERT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
+  EXPECT_EQ(plan.output.find("verified motions"), std::string::npos) << plan.output;
+  const CommandRun verify = Trocar("verify " + out + "/plan.json --motion-threads 2");
+  ASSERT_TRUE(verify.exit_code == 0 || verify.exit_code == 4) << verify.output;
+  EXPECT_NE(verify.output.find("verified motions: "), std::string::npos) << verify.output;
+  EXPECT_NE(verify.output.find("verified verdict: "), std::string::npos) << verify.output;
+  nlohmann::json doc = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
+  ASSERT_TRUE(doc["plans"][0].contains("verification")) << doc.dump().substr(0, 500);
+  ASSERT_TRUE(doc["verdict"].contains("verified"));
+  // Re-ranked by the verified rank score.
+  for (std::size_t k = 1; k < doc["plans"].size(); ++k) {
+    EXPECT_GE(doc["plans"][k - 1]["verification"]["rank_score"].get<double>(),
+              doc["plans"][k]["verification"]["rank_score"].get<double>());
+    EXPECT_EQ(doc["plans"][k]["rank"].get<int>(), static_cast<int>(k) + 1);
+  }
+  const CommandRun check = Trocar("check --plan " + out + "/plan.json");
+  EXPECT_EQ(check.exit_code, 0) << check.output;
+  // A solved motion whose last waypoint is pushed to the insertion limit: into the patient.
+  bool tampered = false;
+  for (auto& p : doc["plans"]) {
+    for (auto& m : p["verification"]["motions"]) {
+      if (tampered || !m["solved"].get<bool>()) continue;
+      const auto& joints = m["joints"];
+      for (std::size_t c = 0; c < joints.size(); ++c) {
+        if (joints[c].get<std::string>().find("insertion") == std::string::npos) continue;
+        m["waypoints"].back()[c] = 0.24;
+        tampered = true;
+      }
+    }
+  }
+  ASSERT_TRUE(tampered) << "no solved motion to tamper with";
+  WriteFileAtomically(out + "/tampered.json", doc.dump(1));
+  const CommandRun bad = Trocar("check --plan " + out + "/tampered.json");
+  EXPECT_EQ(bad.exit_code, 3) << bad.output;
+  EXPECT_NE(bad.output.find("claimed verified, but"), std::string::npos) << bad.output;
+  // A plan whose robot file changed since: refused, naming it.
+  doc = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
+  doc["inputs"]["robot_hash"] = "fnv1a64:0000000000000000";
+  WriteFileAtomically(out + "/other.json", doc.dump(1));
+  const CommandRun refused = Trocar("verify " + out + "/other.json");
+  EXPECT_EQ(refused.exit_code, 1) << refused.output;
+  EXPECT_NE(refused.output.find("changed since the plan was made"), std::string::npos)
+      << refused.output;
+  const CommandRun unknown = Trocar("verify " + out + "/plan.json --planner rrt-connect");
+  EXPECT_EQ(unknown.exit_code, 1) << unknown.output;
+  EXPECT_NE(unknown.output.find("rrtconnect"), std::string::npos) << unknown.output;
 }
 
 TEST(TrocarPlan, BadOptionsAreRefusedNamingThem) {

@@ -1,0 +1,257 @@
+// trocar verify PLAN.json: verified motions (OMPL, collision world) for every ranked plan of a
+// plan file, the verified coverage, the plans re-ranked with it and a verified verdict, written
+// back into the plan (atomically).
+#include <cmath>
+#include <iomanip>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <numeric>
+
+#include "apps/trocar/commands.hpp"
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "motion/verify.hpp"
+#include "patient/markups.hpp"
+#include "patient/patient_model.hpp"
+#include "port_placement/plan_config.hpp"
+#include "port_placement/plan_io.hpp"
+#include "robot/load_robot.hpp"
+
+namespace trocar::apps {
+
+void AddMotionOptions(CLI::App* cmd, planners::MotionOptions* o, int* threads) {
+  cmd->add_option("--planner", o->planner,
+                  "OMPL planner for the verified motions (rrtconnect, rrt, rrtstar, prm, "
+                  "lazyprm, kpiece1, bkpiece1, est, sbl, bitstar, ...)")
+      ->capture_default_str();
+  cmd->add_option("--motion-time", o->time_limit, "planning time limit per target sample (s)")
+      ->capture_default_str();
+  cmd->add_option("--motion-seed", o->seed, "seed of the motion queries")->capture_default_str();
+  cmd->add_option("--motion-threads", *threads, "threads for the motion queries (0: all cores)")
+      ->capture_default_str();
+}
+
+void PrintVerification(const planners::PlanVerification& v, std::ostream& out) {
+  int solved = 0;
+  double time = 0.0;
+  std::vector<double> times;
+  for (const auto& m : v.motions) {
+    solved += m.solved;
+    times.push_back(m.planning_time);
+    time += m.planning_time;
+  }
+  std::sort(times.begin(), times.end());
+  out << std::fixed << std::setprecision(0) << "  verified motions: " << solved << " of "
+      << v.motions.size() << " (" << v.verified_coverage * 100 << " %, claimed "
+      << v.claimed_coverage * 100 << " %), samples served " << v.served_fraction * 100
+      << " %, median planning " << std::setprecision(1)
+      << (times.empty() ? 0.0 : times[times.size() / 2] * 1e3) << " ms, " << std::setprecision(2)
+      << v.seconds << " s on " << v.threads << " thread" << (v.threads == 1 ? "" : "s") << "\n";
+  std::map<std::string, int> failures;
+  for (const auto& m : v.motions) {
+    if (!m.solved) ++failures[m.outcome + ": " + m.reason];
+  }
+  int shown = 0;
+  for (const auto& [why, count] : failures) {
+    if (++shown > 4) break;
+    out << "    " << count << " x " << why << "\n";
+  }
+}
+
+namespace {
+
+using nlohmann::json;
+
+struct VerifyOptions {
+  std::string plan;
+  planners::MotionOptions motion;
+  int threads = 0;
+  bool quiet = false;
+};
+
+Eigen::Vector3d Vec3(const json& j) {
+  return Eigen::Vector3d(j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>());
+}
+
+int RunVerify(const VerifyOptions& o) {
+  planners::ValidateMotionOptions(o.motion);
+  json doc;
+  try {
+    doc = json::parse(ReadTextFile(o.plan));
+  } catch (const json::exception& e) {
+    TROCAR_THROW(o.plan << ": not a plan (JSON: " << e.what() << ")");
+  }
+  const std::string plan_dir = ParentDirectory(o.plan);
+  auto resolve = [&](const std::string& p) {
+    return std::filesystem::exists(p) ? p : JoinPath(plan_dir, p);
+  };
+  std::shared_ptr<const robot::RobotModel> robot;
+  std::shared_ptr<const patient::PatientModel> patient;
+  std::unique_ptr<planners::PortPlacementProblem> problem;
+  std::vector<planners::RankedPlan> plans;
+  double suitable_fraction = 0.8;
+  try {
+    TROCAR_THROW_UNLESS(doc.is_object() && doc.value("format", "") == "trocar-plan",
+                        o.plan << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
+    TROCAR_THROW_UNLESS(doc.at("version").get<int>() == planners::kPlanFormatVersion,
+                        o.plan << ": plan format version " << doc.at("version")
+                               << ", this trocar reads version " << planners::kPlanFormatVersion);
+    const json& inputs = doc.at("inputs");
+    const std::string robot_file = resolve(inputs.at("robot").get<std::string>());
+    const std::string case_dir = resolve(inputs.at("case").get<std::string>());
+    TROCAR_THROW_UNLESS(IsRegularFile(robot_file),
+                        o.plan << ": its robot " << robot_file << " does not exist");
+    TROCAR_THROW_UNLESS(planners::HashFile(robot_file) ==
+                            inputs.at("robot_hash").get<std::string>(),
+                        o.plan << ": robot file " << robot_file
+                               << " changed since the plan was made (hash differs): plan again");
+    robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(robot_file));
+    patient = std::make_shared<const patient::PatientModel>(patient::ImportPatient(case_dir));
+    TROCAR_THROW_UNLESS(
+        planners::HashPatientModel(*patient) == inputs.at("patient_model_hash").get<std::string>(),
+        o.plan << ": the patient model of " << case_dir
+               << " differs from the one the plan was made for (hash differs): plan again");
+    // The problem as the plan was scored: the case's plan settings, then what the file records.
+    planners::ProblemOptions po;
+    planners::ReadPlanConfig(case_dir, &po);
+    po.arms.clear();
+    po.roles.clear();
+    for (const auto& arm : doc.at("robot").at("arms")) {
+      po.arms.push_back(arm.at("name").get<std::string>());
+      po.roles.push_back(arm.at("name").get<std::string>() + "=" +
+                         arm.at("role").get<std::string>());
+    }
+    const json& scoring = doc.at("scoring");
+    const json& weights = scoring.at("weights");
+    po.weights.coverage = weights.at("coverage").get<double>();
+    po.weights.dexterity = weights.at("dexterity").get<double>();
+    po.weights.approach = weights.at("approach").get<double>();
+    po.weights.triangulation = weights.at("triangulation").get<double>();
+    po.weights.endoscope = weights.at("endoscope").get<double>();
+    po.weights.spacing = weights.at("spacing").get<double>();
+    po.weights.clearance_arm_arm = weights.at("clearance_arm_arm").get<double>();
+    po.weights.clearance_arm_patient = weights.at("clearance_arm_patient").get<double>();
+    po.weights.clearance_instrument_rib = weights.at("clearance_instrument_rib").get<double>();
+    po.standoff = scoring.at("standoff_m").get<double>();
+    po.rcm_depth = scoring.at("rcm_depth_m").get<double>();
+    po.gap_search_depth = scoring.at("gap_search_depth_m").get<double>();
+    po.ik_tolerance = scoring.at("ik_tolerance_m").get<double>();
+    po.scope_half_fov = scoring.at("scope_half_fov_deg").get<double>() * M_PI / 180;
+    po.scope_min_distance = scoring.at("scope_min_distance_m").get<double>();
+    po.scope_max_distance = scoring.at("scope_max_distance_m").get<double>();
+    po.scope_working_distance = scoring.at("scope_working_distance_m").get<double>();
+    po.samples_per_target = scoring.at("samples_per_target").get<int>();
+    po.seed = doc.at("algorithm").at("seed").get<unsigned>();
+    suitable_fraction = scoring.at("suitable_fraction").get<double>();
+    problem = std::make_unique<planners::PortPlacementProblem>(patient, robot, po);
+    TROCAR_THROW_UNLESS(problem->samples().size() == doc.at("target_samples").size(),
+                        o.plan << ": " << doc.at("target_samples").size()
+                               << " target samples, the patient gives " << problem->samples().size());
+    std::map<std::string, int> candidate;
+    for (int c = 0; c < static_cast<int>(patient->port_candidates.size()); ++c)
+      candidate[patient->port_candidates[c].name] = c;
+    planners::Workspace workspace(*problem);
+    int k = 0;
+    for (const auto& p : doc.at("plans")) {
+      ++k;
+      planners::RankedPlan plan;
+      const json& ports = p.at("ports");
+      TROCAR_THROW_UNLESS(ports.size() == problem->arms().size(),
+                          o.plan << ": plan " << k << " has " << ports.size() << " ports for "
+                                 << problem->arms().size() << " arms");
+      for (std::size_t a = 0; a < ports.size(); ++a) {
+        const std::string name = ports[a].at("candidate").get<std::string>();
+        TROCAR_THROW_UNLESS(candidate.count(name),
+                            o.plan << ": plan " << k << ": port candidate '" << name
+                                   << "' is not one of the patient's");
+        plan.placement.sites.push_back(problem->Site(candidate[name], ports[a].at("s").get<double>()));
+        TROCAR_THROW_UNLESS(
+            (plan.placement.sites.back().p_W - Vec3(ports[a].at("p_W"))).norm() < 1e-4,
+            o.plan << ": plan " << k << ": the port of " << ports[a].at("arm")
+                   << " is not where its candidate curve puts it");
+      }
+      plan.placement.cart_x = p.at("cart").at("x").get<double>();
+      plan.placement.cart_y = p.at("cart").at("y").get<double>();
+      plan.placement.cart_yaw = p.at("cart").at("yaw_deg").get<double>() * M_PI / 180;
+      plan.evaluation = planners::EvaluateFinalPlan(*problem, plan.placement, &workspace);
+      plan.rank_score = p.at("rank_score").get<double>();
+      const double score = p.at("score").get<double>();
+      TROCAR_THROW_UNLESS(std::abs(plan.evaluation.score - score) < 1e-3,
+                          o.plan << ": plan " << k << " scores " << plan.evaluation.score
+                                 << " again, the file says " << score
+                                 << ": it does not match its robot and patient");
+      plans.push_back(plan);
+    }
+  } catch (const json::exception& e) {
+    TROCAR_THROW(o.plan << ": malformed plan (" << e.what() << ")");
+  }
+  std::vector<planners::PlanVerification> verifications;
+  for (std::size_t k = 0; k < plans.size(); ++k) {
+    verifications.push_back(
+        planners::VerifyPlan(*problem, plans[k], o.motion, suitable_fraction, o.threads));
+    if (!o.quiet) {
+      std::cout << "plan " << k + 1 << ":\n";
+      PrintVerification(verifications.back(), std::cout);
+    }
+  }
+  // Re-rank: plans by their verified rank score, the file's plans with them.
+  std::vector<std::size_t> order(plans.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    return verifications[a].rank_score > verifications[b].rank_score;
+  });
+  json reordered = json::array();
+  std::vector<planners::PlanVerification> ordered;
+  std::vector<patient::Markup> markups;
+  for (std::size_t r = 0; r < order.size(); ++r) {
+    json p = doc["plans"][order[r]];
+    p["rank_before_verification"] = p["rank"];
+    p["rank"] = r + 1;
+    ordered.push_back(verifications[order[r]]);
+    patient::Markup m;
+    m.name = "plan " + std::to_string(r + 1) + " ports";
+    m.type = "Fiducial";
+    for (const auto& port : p["ports"]) {
+      m.points.push_back(Vec3(port.at("p_P")));
+      m.labels.push_back(port.at("arm").get<std::string>());
+    }
+    markups.push_back(m);
+    reordered.push_back(p);
+  }
+  doc["plans"] = reordered;
+  const std::string text = planners::AddVerificationJson(doc.dump(), *problem, ordered);
+  const std::string markups_path = JoinPath(plan_dir, "ports.mrk.json");
+  if (IsRegularFile(markups_path)) patient::WriteMarkups(markups, markups_path);
+  WriteFileAtomically(o.plan, text);
+  const bool suitable = !ordered.empty() && ordered.front().suitable;
+  std::cout << "verified verdict: " << (suitable ? "suitable" : "not suitable") << "\n";
+  if (!ordered.empty()) {
+    for (const auto& r : ordered.front().reasons) std::cout << "  " << r << "\n";
+  }
+  std::cout << "written: " << o.plan << "\n";
+  return suitable ? 0 : 4;
+}
+
+}  // namespace
+
+void AddVerifyCommand(CLI::App* app) {
+  auto o = std::make_shared<VerifyOptions>();
+  CLI::App* cmd = app->add_subcommand(
+      "verify",
+      "Verify a plan by collision-free motions (OMPL) to every target sample; adds the verified "
+      "motions, coverage and verdict to the plan file and re-ranks its plans");
+  cmd->add_option("plan", o->plan, "plan.json written by trocar plan")->required();
+  AddMotionOptions(cmd, &o->motion, &o->threads);
+  cmd->add_flag("--quiet", o->quiet, "print only the verdict");
+  cmd->footer(
+      "Exit status: 0 the best plan serves the patient by verified motions; 4 it does not; 1 bad "
+      "input; 2 internal error.");
+  cmd->callback([o]() {
+    const int code = RunVerify(*o);
+    if (code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+}  // namespace trocar::apps

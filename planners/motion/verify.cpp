@@ -1,0 +1,226 @@
+#include "motion/verify.hpp"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <map>
+#include <numeric>
+#include <sstream>
+
+#include "common/error.hpp"
+#include "patient/patient_model.hpp"
+
+namespace trocar::planners {
+
+PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPlan& plan,
+                            const MotionOptions& options, double suitable_fraction,
+                            int threads) {
+  ValidateMotionOptions(options);
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  PlanVerification v;
+  v.options = options;
+  const Evaluation& ev = plan.evaluation;
+  const int ns = static_cast<int>(problem.samples().size());
+  std::vector<int> instruments, scopes;
+  for (int a = 0; a < static_cast<int>(problem.arms().size()); ++a)
+    (problem.arms()[a].role == ArmRole::kInstrument ? instruments : scopes).push_back(a);
+  const int queries = static_cast<int>(instruments.size()) * ns;
+  v.motions.resize(queries);
+  if (const ScoreTerm* coverage = ev.Find("coverage")) v.claimed_coverage = coverage->value;
+  const bool placed = ev.status == PlacementStatus::kPlaced && ev.q_nominal.size() > 0;
+  if (!placed) {
+    for (int k = 0; k < queries; ++k) {
+      TargetMotion& m = v.motions[k];
+      m.arm = instruments[k / ns];
+      m.sample = k % ns;
+      m.status = MotionStatus::kInvalidStart;
+      m.outcome = "invalid start";
+      m.reason = ev.status == PlacementStatus::kInCollision
+                     ? "the plan's nominal pose is in collision"
+                     : "the plan's arms are not placed at their ports";
+    }
+  } else {
+    const MotionProblem motion_problem(problem, plan.placement, ev);
+    const int n_threads = threads > 0 ? threads : omp_get_max_threads();
+    v.threads = std::max(1, std::min(n_threads, std::max(queries, 1)));
+    std::vector<long> checks(v.threads, 0);
+    std::string error;
+#pragma omp parallel num_threads(v.threads)
+    {
+      MotionContext context(motion_problem);
+#pragma omp for schedule(dynamic, 1)
+      for (int k = 0; k < queries; ++k) {
+        try {
+          v.motions[k] = context.Plan(instruments[k / ns], k % ns, options);
+        } catch (const std::exception& e) {
+#pragma omp critical(trocar_verify_error)
+          if (error.empty()) error = e.what();
+        }
+      }
+      checks[omp_get_thread_num()] = context.checks();
+    }
+    TROCAR_THROW_UNLESS(error.empty(), error);
+    v.states_checked = std::accumulate(checks.begin(), checks.end(), 0L);
+  }
+  int solved = 0;
+  for (const auto& m : v.motions) solved += m.solved;
+  v.verified_coverage = queries > 0 ? static_cast<double>(solved) / queries : 0.0;
+  // Served: every instrument moves there, and an endoscope sees it (from the plan's evaluation).
+  v.served.assign(ns, placed);
+  for (int s = 0; s < ns; ++s) {
+    for (std::size_t i = 0; i < instruments.size(); ++i)
+      v.served[s] = v.served[s] && v.motions[i * ns + s].solved;
+    if (!scopes.empty()) {
+      bool seen = false;
+      for (const auto& r : ev.reaches) {
+        if (r.sample == s && problem.arms()[r.arm].role == ArmRole::kEndoscope) seen |= r.seen;
+      }
+      v.served[s] = v.served[s] && seen;
+    }
+  }
+  v.served_fraction =
+      ns > 0 ? static_cast<double>(std::count(v.served.begin(), v.served.end(), true)) / ns : 0.0;
+  const ScoreWeights& w = problem.options().weights;
+  v.rank_score = plan.rank_score - w.coverage / w.sum() * (v.claimed_coverage - v.verified_coverage);
+  // The verdict from verified motions: each target served on its share of samples.
+  const auto& targets = problem.patient().targets;
+  v.suitable = placed && ns > 0;
+  for (int t = 0; t < static_cast<int>(targets.size()); ++t) {
+    int total = 0, served = 0;
+    for (int s = 0; s < ns; ++s) {
+      if (problem.samples()[s].target != t) continue;
+      ++total;
+      served += v.served[s];
+    }
+    if (total == 0) continue;
+    if (served < suitable_fraction * total) {
+      v.suitable = false;
+      std::ostringstream why;
+      why << targets[t].name << ": " << served << " of " << total
+          << " samples served by verified motions (needs "
+          << std::lround(suitable_fraction * 100) << " %)";
+      // The most common reason among its failed motions.
+      std::map<std::string, int> reasons;
+      for (const auto& m : v.motions) {
+        if (!m.solved && problem.samples()[m.sample].target == t) ++reasons[m.outcome + ": " + m.reason];
+      }
+      if (!reasons.empty()) {
+        const auto most = std::max_element(
+            reasons.begin(), reasons.end(),
+            [](const auto& a, const auto& b) { return a.second < b.second; });
+        why << "; most often " << most->first;
+      }
+      v.reasons.push_back(why.str());
+    }
+  }
+  v.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return v;
+}
+
+void RankByVerification(PortPlacementResult* result,
+                        std::vector<PlanVerification>* verifications) {
+  TROCAR_THROW_UNLESS(result->plans.size() == verifications->size(),
+                      "ranking: " << verifications->size() << " verifications for "
+                                  << result->plans.size() << " plans");
+  std::vector<std::size_t> order(result->plans.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    return (*verifications)[a].rank_score > (*verifications)[b].rank_score;
+  });
+  std::vector<RankedPlan> plans;
+  std::vector<PlanVerification> ver;
+  for (std::size_t i : order) {
+    plans.push_back(result->plans[i]);
+    ver.push_back((*verifications)[i]);
+  }
+  result->plans = std::move(plans);
+  *verifications = std::move(ver);
+}
+
+namespace {
+
+using nlohmann::json;
+
+json VerificationJson(const PortPlacementProblem& problem, const PlanVerification& v) {
+  const robot::RobotModel& robot = problem.robot();
+  json motions = json::array();
+  for (const auto& m : v.motions) {
+    const PlanArm& arm = problem.arms()[m.arm];
+    json entry = {{"arm", arm.name},
+                  {"sample", m.sample},
+                  {"outcome", m.outcome},
+                  {"status", ToString(m.status)},
+                  {"solved", m.solved},
+                  {"planning_time_s", m.planning_time},
+                  {"simplification_time_s", m.simplification_time},
+                  {"graph_states", m.graph_states}};
+    if (!m.reason.empty()) entry["reason"] = m.reason;
+    if (!m.path.empty()) {
+      entry["path_length"] = m.path_length;
+      entry["raw_path_length"] = m.raw_path_length;
+      entry["tip_path_length_m"] = m.tip_path_length;
+      entry["rechecked_states"] = m.rechecked_states;
+      if (std::isfinite(m.min_clearance)) entry["min_clearance_m"] = m.min_clearance;
+      json joints = json::array();
+      for (int i : arm.q_indices) joints.push_back(robot.joint(robot.active_joints()[i]).name);
+      json waypoints = json::array();
+      for (const auto& q : m.path) {
+        json row = json::array();
+        for (int c = 0; c < q.size(); ++c) row.push_back(q[c]);
+        waypoints.push_back(row);
+      }
+      entry["joints"] = joints;
+      entry["waypoints"] = waypoints;
+    }
+    motions.push_back(entry);
+  }
+  json served = json::array();
+  for (bool b : v.served) served.push_back(b);
+  return {{"planner", OmplPlannerName(v.options.planner)},
+          {"time_limit_s", v.options.time_limit},
+          {"check_step", v.options.check_step},
+          {"recheck_step", v.options.recheck_step},
+          {"prismatic_weight_per_m", 10.0},
+          {"seed", v.options.seed},
+          {"claimed_coverage", v.claimed_coverage},
+          {"verified_coverage", v.verified_coverage},
+          {"served", served},
+          {"served_fraction", v.served_fraction},
+          {"rank_score", v.rank_score},
+          {"suitable", v.suitable},
+          {"reasons", v.reasons},
+          {"states_checked", v.states_checked},
+          {"seconds", v.seconds},
+          {"threads", v.threads},
+          {"motions", motions}};
+}
+
+}  // namespace
+
+std::string AddVerificationJson(const std::string& plan_json, const PortPlacementProblem& problem,
+                                const std::vector<PlanVerification>& verifications) {
+  json doc = json::parse(plan_json);
+  json& plans = doc.at("plans");
+  TROCAR_THROW_UNLESS(plans.size() == verifications.size(),
+                      "plan file: " << plans.size() << " plans, " << verifications.size()
+                                    << " verifications");
+  for (std::size_t k = 0; k < verifications.size(); ++k)
+    plans[k]["verification"] = VerificationJson(problem, verifications[k]);
+  if (!verifications.empty()) {
+    const PlanVerification& best = verifications.front();
+    std::ostringstream summary;
+    summary << (best.suitable ? "suitable" : "not suitable") << " by verified motions: plan 1 "
+            << std::lround(best.verified_coverage * 100) << " % of instrument motions verified, "
+            << std::lround(best.served_fraction * 100) << " % of target samples served";
+    doc["verdict"]["verified"] = {{"suitable", best.suitable},
+                                  {"summary", summary.str()},
+                                  {"reasons", best.reasons}};
+  }
+  return doc.dump(1) + "\n";
+}
+
+}  // namespace trocar::planners

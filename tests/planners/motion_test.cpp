@@ -1,0 +1,227 @@
+// Verified motions: every path a planner returns is re-checked here at a finer step than trocar's
+// own re-check, by forward kinematics, the joint limits and a collision checker of the test's
+// own; a path through a colliding state is rejected; the same seed gives the same paths at any
+// thread count; bad options are named.
+#include <gtest/gtest.h>
+
+#include <memory>
+
+#include "collision/collision_world.hpp"
+#include "common/error.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "motion/verify.hpp"
+#include "patient/patient_model.hpp"
+#include "port_placement/optimizer.hpp"
+#include "robot/load_robot.hpp"
+#include "test_util.hpp"
+
+namespace trocar::planners {
+namespace {
+
+using test::SourcePath;
+
+struct Fixture {
+  std::shared_ptr<const robot::RobotModel> robot;
+  std::shared_ptr<const patient::PatientModel> patient;
+  std::unique_ptr<PortPlacementProblem> problem;
+  PortPlacementResult result;
+};
+
+// The bundled phantom with one instrument arm: a plan from a small optimisation.
+const Fixture& OneArm() {
+  static Fixture f = [] {
+    Fixture f;
+    f.robot = std::make_shared<const robot::RobotModel>(
+        robot::LoadRobot(SourcePath("robots/davinci-classic/cart.yaml")));
+    f.patient = std::make_shared<const patient::PatientModel>(
+        patient::ImportPatient(SourcePath("patients/phantom-default")));
+    ProblemOptions po;
+    po.arms = {"psm1"};
+    po.samples_per_target = 4;
+    f.problem = std::make_unique<PortPlacementProblem>(f.patient, f.robot, po);
+    PortPlacementOptions o;
+    o.evaluations = 160;
+    o.polish_evaluations = 16;
+    o.top_k = 2;
+    o.threads = 2;
+    o.robustness_shift = 0.0;
+    o.time_limit = 600;
+    f.result = OptimizePorts(*f.problem, o);
+    return f;
+  }();
+  return f;
+}
+
+// The test's own check of one state: the arm's values into the start q, closures, limits, and a
+// collision checker built here (ports at the placement's pivots).
+struct OwnCheck {
+  explicit OwnCheck(const PortPlacementProblem& problem, const RankedPlan& plan)
+      : problem(problem),
+        plan(plan),
+        state(problem.robot()),
+        checker(problem.world()) {}
+  bool Valid(int arm, const Eigen::VectorXd& q_arm, std::string* why) {
+    Eigen::VectorXd q = plan.evaluation.q_nominal;
+    const PlanArm& a = problem.arms()[arm];
+    for (std::size_t c = 0; c < a.q_indices.size(); ++c) q[a.q_indices[c]] = q_arm[c];
+    const auto violations = kinematics::LimitViolations(problem.robot(), q);
+    if (!violations.empty()) {
+      *why = violations.front();
+      return false;
+    }
+    state.X_WB = plan.placement.X_WB();
+    state.joint_values = plan.evaluation.joint_values;
+    if (!kinematics::ForwardKinematics(problem.robot(), q, &state).ok) {
+      *why = "closure";
+      return false;
+    }
+    checker.SetRobotState(state);
+    problem.SetPorts(plan.placement, &checker);
+    const auto report = checker.Check();
+    if (report.collision) {
+      *why = problem.world()->bodies()[report.contacts[0].a].name + " - " +
+             problem.world()->bodies()[report.contacts[0].b].name;
+      return false;
+    }
+    return true;
+  }
+  const PortPlacementProblem& problem;
+  const RankedPlan& plan;
+  robot::RobotState state;
+  collision::CollisionChecker checker;
+};
+
+TEST(Motion, EveryReturnedPathIsCollisionFreeAndWithinLimitsAtAFineStep) {
+  const Fixture& f = OneArm();
+  ASSERT_FALSE(f.result.plans.empty());
+  int solved = 0, checked = 0;
+  for (const RankedPlan& plan : f.result.plans) {
+    if (plan.evaluation.status != PlacementStatus::kPlaced) continue;
+    MotionOptions mo;
+    const PlanVerification v = VerifyPlan(*f.problem, plan, mo, 0.8, 2);
+    ASSERT_EQ(v.motions.size(), f.problem->samples().size());
+    OwnCheck own(*f.problem, plan);
+    const PlanArm& arm = f.problem->arms()[0];
+    for (const TargetMotion& m : v.motions) {
+      if (!m.solved) {
+        EXPECT_FALSE(m.reason.empty()) << "sample " << m.sample;
+        EXPECT_TRUE(m.path.empty() || !m.correct);
+        continue;
+      }
+      ++solved;
+      ASSERT_GE(m.path.size(), 2u);
+      // Starts at the plan's start pose.
+      for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
+        EXPECT_NEAR(m.path.front()[c], plan.evaluation.q_nominal[arm.q_indices[c]], 1e-9);
+      // Ends with the tool at the sample's aim point.
+      std::string why;
+      ASSERT_TRUE(own.Valid(0, m.path.back(), &why)) << why;
+      const TargetSample& s = f.problem->samples()[m.sample];
+      const Eigen::Vector3d aim = s.p_W + f.problem->options().standoff * s.n_W;
+      const Eigen::Vector3d tip =
+          kinematics::FramePose(own.state, f.robot->GetFrame(arm.tool_frame)).translation();
+      EXPECT_LT((tip - aim).norm(), f.problem->options().ik_tolerance + 1e-6);
+      // Every state at most 0.0005 rad (or 0.05 mm of insertion) apart: valid.
+      for (std::size_t k = 1; k < m.path.size(); ++k) {
+        const Eigen::VectorXd d = m.path[k] - m.path[k - 1];
+        const int n = std::max(1, static_cast<int>(std::ceil(d.cwiseAbs().maxCoeff() / 0.0005)));
+        for (int i = 0; i <= n; ++i) {
+          const Eigen::VectorXd q = m.path[k - 1] + d * (static_cast<double>(i) / n);
+          ++checked;
+          ASSERT_TRUE(own.Valid(0, q, &why))
+              << "sample " << m.sample << " segment " << k << " step " << i << ": " << why;
+        }
+      }
+      EXPECT_GT(m.min_clearance, 0.0);
+      EXPECT_GT(m.tip_path_length, 0.0);
+      EXPECT_GE(m.raw_path_length + 1e-9, m.path_length);  // simplification never lengthens
+    }
+  }
+  EXPECT_GT(solved, 2) << "too few motions to prove anything";
+  EXPECT_GT(checked, 1000);
+}
+
+TEST(Motion, TheRecheckRejectsAPathThroughACollision) {
+  const Fixture& f = OneArm();
+  const RankedPlan& plan = f.result.plans.front();
+  ASSERT_EQ(plan.evaluation.status, PlacementStatus::kPlaced);
+  const MotionProblem mp(*f.problem, plan.placement, plan.evaluation);
+  MotionContext context(mp);
+  const PlanArm& arm = f.problem->arms()[0];
+  Eigen::VectorXd start(arm.q_indices.size());
+  for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
+    start[c] = plan.evaluation.q_nominal[arm.q_indices[c]];
+  // Push the instrument in to its insertion limit toward the targets: through the heart or the
+  // chest's far side. The path's two ends are each checked; the state between must be too.
+  Eigen::VectorXd deep = start;
+  const auto c_ins = std::find(arm.q_indices.begin(), arm.q_indices.end(), arm.insertion_q) -
+                     arm.q_indices.begin();
+  deep[c_ins] = f.robot->upper_limits()[arm.insertion_q];
+  std::string why;
+  OwnCheck own(*f.problem, plan);
+  ASSERT_TRUE(own.Valid(0, start, &why)) << why;
+  ASSERT_FALSE(own.Valid(0, deep, &why)) << "the premise: fully inserted, the tool hits something";
+  const std::string failure = context.Recheck(0, {start, deep, start}, 0.002);
+  EXPECT_NE(failure.find("collision"), std::string::npos) << failure;
+  // The failure is found where it starts (inside the segment), not only at the deep end.
+  int states = 0;
+  EXPECT_FALSE(context.Recheck(0, {start, deep}, 0.002, &states).empty());
+  EXPECT_GT(states, 1);
+  EXPECT_LT(states, 1 + static_cast<int>(std::ceil((deep - start).cwiseAbs().maxCoeff() * 10 / 0.002)));
+  EXPECT_TRUE(context.Recheck(0, {start, start}, 0.002).empty());
+}
+
+TEST(Motion, TheSameSeedGivesTheSamePathsAtAnyThreadCount) {
+  const Fixture& f = OneArm();
+  const RankedPlan& plan = f.result.plans.front();
+  MotionOptions mo;
+  mo.seed = 7;
+  const PlanVerification one = VerifyPlan(*f.problem, plan, mo, 0.8, 1);
+  const PlanVerification two = VerifyPlan(*f.problem, plan, mo, 0.8, 2);
+  ASSERT_EQ(one.motions.size(), two.motions.size());
+  for (std::size_t k = 0; k < one.motions.size(); ++k) {
+    EXPECT_EQ(one.motions[k].solved, two.motions[k].solved) << k;
+    ASSERT_EQ(one.motions[k].path.size(), two.motions[k].path.size()) << k;
+    for (std::size_t w = 0; w < one.motions[k].path.size(); ++w)
+      EXPECT_TRUE(one.motions[k].path[w].isApprox(two.motions[k].path[w], 1e-12)) << k;
+  }
+  EXPECT_EQ(one.verified_coverage, two.verified_coverage);
+}
+
+TEST(Motion, EveryPlannerOmplOffersRunsOrIsNamedInTheError) {
+  const Fixture& f = OneArm();
+  const RankedPlan& plan = f.result.plans.front();
+  const MotionProblem mp(*f.problem, plan.placement, plan.evaluation);
+  MotionContext context(mp);
+  // The first sample the plan reaches.
+  int sample = -1;
+  for (const auto& r : plan.evaluation.reaches) {
+    if (r.reached && sample < 0) sample = r.sample;
+  }
+  ASSERT_GE(sample, 0);
+  for (const std::string& name : MotionPlanners()) {
+    MotionOptions mo;
+    mo.planner = name;
+    mo.time_limit = 0.3;
+    const TargetMotion m = context.Plan(0, sample, mo);
+    // Optimising planners use their whole time; any may fail to find a path in 0.3 s, but a
+    // solved one passed the re-check.
+    if (m.solved) EXPECT_TRUE(m.correct) << name;
+    EXPECT_NE(m.status, MotionStatus::kInvalidStart) << name << ": " << m.reason;
+    EXPECT_NE(m.status, MotionStatus::kCrash) << name;
+  }
+  MotionOptions bad;
+  bad.planner = "rrt-connect";
+  try {
+    ValidateMotionOptions(bad);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("rrtconnect"), std::string::npos) << e.what();
+  }
+  bad.planner = "rrtconnect";
+  bad.time_limit = -1;
+  EXPECT_THROW(ValidateMotionOptions(bad), Error);
+}
+
+}  // namespace
+}  // namespace trocar::planners
