@@ -45,9 +45,12 @@ int RunBenchCommand(const BenchCommandOptions& o) {
   options.max_new_runs = o.max_runs;
   if (!o.quiet) options.progress = [](const std::string& line) { std::cout << line << "\n" << std::flush; };
   const planners::BenchReport r = planners::RunBench(spec, o.out, options);
+  if (r.rank != 0) return 0;  // MPI: rank 0 reports for all
   std::cout << std::fixed << std::setprecision(1) << "runs: " << r.runs << " in the spec, "
             << r.already_done << " already done, " << r.added << " run now in " << r.seconds
-            << " s on " << r.threads << " thread" << (r.threads == 1 ? "" : "s") << "; "
+            << " s on " << r.threads << " thread" << (r.threads == 1 ? "" : "s")
+            << (r.ranks > 1 ? " x " + std::to_string(r.ranks) + " MPI ranks" : std::string())
+            << "; "
             << r.in_database << " in " << o.out << "\n";
   for (const auto& log : r.logs) std::cout << "log: " << log << "\n";
   if (r.in_database < r.runs) {

@@ -1,8 +1,13 @@
 #include "bench/runner.hpp"
 
+// The C API only (OpenMPI otherwise pulls in its deprecated C++ bindings).
+#define OMPI_SKIP_MPICXX 1
+#define MPICH_SKIP_MPICXX 1
+#include <mpi.h>
 #include <omp.h>
 
 #include <chrono>
+#include <cstdlib>
 #include <cmath>
 #include <map>
 #include <memory>
@@ -104,18 +109,106 @@ std::string PlannerSettings(const std::string& planner, const BenchSpec& spec) {
   return s.str();
 }
 
+// MPI (OpenMPI from Debian): active when the process was started by mpirun with more than one
+// rank. Rank 0 owns the database; every rank computes its share of the runs (run i of the ones
+// to do goes to rank i mod N) and sends each result to rank 0 as one message (JSON text).
+struct Mpi {
+  int rank = 0, size = 1;
+  bool active = false;
+  static constexpr int kResult = 1, kDone = 2, kError = 3;
+};
+
+Mpi StartMpi() {
+  Mpi mpi;
+  const char* size = std::getenv("OMPI_COMM_WORLD_SIZE");
+  if (!size || std::atoi(size) < 2) return mpi;
+  int initialized = 0;
+  MPI_Initialized(&initialized);
+  if (!initialized) {
+    int provided = 0;
+    MPI_Init_thread(nullptr, nullptr, MPI_THREAD_SERIALIZED, &provided);
+    TROCAR_THROW_UNLESS(provided >= MPI_THREAD_SERIALIZED,
+                        "MPI: this MPI library cannot be called from OpenMP threads one at a time");
+    std::atexit([] {
+      int finalized = 0;
+      MPI_Finalized(&finalized);
+      if (!finalized) MPI_Finalize();
+    });
+  }
+  MPI_Comm_rank(MPI_COMM_WORLD, &mpi.rank);
+  MPI_Comm_size(MPI_COMM_WORLD, &mpi.size);
+  mpi.active = mpi.size > 1;
+  return mpi;
+}
+
+// Rank 0's text to every rank.
+std::string Broadcast(const Mpi& mpi, std::string text) {
+  if (!mpi.active) return text;
+  long n = static_cast<long>(text.size());
+  MPI_Bcast(&n, 1, MPI_LONG, 0, MPI_COMM_WORLD);
+  text.resize(n);
+  if (n > 0) MPI_Bcast(text.data(), static_cast<int>(n), MPI_CHAR, 0, MPI_COMM_WORLD);
+  return text;
+}
+
+void Send(const std::string& text, int tag) {
+  MPI_Send(text.data(), static_cast<int>(text.size()), MPI_CHAR, 0, tag, MPI_COMM_WORLD);
+}
+
+// Receives one message on rank 0: its tag and text (blocking when `wait`, else nothing when
+// none is pending: returns tag 0).
+std::pair<int, std::string> Receive(bool wait) {
+  MPI_Status status;
+  int flag = 1;
+  if (wait)
+    MPI_Probe(MPI_ANY_SOURCE, MPI_ANY_TAG, MPI_COMM_WORLD, &status);
+  else
+    MPI_Iprobe(MPI_ANY_SOURCE, MPI_ANY_TAG, MPI_COMM_WORLD, &flag, &status);
+  if (!flag) return {0, ""};
+  int n = 0;
+  MPI_Get_count(&status, MPI_CHAR, &n);
+  std::string text(n, '\0');
+  MPI_Recv(text.data(), n, MPI_CHAR, status.MPI_SOURCE, status.MPI_TAG, MPI_COMM_WORLD,
+           MPI_STATUS_IGNORE);
+  return {status.MPI_TAG, text};
+}
+
 }  // namespace
 
 BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
                      const BenchOptions& options) {
   const auto t0 = Clock::now();
   BenchReport report;
+  int progress_rank = 0;
   auto progress = [&](const std::string& line) {
-    if (options.progress) options.progress(line);
+    if (options.progress && progress_rank == 0) options.progress(line);
   };
-  BenchDatabase db(db_path, spec.Canonical());
-  db.Enum("status", MotionStatusNames());
-  const std::set<std::string> done = db.DoneKeys();
+  const Mpi mpi = StartMpi();
+  report.rank = mpi.rank;
+  progress_rank = mpi.rank;
+  report.ranks = mpi.size;
+  // Rank 0 owns the database; the others learn which runs are done from it.
+  std::unique_ptr<BenchDatabase> db_owner;
+  std::string open_error;
+  if (mpi.rank == 0) {
+    try {
+      db_owner = std::make_unique<BenchDatabase>(db_path, spec.Canonical());
+      db_owner->Enum("status", MotionStatusNames());
+    } catch (const Error& e) {
+      open_error = e.what();
+    }
+  }
+  open_error = Broadcast(mpi, open_error);
+  TROCAR_THROW_UNLESS(open_error.empty(), open_error);
+  std::set<std::string> done;
+  {
+    std::string keys;
+    if (db_owner) {
+      for (const auto& k : db_owner->DoneKeys()) keys += k + "\n";
+    }
+    std::istringstream in(Broadcast(mpi, keys));
+    for (std::string k; std::getline(in, k);) done.insert(k);
+  }
   report.already_done = static_cast<long>(done.size());
   const int threads = options.threads >= 0 ? options.threads : spec.threads;
   report.threads = threads > 0 ? threads : omp_get_max_threads();
@@ -146,14 +239,15 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
     info.setup = "port placement for " + p.name + " with " + robot->name() + ": " +
                  std::to_string(spec.evaluations) + " evaluations, " +
                  std::to_string(spec.polish_evaluations) + " polish evaluations";
-    placement_experiment.push_back(db.Experiment(info));
+    placement_experiment.push_back(db_owner ? db_owner->Experiment(info) : 0);
   }
   std::vector<int> algorithm_config;
   for (const auto& a : spec.algorithms) {
     std::ostringstream settings;
     settings << "evaluations INTEGER = " << spec.evaluations << "\n;polish_evaluations INTEGER = "
              << spec.polish_evaluations << "\n;top_k INTEGER = " << spec.top_k << "\n;";
-    algorithm_config.push_back(db.PlannerConfig("portplacement_" + a.name(), settings.str()));
+    algorithm_config.push_back(
+        db_owner ? db_owner->PlannerConfig("portplacement_" + a.name(), settings.str()) : 0);
   }
 
   // Phase 1: placement runs.
@@ -180,6 +274,74 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
     return true;
   };
   std::string error;
+  // A finished run: into the database (rank 0), or to rank 0 (other ranks). Called inside the
+  // critical section. Rank 0 also takes in what the other ranks have sent meanwhile.
+  std::function<void(const std::string&)> insert_message;  // set per phase, rank 0
+  int workers_done = 0;  // of this phase (a worker's end may arrive while rank 0 still works)
+  auto drain = [&](bool until_done) {
+    while (true) {
+      if (until_done && workers_done == mpi.size - 1) break;
+      const auto [tag, text] = Receive(until_done);
+      if (tag == 0) break;
+      if (tag == Mpi::kDone) ++workers_done;
+      if (tag == Mpi::kError && error.empty()) error = text;
+      if (tag == Mpi::kResult) insert_message(text);
+    }
+  };
+  auto deliver = [&](int kind, int index, const RunValues& v, const std::string& payload) {
+    nlohmann::json values = nlohmann::json::array();
+    for (const auto& x : v)
+      values.push_back(x && std::isfinite(*x) ? nlohmann::json(*x) : nlohmann::json());
+    const std::string text =
+        nlohmann::json{{"k", kind}, {"i", index}, {"p", payload}, {"v", values}}.dump();
+    if (mpi.rank == 0) {
+      insert_message(text);
+      if (mpi.active) drain(false);
+    } else {
+      Send(text, Mpi::kResult);
+    }
+  };
+  auto decode = [](const std::string& text, RunValues* v, std::string* payload) {
+    const nlohmann::json m = nlohmann::json::parse(text);
+    v->clear();
+    for (const auto& x : m.at("v")) {
+      if (x.is_null())
+        v->push_back(std::nullopt);
+      else
+        v->push_back(x.get<double>());
+    }
+    *payload = m.at("p").get<std::string>();
+    return m.at("i").get<int>();
+  };
+  // End of a phase: workers say so; rank 0 waits for all of them, then tells every rank whether
+  // the phase failed.
+  auto end_phase = [&]() {
+    if (!mpi.active) return;
+    if (mpi.rank != 0) {
+      if (!error.empty()) Send(error, Mpi::kError);
+      Send("", Mpi::kDone);
+    } else {
+      drain(true);
+      workers_done = 0;
+    }
+    error = Broadcast(mpi, error);
+  };
+  insert_message = [&](const std::string& text) {
+    RunValues v;
+    std::string payload;
+    const int index = decode(text, &v, &payload);
+    const PlacementRun& run = placement_runs.at(index);
+    db_owner->AddRun(run.key, placement_experiment[run.patient], algorithm_config[run.algorithm],
+                     PlacementProperties(), v, payload);
+    ++report.added;
+  };
+  {
+    std::vector<int> mine;
+    for (std::size_t i = 0; i < todo.size(); ++i) {
+      if (static_cast<int>(i % mpi.size) == mpi.rank) mine.push_back(todo[i]);
+    }
+    todo = mine;
+  }
   progress("placement runs: " + std::to_string(todo.size()) + " to do of " +
            std::to_string(placement_runs.size()));
 #pragma omp parallel for schedule(dynamic, 1) num_threads(report.threads)
@@ -236,16 +398,13 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
         payload["cart"] = {best.placement.cart_x, best.placement.cart_y, best.placement.cart_yaw};
       }
 #pragma omp critical(trocar_bench_db)
-      {
-        db.AddRun(run.key, placement_experiment[run.patient], algorithm_config[run.algorithm],
-                  PlacementProperties(), v, payload.dump());
-        ++report.added;
-      }
+      deliver(0, todo[t], v, payload.dump());
     } catch (const std::exception& e) {
 #pragma omp critical(trocar_bench_db)
       if (error.empty()) error = run.key + ": " + e.what();
     }
   }
+  end_phase();
   TROCAR_THROW_UNLESS(error.empty(), error);
 
   // Phase 2: motion runs on each (patient, algorithm)'s top plan of the first placement seed.
@@ -271,11 +430,13 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
                    std::to_string(problem.samples().size()) + " target samples of " +
                    patients[p].name + ", from the top plan of " + spec.algorithms[a].name() +
                    " (seed " + first_seed + ")";
-      e.experiment_id = db.Experiment(info);
+      e.experiment_id = db_owner ? db_owner->Experiment(info) : 0;
       // The plan, from the placement run's recorded decision vector (runs of an interrupted
       // bench included); its start pose by a detailed evaluation.
-      const std::string payload = db.Payload("placement/" + patients[p].name + "/" +
-                                             spec.algorithms[a].name() + "/" + first_seed);
+      const std::string payload = Broadcast(
+          mpi, db_owner ? db_owner->Payload("placement/" + patients[p].name + "/" +
+                                            spec.algorithms[a].name() + "/" + first_seed)
+                        : std::string());
       nlohmann::json j = payload.empty() ? nlohmann::json() : nlohmann::json::parse(payload);
       if (j.is_object() && j.contains("sites")) {
         Placement placement;
@@ -314,13 +475,30 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
   }
   std::vector<int> planner_config;
   for (const auto& pl : spec.planners)
-    planner_config.push_back(
-        db.PlannerConfig("geometric_" + OmplPlannerName(pl), PlannerSettings(pl, spec)));
+    planner_config.push_back(db_owner ? db_owner->PlannerConfig("geometric_" + OmplPlannerName(pl),
+                                                                PlannerSettings(pl, spec))
+                                      : 0);
   report.runs += static_cast<long>(motion_runs.size());
   todo.clear();
   for (int i = 0; i < static_cast<int>(motion_runs.size()); ++i) {
     if (!done.count(motion_runs[i].key)) todo.push_back(i);
   }
+  {
+    std::vector<int> mine;
+    for (std::size_t i = 0; i < todo.size(); ++i) {
+      if (static_cast<int>(i % mpi.size) == mpi.rank) mine.push_back(todo[i]);
+    }
+    todo = mine;
+  }
+  insert_message = [&](const std::string& text) {
+    RunValues v;
+    std::string payload;
+    const int index = decode(text, &v, &payload);
+    const MotionRun& run = motion_runs.at(index);
+    db_owner->AddRun(run.key, experiments[run.experiment].experiment_id,
+                     planner_config[run.planner], MotionProperties(), v, payload);
+    ++report.added;
+  };
   progress("motion runs: " + std::to_string(todo.size()) + " to do of " +
            std::to_string(motion_runs.size()));
 #pragma omp parallel num_threads(report.threads)
@@ -377,21 +555,20 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
         }
         nlohmann::json payload = {{"outcome", m.outcome}, {"reason", m.reason}};
 #pragma omp critical(trocar_bench_db)
-        {
-          db.AddRun(run.key, e.experiment_id, planner_config[run.planner], MotionProperties(), v,
-                    payload.dump());
-          ++report.added;
-        }
+        deliver(1, todo[t], v, payload.dump());
       } catch (const std::exception& ex) {
 #pragma omp critical(trocar_bench_db)
         if (error.empty()) error = run.key + ": " + ex.what();
       }
     }
   }
+  end_phase();
   TROCAR_THROW_UNLESS(error.empty(), error);
-  db.UpdateTotalTimes();
-  report.in_database = db.RunCount();
-  report.logs = db.WriteLogs(db_path);
+  if (db_owner) {
+    db_owner->UpdateTotalTimes();
+    report.in_database = db_owner->RunCount();
+    report.logs = db_owner->WriteLogs(db_path);
+  }
   report.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   return report;
 }

@@ -10,6 +10,7 @@
 /// the database.
 
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -23,7 +24,8 @@ struct BenchReport {
   long added = 0;         ///< run now
   long in_database = 0;   ///< at the end
   double seconds = 0.0;
-  int threads = 1;
+  int threads = 1;                ///< per rank
+  int rank = 0, ranks = 1;        ///< MPI; only rank 0 has the database and the logs
   std::vector<std::string> logs;  ///< log files written
 };
 

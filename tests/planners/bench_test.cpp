@@ -234,6 +234,42 @@ TEST(Bench, ABenchKilledMidWayLeavesAValidDatabaseAndCompletesOnRerun) {
   EXPECT_EQ(sql.Count("SELECT COUNT(DISTINCT key) FROM trocar_runs"), total);
 }
 
+// Two MPI ranks on this machine (mpirun from Debian's OpenMPI): one database from rank 0 with
+// every run once, and the same results as one process with OpenMP for every run that finished
+// well inside its time limit (a run stopped by the clock depends on the machine's load).
+TEST(Bench, TwoMpiRanksWriteOneDatabaseWithTheSameRunsAsOneProcess) {
+  ASSERT_TRUE(IsRegularFile("/usr/bin/mpirun")) << "install openmpi-bin (scripts/install-deps)";
+  const std::string dir = TempDir("mpi");
+  const std::string spec = WriteSpec(dir, SmallSpec());
+  const std::string mpi_db = JoinPath(dir, "mpi.db"), omp_db = JoinPath(dir, "omp.db");
+  const std::string command = "mpirun --allow-run-as-root --oversubscribe -np 2 " +
+                              std::string(TROCAR_BINARY) + " bench " + spec + " --out " + mpi_db +
+                              " --threads 1 --quiet > " + JoinPath(dir, "mpi.txt") + " 2>&1";
+  ASSERT_EQ(std::system(command.c_str()), 0) << ReadTextFile(JoinPath(dir, "mpi.txt"));
+  EXPECT_NE(ReadTextFile(JoinPath(dir, "mpi.txt")).find("x 2 MPI ranks"), std::string::npos)
+      << ReadTextFile(JoinPath(dir, "mpi.txt"));
+  RunBench(ReadBenchSpec(spec, Robot()), omp_db);
+  Sql mpi(mpi_db), omp(omp_db);
+  EXPECT_EQ(mpi.Count("SELECT COUNT(*) FROM runs"), kSmallRuns);
+  EXPECT_EQ(mpi.Count("SELECT COUNT(DISTINCT key) FROM trocar_runs"), kSmallRuns);
+  const std::string q =
+      "SELECT t.key, r.solved, r.simplified_solution_length, r.time FROM runs r JOIN trocar_runs t "
+      "ON t.runid = r.id WHERE t.key LIKE 'motion/%' ORDER BY t.key";
+  const auto a = mpi.Rows(q), b = omp.Rows(q);
+  ASSERT_EQ(a.size(), b.size());
+  int compared = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    ASSERT_EQ(a[i][0], b[i][0]);
+    if (a[i][3] == "NULL" || b[i][3] == "NULL" || std::stod(a[i][3]) > 0.15 ||
+        std::stod(b[i][3]) > 0.15)
+      continue;  // near the 0.3 s limit
+    ++compared;
+    EXPECT_EQ(a[i][1], b[i][1]) << a[i][0];
+    EXPECT_EQ(a[i][2].substr(0, 8), b[i][2].substr(0, 8)) << a[i][0];
+  }
+  EXPECT_GT(compared, 8);
+}
+
 TEST(Bench, AFileThatIsNotThisBenchsDatabaseIsRefusedAndLeftUntouched) {
   const std::string dir = TempDir("refuse");
   const BenchSpec spec = ReadBenchSpec(WriteSpec(dir, SmallSpec()), Robot());
