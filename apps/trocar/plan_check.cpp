@@ -353,7 +353,10 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         const json& v = plan["verification"];
         const double step = field(v, "recheck_step").get<double>();
         const double weight = field(v, "prismatic_weight_per_m").get<double>();
-        TROCAR_THROW_UNLESS(step > 0 && weight > 0, path << ": bad verification steps");
+        TROCAR_THROW_UNLESS(step >= 1e-4 && step <= 1.0 && weight > 0 && weight <= 1000,
+                            path << ": verification recheck_step " << step
+                                 << " (expected 1e-4..1) or prismatic_weight_per_m " << weight
+                                 << " (expected (0, 1000]) out of range");
         int solved = 0, total = 0;
         for (const auto& m : field(v, "motions")) {
           ++total;
@@ -386,6 +389,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
                                 path << ": " << where << "a waypoint of the wrong size");
             Eigen::VectorXd q(qi.size());
             for (std::size_t c = 0; c < qi.size(); ++c) q[c] = w[c].get<double>();
+            TROCAR_THROW_UNLESS(q.allFinite(), path << ": " << where << "a waypoint is not finite");
             waypoints.push_back(q);
           }
           if (waypoints.size() < 2) {
@@ -398,7 +402,24 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           if (start_off > 1e-6) fail(where + "does not start at the nominal pose");
           const robot::Frame& tool =
               robot->GetFrame(field(arms[a], "tool_frame").get<std::string>());
+          // Waypoints within the limits before any segment is cut (a far-off waypoint would make a
+          // segment of billions of states).
           std::string first_failure;
+          for (std::size_t k = 0; k < waypoints.size() && first_failure.empty(); ++k) {
+            Eigen::VectorXd q = nominal.q;
+            for (std::size_t c = 0; c < qi.size(); ++c) q[qi[c]] = waypoints[k][c];
+            const auto limits = kinematics::LimitViolations(*robot, q);
+            if (!limits.empty()) first_failure = "waypoint " + std::to_string(k) + ": " + limits.front();
+          }
+          long states = 0;
+          for (std::size_t k = 1; k < waypoints.size() && first_failure.empty(); ++k) {
+            double largest = 0.0;
+            for (std::size_t c = 0; c < qi.size(); ++c)
+              largest = std::max(largest, std::abs(waypoints[k][c] - waypoints[k - 1][c]) * scale[c]);
+            states += static_cast<long>(std::min(largest / step, 1e9)) + 1;
+          }
+          if (first_failure.empty() && states > 2000000)
+            first_failure = "its path has " + std::to_string(states) + " states to re-check (at most 2000000)";
           auto check_state = [&](const Eigen::VectorXd& q_arm) {
             state = nominal;
             for (std::size_t c = 0; c < qi.size(); ++c) state.q[qi[c]] = q_arm[c];
@@ -413,7 +434,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
             double largest = 0.0;
             for (std::size_t c = 0; c < qi.size(); ++c)
               largest = std::max(largest, std::abs(waypoints[k][c] - waypoints[k - 1][c]) * scale[c]);
-            const int n = std::max(1, static_cast<int>(std::ceil(largest / step)));
+            const int n = std::max(1, static_cast<int>(std::ceil(std::min(largest / step, 1e7))));
             for (int i = (k == 1 ? 0 : 1); i <= n && first_failure.empty(); ++i) {
               const double t = static_cast<double>(i) / n;
               first_failure = check_state((1 - t) * waypoints[k - 1] + t * waypoints[k]);

@@ -691,6 +691,17 @@ TEST(TrocarVerify, AddsMotionsThatCheckConfirmsAndCatchesATamperedPath) {
   const CommandRun bad = Trocar("check --plan " + out + "/tampered.json");
   EXPECT_EQ(bad.exit_code, 3) << bad.output;
   EXPECT_NE(bad.output.find("claimed verified, but"), std::string::npos) << bad.output;
+  // A waypoint far outside its joint's range: a failed claim at once, not billions of states.
+  doc = nlohmann::json::parse(ReadTextFile(out + "/tampered.json"));
+  for (auto& p : doc["plans"]) {
+    for (auto& m : p["verification"]["motions"]) {
+      if (m["solved"].get<bool>()) m["waypoints"].back()[0] = 1e9;
+    }
+  }
+  WriteFileAtomically(out + "/far.json", doc.dump(1));
+  const CommandRun far = Trocar("check --plan " + out + "/far.json");
+  EXPECT_EQ(far.exit_code, 3) << far.output;
+  EXPECT_NE(far.output.find("outside"), std::string::npos) << far.output;
   // A plan whose robot file changed since: refused, naming it.
   doc = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
   doc["inputs"]["robot_hash"] = "fnv1a64:0000000000000000";

@@ -114,6 +114,15 @@ TEST(BenchSpec, UnknownNamesAreErrorsListingTheValidOnesBeforeAnythingRuns) {
   EXPECT_FALSE(fs::exists(JoinPath(dir, "out.db")));
 }
 
+TEST(BenchSpec, TheBundledSpecsRead) {
+  for (const char* file : {"bench/specs/ci.yaml", "bench/specs/phantom.yaml"}) {
+    const BenchSpec spec = ReadBenchSpec(SourcePath(file), Robot());
+    EXPECT_FALSE(spec.patients.empty()) << file;
+    EXPECT_FALSE(spec.planners.empty()) << file;
+    EXPECT_FALSE(spec.algorithms.empty()) << file;
+  }
+}
+
 TEST(Bench, TheDatabaseHasOmplsSchemaAndTheSpecsRunsAndOmplsParserReadsTheLog) {
   const std::string dir = TempDir("schema");
   const BenchSpec spec = ReadBenchSpec(WriteSpec(dir, SmallSpec()), Robot());
