@@ -1,6 +1,7 @@
 // trocar verify PLAN.json: verified motions (OMPL, collision world) for every ranked plan of a
 // plan file, the verified coverage, the plans re-ranked with it and a verified verdict, written
 // back into the plan (atomically).
+#include <algorithm>
 #include <cmath>
 #include <iomanip>
 #include <iostream>
@@ -39,7 +40,11 @@ void PrintVerification(const planners::PlanVerification& v, std::ostream& out) {
   std::vector<double> times;
   for (const auto& m : v.motions) {
     solved += m.solved;
-    times.push_back(m.planning_time);
+    // The median over the queries that reached the planner (not those without a goal).
+    if (m.status == planners::MotionStatus::kExactSolution ||
+        m.status == planners::MotionStatus::kApproximateSolution ||
+        m.status == planners::MotionStatus::kTimeout)
+      times.push_back(m.planning_time);
     time += m.planning_time;
   }
   std::sort(times.begin(), times.end());
@@ -53,11 +58,14 @@ void PrintVerification(const planners::PlanVerification& v, std::ostream& out) {
   for (const auto& m : v.motions) {
     if (!m.solved) ++failures[m.outcome + ": " + m.reason];
   }
-  int shown = 0;
-  for (const auto& [why, count] : failures) {
-    if (++shown > 4) break;
-    out << "    " << count << " x " << why << "\n";
-  }
+  // The most frequent reasons first.
+  std::vector<std::pair<int, std::string>> ranked;
+  for (const auto& [why, count] : failures) ranked.emplace_back(count, why);
+  std::stable_sort(ranked.begin(), ranked.end(),
+                   [](const auto& a, const auto& b) { return a.first > b.first; });
+  for (std::size_t i = 0; i < ranked.size() && i < 4; ++i)
+    out << "    " << ranked[i].first << " x " << ranked[i].second << "\n";
+  if (ranked.size() > 4) out << "    (" << ranked.size() - 4 << " other reasons: see the plan file)\n";
 }
 
 namespace {
