@@ -83,9 +83,23 @@ BenchSpec ReadBenchSpec(const std::string& path, const std::string& default_robo
   const YAML::Node patients = r.Require(root, "patients", "");
   for (const std::string& p : r.Strings(patients, "patients")) {
     const std::string resolved = Resolve(dir, p);
-    TROCAR_THROW_UNLESS(IsRegularFile(JoinPath(resolved, "patient.yaml")),
-                        r.Where(patients, "patients") << ": unknown patient '" << p
-                                                      << "': no case folder with patient.yaml there");
+    if (!IsRegularFile(JoinPath(resolved, "patient.yaml"))) {
+      // The valid names: the case folders beside the one named (its parent folder).
+      std::string parent = ParentDirectory(resolved);
+      if (parent.empty()) parent = ".";
+      std::vector<std::string> cases;
+      std::error_code ec;
+      for (const auto& entry : std::filesystem::directory_iterator(parent, ec)) {
+        if (IsRegularFile(JoinPath(entry.path().string(), "patient.yaml")))
+          cases.push_back(entry.path().filename().string());
+      }
+      std::sort(cases.begin(), cases.end());
+      TROCAR_THROW(r.Where(patients, "patients")
+                   << ": unknown patient '" << p << "': no case folder with patient.yaml there ("
+                   << (cases.empty() ? "no cases in " + parent
+                                     : "cases in " + parent + ": " + Join(cases))
+                   << ")");
+    }
     spec.patients.push_back(resolved);
   }
   TROCAR_THROW_UNLESS(!spec.patients.empty(), r.Where(patients, "patients") << ": no patient");

@@ -109,6 +109,13 @@ TEST(BenchSpec, UnknownNamesAreErrorsListingTheValidOnesBeforeAnythingRuns) {
   body.replace(body.find("patients: ["), 11, "patients: [nowhere/case, ");
   e = error(body);
   EXPECT_NE(e.find("unknown patient 'nowhere/case'"), std::string::npos) << e;
+  body = SmallSpec();
+  body.replace(body.find("phantom-default"), 15, "phantom-defalt");
+  e = error(body);
+  EXPECT_NE(e.find("unknown patient"), std::string::npos) << e;
+  EXPECT_NE(e.find("cases in "), std::string::npos) << e;  // the cases beside it
+  EXPECT_NE(e.find("lidc2"), std::string::npos) << e;
+  EXPECT_NE(e.find(", phantom-default"), std::string::npos) << e;
   EXPECT_NE(error(SmallSpec() + "moton: {}\n").find("moton"), std::string::npos);
   // Nothing was made: the spec failed before the database.
   EXPECT_FALSE(fs::exists(JoinPath(dir, "out.db")));
