@@ -13,6 +13,7 @@
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "kinematics/forward_kinematics.hpp"
 #include "motion/verify.hpp"
 #include "patient/markups.hpp"
 #include "patient/patient_model.hpp"
@@ -160,7 +161,6 @@ int RunVerify(const VerifyOptions& o) {
     std::map<std::string, int> candidate;
     for (int c = 0; c < static_cast<int>(patient->port_candidates.size()); ++c)
       candidate[patient->port_candidates[c].name] = c;
-    planners::Workspace workspace(*problem);
     int k = 0;
     for (const auto& p : doc.at("plans")) {
       ++k;
@@ -183,13 +183,62 @@ int RunVerify(const VerifyOptions& o) {
       plan.placement.cart_x = p.at("cart").at("x").get<double>();
       plan.placement.cart_y = p.at("cart").at("y").get<double>();
       plan.placement.cart_yaw = p.at("cart").at("yaw_deg").get<double>() * M_PI / 180;
-      plan.evaluation = planners::EvaluateFinalPlan(*problem, plan.placement, &workspace);
       plan.rank_score = p.at("rank_score").get<double>();
-      const double score = p.at("score").get<double>();
-      TROCAR_THROW_UNLESS(std::abs(plan.evaluation.score - score) < 1e-3,
-                          o.plan << ": plan " << k << " scores " << plan.evaluation.score
-                                 << " again, the file says " << score
-                                 << ": it does not match its robot and patient");
+      // The plan as written: its status, its nominal pose (setup joints and active joints by
+      // name), its coverage term and what its endoscope sees. Not scored again: the setup-joint
+      // solver lands elsewhere for ports and cart differing in the file's last digits. A nominal
+      // pose that is not valid makes every motion an "invalid start", named.
+      planners::Evaluation& ev = plan.evaluation;
+      const std::string status = p.at("status").get<std::string>();
+      ev.status = status == planners::ToString(planners::PlacementStatus::kPlaced)
+                      ? planners::PlacementStatus::kPlaced
+                      : status == planners::ToString(planners::PlacementStatus::kInCollision)
+                            ? planners::PlacementStatus::kInCollision
+                            : planners::PlacementStatus::kUnreachable;
+      ev.score = p.at("score").get<double>();
+      robot::RobotState state(*robot);
+      state.X_WB = plan.placement.X_WB();
+      for (const auto& [name, value] : p.at("setup_joints").items()) {
+        try {
+          kinematics::SetHeldJoint(*robot, name, value.get<double>(), &state);
+        } catch (const Error& e) {
+          TROCAR_THROW(o.plan << ": plan " << k << ": setup joint '" << name << "': " << e.what());
+        }
+      }
+      for (const auto& [name, value] : p.at("q_nominal").items()) {
+        const int j = robot->FindJoint(name);
+        TROCAR_THROW_UNLESS(j >= 0 && robot->joint(j).q_index >= 0,
+                            o.plan << ": plan " << k << ": q_nominal names '" << name
+                                   << "', not an active joint of " << robot->name());
+        state.q[robot->joint(j).q_index] = value.get<double>();
+      }
+      TROCAR_THROW_UNLESS(state.q.allFinite(), o.plan << ": plan " << k << ": q_nominal is not finite");
+      const auto fk = kinematics::ForwardKinematics(*robot, state.q, &state);
+      TROCAR_THROW_UNLESS(fk.ok, o.plan << ": plan " << k << ": nominal pose: " << fk.message);
+      ev.q_nominal = state.q;
+      ev.joint_values = state.joint_values;
+      for (const auto& t : p.at("terms")) {
+        planners::ScoreTerm term;
+        term.name = t.at("name").get<std::string>();
+        term.value = t.at("value").get<double>();
+        term.score = t.at("score").get<double>();
+        ev.terms.push_back(term);
+      }
+      for (const auto& r : p.at("samples")) {
+        if (!r.contains("seen")) continue;
+        planners::SampleReach reach;
+        reach.sample = r.at("sample").get<int>();
+        const std::string arm = r.at("arm").get<std::string>();
+        for (std::size_t a = 0; a < problem->arms().size(); ++a) {
+          if (problem->arms()[a].name == arm) reach.arm = static_cast<int>(a);
+        }
+        TROCAR_THROW_UNLESS(reach.arm >= 0 && reach.sample >= 0 &&
+                                reach.sample < static_cast<int>(problem->samples().size()),
+                            o.plan << ": plan " << k << ": a sample names arm '" << arm
+                                   << "' or index " << reach.sample << " that the plan has not");
+        reach.seen = reach.reached = r.at("seen").get<bool>();
+        ev.reaches.push_back(reach);
+      }
       plans.push_back(plan);
     }
   } catch (const json::exception& e) {
@@ -205,11 +254,7 @@ int RunVerify(const VerifyOptions& o) {
     }
   }
   // Re-rank: plans by their verified rank score, the file's plans with them.
-  std::vector<std::size_t> order(plans.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
-    return verifications[a].rank_score > verifications[b].rank_score;
-  });
+  const std::vector<std::size_t> order = planners::VerifiedOrder(verifications);
   json reordered = json::array();
   std::vector<planners::PlanVerification> ordered;
   std::vector<patient::Markup> markups;

@@ -141,6 +141,15 @@ Mpi StartMpi() {
   return mpi;
 }
 
+// This rank's share of the runs to do: run i goes to rank i mod N.
+std::vector<int> OwnShare(const Mpi& mpi, const std::vector<int>& todo) {
+  std::vector<int> mine;
+  for (std::size_t i = 0; i < todo.size(); ++i) {
+    if (static_cast<int>(i % mpi.size) == mpi.rank) mine.push_back(todo[i]);
+  }
+  return mine;
+}
+
 // Rank 0's text to every rank.
 std::string Broadcast(const Mpi& mpi, std::string text) {
   if (!mpi.active) return text;
@@ -335,13 +344,7 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
                      PlacementProperties(), v, payload);
     ++report.added;
   };
-  {
-    std::vector<int> mine;
-    for (std::size_t i = 0; i < todo.size(); ++i) {
-      if (static_cast<int>(i % mpi.size) == mpi.rank) mine.push_back(todo[i]);
-    }
-    todo = mine;
-  }
+  todo = OwnShare(mpi, todo);
   progress("placement runs: " + std::to_string(todo.size()) + " to do of " +
            std::to_string(placement_runs.size()));
 #pragma omp parallel for schedule(dynamic, 1) num_threads(report.threads)
@@ -483,13 +486,7 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
   for (int i = 0; i < static_cast<int>(motion_runs.size()); ++i) {
     if (!done.count(motion_runs[i].key)) todo.push_back(i);
   }
-  {
-    std::vector<int> mine;
-    for (std::size_t i = 0; i < todo.size(); ++i) {
-      if (static_cast<int>(i % mpi.size) == mpi.rank) mine.push_back(todo[i]);
-    }
-    todo = mine;
-  }
+  todo = OwnShare(mpi, todo);
   insert_message = [&](const std::string& text) {
     RunValues v;
     std::string payload;

@@ -121,16 +121,21 @@ PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPla
   return v;
 }
 
+std::vector<std::size_t> VerifiedOrder(const std::vector<PlanVerification>& verifications) {
+  std::vector<std::size_t> order(verifications.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    return verifications[a].rank_score > verifications[b].rank_score;
+  });
+  return order;
+}
+
 void RankByVerification(PortPlacementResult* result,
                         std::vector<PlanVerification>* verifications) {
   TROCAR_THROW_UNLESS(result->plans.size() == verifications->size(),
                       "ranking: " << verifications->size() << " verifications for "
                                   << result->plans.size() << " plans");
-  std::vector<std::size_t> order(result->plans.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
-    return (*verifications)[a].rank_score > (*verifications)[b].rank_score;
-  });
+  const std::vector<std::size_t> order = VerifiedOrder(*verifications);
   std::vector<RankedPlan> plans;
   std::vector<PlanVerification> ver;
   for (std::size_t i : order) {

@@ -37,6 +37,9 @@ PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPla
                             const MotionOptions& options, double suitable_fraction,
                             int threads = 0);
 
+/// Plan indices by verified rank score, best first (stable: ties keep their order).
+std::vector<std::size_t> VerifiedOrder(const std::vector<PlanVerification>& verifications);
+
 /// Re-orders `result.plans` (and `verifications` with them) by the verified rank score, best
 /// first (stable: ties keep their order).
 void RankByVerification(PortPlacementResult* result, std::vector<PlanVerification>* verifications);

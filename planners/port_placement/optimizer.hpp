@@ -104,7 +104,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
                                   const PortPlacementOptions& options);
 
 /// The detailed evaluation a final plan gets (the better of the optimiser's setup-joint effort
-/// and the full effort); what `trocar verify` and `trocar bench` re-evaluate a recorded plan
+/// and the full effort); what `trocar bench` re-evaluates a recorded placement
 /// with. `full_effort` (optional) tells which one it is.
 Evaluation EvaluateFinalPlan(const PortPlacementProblem& problem, const Placement& placement,
                              Workspace* workspace, bool* full_effort = nullptr);

@@ -702,6 +702,22 @@ TEST(TrocarVerify, AddsMotionsThatCheckConfirmsAndCatchesATamperedPath) {
   const CommandRun far = Trocar("check --plan " + out + "/far.json");
   EXPECT_EQ(far.exit_code, 3) << far.output;
   EXPECT_NE(far.output.find("outside"), std::string::npos) << far.output;
+  // verify takes the plan as written: its nominal pose with the instrument pushed to its
+  // insertion limit (into the patient) makes every motion an invalid start, named.
+  doc = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
+  for (auto& p : doc["plans"]) {
+    for (auto& [name, value] : p["q_nominal"].items()) {
+      if (name.find("insertion") != std::string::npos) value = 0.24;
+    }
+  }
+  WriteFileAtomically(out + "/deep.json", doc.dump(1));
+  const CommandRun deep = Trocar("verify " + out + "/deep.json");
+  EXPECT_EQ(deep.exit_code, 4) << deep.output;
+  EXPECT_NE(deep.output.find("invalid start: the start pose is not valid: collision"),
+            std::string::npos)
+      << deep.output;
+  EXPECT_EQ(deep.output.find("verified motions: 0 of"), deep.output.find("verified motions: "))
+      << deep.output;
   // A plan whose robot file changed since: refused, naming it.
   doc = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
   doc["inputs"]["robot_hash"] = "fnv1a64:0000000000000000";
