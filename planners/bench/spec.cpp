@@ -154,6 +154,30 @@ BenchSpec ReadBenchSpec(const std::string& path, const std::string& default_robo
                       r.Where(motion["time_limit"], "motion.time_limit")
                           << ": " << spec.time_limit << " s: expected (0, 3600]");
   if (motion["seeds"]) spec.motion_seeds = Seeds(r, motion["seeds"], "motion.seeds");
+  // Runs are keyed by patient (folder name), algorithm, planner and seed: a name given twice
+  // would be one run twice.
+  auto unique = [&](std::vector<std::string> names, const YAML::Node& node, const std::string& field) {
+    std::sort(names.begin(), names.end());
+    const auto twice = std::adjacent_find(names.begin(), names.end());
+    TROCAR_THROW_UNLESS(twice == names.end(), r.Where(node, field) << ": '" << *twice
+                                                                   << "' given twice");
+  };
+  std::vector<std::string> names;
+  for (const auto& p : spec.patients)
+    names.push_back(std::filesystem::path(p).lexically_normal().filename().string());
+  unique(names, patients, "patients");
+  names.clear();
+  for (const auto& a : spec.algorithms) names.push_back(a.name());
+  unique(names, algorithms, "placement.algorithms");
+  unique(spec.planners, planners, "motion.planners");
+  auto seed_names = [](const std::vector<unsigned>& seeds) {
+    std::vector<std::string> out;
+    for (unsigned v : seeds) out.push_back(std::to_string(v));
+    return out;
+  };
+  unique(seed_names(spec.placement_seeds), placement["seeds"] ? placement["seeds"] : placement,
+         "placement.seeds");
+  unique(seed_names(spec.motion_seeds), motion["seeds"] ? motion["seeds"] : motion, "motion.seeds");
   return spec;
 }
 

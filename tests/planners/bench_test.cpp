@@ -117,6 +117,13 @@ TEST(BenchSpec, UnknownNamesAreErrorsListingTheValidOnesBeforeAnythingRuns) {
   EXPECT_NE(e.find("lidc2"), std::string::npos) << e;
   EXPECT_NE(e.find(", phantom-default"), std::string::npos) << e;
   EXPECT_NE(error(SmallSpec() + "moton: {}\n").find("moton"), std::string::npos);
+  // A name given twice would run one run twice.
+  e = error(SmallSpec("[rrtconnect, kpiece1, rrtconnect]"));
+  EXPECT_NE(e.find("'rrtconnect' given twice"), std::string::npos) << e;
+  body = SmallSpec();
+  body.replace(body.find("seeds: [1, 2]"), 13, "seeds: [2, 2]");
+  e = error(body);
+  EXPECT_NE(e.find("'2' given twice"), std::string::npos) << e;
   // Nothing was made: the spec failed before the database.
   EXPECT_FALSE(fs::exists(JoinPath(dir, "out.db")));
 }
