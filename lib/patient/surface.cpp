@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include <vtkCellArray.h>
+#include <vtkDecimatePro.h>
 #include <vtkFlyingEdges3D.h>
 #include <vtkFloatArray.h>
 #include <vtkImageData.h>
@@ -141,42 +142,68 @@ TriangleMesh ExtractSurface(const Volume& grid, const Mask& mask, const std::str
     smooth->Update();
     poly = smooth->GetOutput();
   }
-  if (options.max_triangles > 0 && poly->GetNumberOfPolys() > options.max_triangles) {
-    auto decimate = vtkSmartPointer<vtkQuadricDecimation>::New();
-    decimate->SetInputData(poly);
-    decimate->SetTargetReduction(1.0 - static_cast<double>(options.max_triangles) /
-                                           static_cast<double>(poly->GetNumberOfPolys()));
-    decimate->VolumePreservationOn();
-    decimate->Update();
-    poly = decimate->GetOutput();
-  }
-
   // Into the patient frame: crop-local millimetres → grid index → P.
-  TriangleMesh mesh;
-  mesh.source = name;
-  vtkPoints* points = poly->GetPoints();
-  mesh.vertices.reserve(points->GetNumberOfPoints());
-  for (vtkIdType v = 0; v < points->GetNumberOfPoints(); ++v) {
-    double x[3];
-    points->GetPoint(v, x);
-    // A coarse voxel's centre is the centre of the fine voxels it covers.
-    const Eigen::Vector3d ijk =
-        Eigen::Vector3d(x[0], x[1], x[2]).cwiseQuotient(coarse_spacing).cwiseProduct(factor.cast<double>()) +
-        offset.cast<double>() + 0.5 * (factor - Eigen::Vector3i::Ones()).cast<double>();
-    mesh.vertices.push_back(grid.PatientPoint(ijk.x(), ijk.y(), ijk.z()));
-  }
-  vtkCellArray* polys = poly->GetPolys();
-  mesh.triangles.reserve(polys->GetNumberOfCells());
-  auto ids = vtkSmartPointer<vtkIdList>::New();
-  for (polys->InitTraversal(); polys->GetNextCell(ids);) {
-    if (ids->GetNumberOfIds() != 3) continue;
-    const Eigen::Vector3i t(static_cast<int>(ids->GetId(0)), static_cast<int>(ids->GetId(1)),
-                            static_cast<int>(ids->GetId(2)));
-    if (TriangleArea(mesh, t) > 0.0) {
-      mesh.triangles.push_back(t);
-    } else {
-      ++mesh.degenerate_triangles_removed;
+  auto to_mesh = [&](vtkPolyData* data) {
+    TriangleMesh mesh;
+    mesh.source = name;
+    vtkPoints* points = data->GetPoints();
+    mesh.vertices.reserve(points->GetNumberOfPoints());
+    for (vtkIdType v = 0; v < points->GetNumberOfPoints(); ++v) {
+      double x[3];
+      points->GetPoint(v, x);
+      // A coarse voxel's centre is the centre of the fine voxels it covers.
+      const Eigen::Vector3d ijk =
+          Eigen::Vector3d(x[0], x[1], x[2]).cwiseQuotient(coarse_spacing).cwiseProduct(factor.cast<double>()) +
+          offset.cast<double>() + 0.5 * (factor - Eigen::Vector3i::Ones()).cast<double>();
+      mesh.vertices.push_back(grid.PatientPoint(ijk.x(), ijk.y(), ijk.z()));
     }
+    vtkCellArray* polys = data->GetPolys();
+    mesh.triangles.reserve(polys->GetNumberOfCells());
+    auto ids = vtkSmartPointer<vtkIdList>::New();
+    for (polys->InitTraversal(); polys->GetNextCell(ids);) {
+      if (ids->GetNumberOfIds() != 3) continue;
+      const Eigen::Vector3i t(static_cast<int>(ids->GetId(0)), static_cast<int>(ids->GetId(1)),
+                              static_cast<int>(ids->GetId(2)));
+      if (TriangleArea(mesh, t) > 0.0) {
+        mesh.triangles.push_back(t);
+      } else {
+        ++mesh.degenerate_triangles_removed;
+      }
+    }
+    return mesh;
+  };
+  TriangleMesh mesh;
+  if (options.max_triangles > 0 && poly->GetNumberOfPolys() > options.max_triangles) {
+    // Quadric decimation (the better shape for its count) does not keep the topology: on thin
+    // parts (a vertebra's arch at 4 mm voxels) it can leave open and non-manifold edges. Then
+    // the topology-preserving decimation is used instead, and the result with the fewest open or
+    // non-manifold edges is kept.
+    const double reduction =
+        1.0 - static_cast<double>(options.max_triangles) / static_cast<double>(poly->GetNumberOfPolys());
+    auto quadric = vtkSmartPointer<vtkQuadricDecimation>::New();
+    quadric->SetInputData(poly);
+    quadric->SetTargetReduction(reduction);
+    quadric->VolumePreservationOn();
+    quadric->Update();
+    mesh = to_mesh(quadric->GetOutput());
+    EdgeCounts edges = CountEdges(mesh);
+    if (edges.boundary + edges.non_manifold > 0) {
+      auto pro = vtkSmartPointer<vtkDecimatePro>::New();
+      pro->SetInputData(poly);
+      pro->SetTargetReduction(reduction);
+      pro->PreserveTopologyOn();
+      pro->SplittingOff();
+      pro->BoundaryVertexDeletionOff();
+      pro->Update();
+      TriangleMesh kept = to_mesh(pro->GetOutput());
+      const EdgeCounts kept_edges = CountEdges(kept);
+      if (kept_edges.boundary + kept_edges.non_manifold < edges.boundary + edges.non_manifold &&
+          static_cast<long>(kept.triangles.size()) <= options.max_triangles) {
+        mesh = std::move(kept);
+      }
+    }
+  } else {
+    mesh = to_mesh(poly);
   }
   TROCAR_THROW_UNLESS(!mesh.triangles.empty(), name << ": the surface has no triangles");
   // Outward winding whatever the grid's handedness (LPS grids from RAS files are mirrored).
