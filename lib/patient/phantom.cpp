@@ -80,6 +80,9 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   Check(in.rib_drop, 0.0, 0.12, "rib_drop");
   Check(in.heart_scale, 0.6, 1.5, "heart_scale");
   Check(in.voxel_size, 0.0005, 0.005, "voxel_size");
+  TROCAR_THROW_UNLESS(!in.shoulders || in.wall_thickness >= 0.02,
+                      "phantom: shoulders need wall_thickness of at least 0.02 m (the shoulder blade lies in "
+                      "the back's muscle), not " << in.wall_thickness);
   TROCAR_THROW_UNLESS(in.slice_spacing == 0.0 || (std::isfinite(in.slice_spacing) && in.slice_spacing >= 0.0005 &&
                                                   in.slice_spacing <= 0.006),
                       "phantom: slice_spacing " << in.slice_spacing << " outside 0.0005..0.006 m (or 0: the voxel size)");
@@ -127,7 +130,12 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
                            in.field_of_view >= 2 * b + 0.01 && in.field_of_view <= 1.0),
                       "phantom: field_of_view " << in.field_of_view << " m must hold the body ("
                                                 << 2 * a << " x " << 2 * b << " m) and be at most 1 m");
-  const double fov_x = in.field_of_view > 0.0 ? in.field_of_view : 2 * a + 2 * margin;
+  // Upper arms beside the chest: soft tissue round the humerus, touching the body.
+  const double arm_r = 0.045, arm_x = a + arm_r - 0.005, humerus_r = 0.011;
+  const double half_x = in.shoulders ? arm_x + arm_r : a;
+  TROCAR_THROW_UNLESS(in.field_of_view == 0.0 || in.field_of_view >= 2 * half_x + 0.01,
+                      "phantom: field_of_view " << in.field_of_view << " m must hold the arms (" << 2 * half_x << " m)");
+  const double fov_x = in.field_of_view > 0.0 ? in.field_of_view : 2 * half_x + 2 * margin;
   const double fov_y = in.field_of_view > 0.0 ? in.field_of_view : 2 * b + 2 * margin;
   v.size = Eigen::Vector3i(static_cast<int>(std::ceil(fov_x / h - 1e-9)), static_cast<int>(std::ceil(fov_y / h - 1e-9)),
                            static_cast<int>(std::ceil(in.length / hz)));
@@ -143,6 +151,12 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   v.source = "phantom seed " + std::to_string(in.seed);
 
   const double vertebra_y = b_p - 0.018, vertebra_r = 0.02;
+  // The spine: vertebral bodies (a cortical shell round cancellous bone; a disc between each two,
+  // at the level midway between rib heads), the neural arch round the spinal canal behind them,
+  // the spinous process behind the arch and the transverse processes beside it.
+  const double canal_y = vertebra_y + vertebra_r + 0.008, canal_r = 0.008, arch = 0.0035;
+  const double spinous_end = std::min(canal_y + 0.03, b - in.fat_thickness);
+  const double disc_z0 = ribs.z_top - 0.5 * spacing;
   for (int k = 0; k < v.size.z(); ++k) {
     for (int j = 0; j < v.size.y(); ++j) {
       for (int i = 0; i < v.size.x(); ++i) {
@@ -152,6 +166,10 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
         float hu = PhantomHu::kAir;
         if (inside(a, b)) hu = PhantomHu::kFat;
         if (inside(a - in.fat_thickness, b - in.fat_thickness)) hu = PhantomHu::kMuscle;
+        if (in.shoulders && std::hypot(std::abs(x) - arm_x, y) <= arm_r) {
+          const double rh = std::hypot(std::abs(x) - arm_x, y);
+          hu = rh > humerus_r ? PhantomHu::kMuscle : (rh > humerus_r - 0.003 ? PhantomHu::kBone : PhantomHu::kMarrow);
+        }
         if (inside(a_p, b_p)) {
           hu = PhantomHu::kLung;
           // Mediastinum between the lungs, in front of the spine.
@@ -160,7 +178,19 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
         const Eigen::Vector3d d = (p - heart).cwiseQuotient(semi);
         const double r = d.norm();
         if (r <= 1.0) hu = r <= 1.0 - 0.008 / semi.minCoeff() ? PhantomHu::kBlood : PhantomHu::kMyocardium;
-        if (std::hypot(x, y - vertebra_y) <= vertebra_r) hu = PhantomHu::kVertebra;
+        const double rv = std::hypot(x, y - vertebra_y);
+        if (rv <= vertebra_r) {
+          const bool disc = std::abs(std::remainder(z - disc_z0, spacing)) < 0.002;
+          hu = disc ? PhantomHu::kDisc : (rv > vertebra_r - 0.0025 ? PhantomHu::kBone : PhantomHu::kCancellous);
+        }
+        // Each vertebra's arch and processes span 70 % of its height about the rib heads' level;
+        // between them the spinal canal is closed by ligament only.
+        if (std::abs(std::remainder(z - ribs.z_top, spacing)) < 0.35 * spacing) {
+          const double rc = std::hypot(x, y - canal_y);
+          if (rc >= canal_r && rc <= canal_r + arch && y > vertebra_y + 0.5 * vertebra_r) hu = PhantomHu::kBone;
+          if (std::abs(x) <= 0.003 && y >= canal_y + canal_r && y <= spinous_end) hu = PhantomHu::kBone;
+          if (std::abs(y - canal_y) <= 0.004 && std::abs(x) >= canal_r && std::abs(x) <= 0.03) hu = PhantomHu::kBone;
+        }
         // Ribs: distance to the rib centreline at this voxel's angle about the body axis.
         const double ex = std::abs(x) / ribs.a_r, ey = y / ribs.b_r;
         const double rho = std::hypot(ex, ey);
@@ -172,6 +202,12 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
             const double dz = z - ribs.Z(rib, phi);
             if (radial * radial + dz * dz <= in.rib_radius * in.rib_radius) hu = PhantomHu::kBone;
           }
+        }
+        // Shoulder blades: plates in the back's muscle over ribs 2 to 8, 1 cm off the ribs.
+        if (in.shoulders && phi >= 0.25 && phi <= 0.95 && z <= ribs.z_top - spacing && z >= ribs.z_top - 7.5 * spacing) {
+          const double local = std::hypot(ribs.a_r * std::sin(phi), ribs.b_r * std::cos(phi));
+          const double radial = (rho - 1.0) * local;
+          if (radial >= 0.015 && radial <= 0.0195) hu = PhantomHu::kBone;
         }
         // Sternum: a plate at the front between the rib ends.
         if (std::abs(x) <= 0.02 && std::abs(y + ribs.b_r) <= 0.007 &&
@@ -187,6 +223,12 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   for (int side : {+1, -1}) {
     for (int rib = 0; rib < in.ribs_per_side; ++rib) {
       PhantomTruth::Rib truth{side, rib, {}};
+      if (in.ribs_reach_spine) {
+        // The rib's neck, from its head against the vertebral body out to where the rib bends.
+        const Eigen::Vector3d head(side * (vertebra_r + 0.001), vertebra_y + 0.004, ribs.Z(rib, ribs.phi0));
+        const Eigen::Vector3d bend = ribs.Point(side, rib, ribs.phi0);
+        for (int s = 0; s < 8; ++s) truth.centreline.push_back(head + (bend - head) * (s / 8.0));
+      }
       for (int s = 0; s <= 60; ++s) {
         truth.centreline.push_back(ribs.Point(side, rib, ribs.phi0 + (ribs.phi1 - ribs.phi0) * s / 60.0));
       }
@@ -220,6 +262,21 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   for (int s = 0; s <= 20; ++s) {
     const double z = ribs.z_top + 0.01 - (6.5 * spacing) * s / 20.0;
     out.truth.lima.emplace_back(0.03, -b_p - 0.002, z);
+  }
+  for (const auto& rib : out.truth.ribs) {
+    if (in.ribs_reach_spine) StampTube(Curve(rib.centreline.begin(), rib.centreline.begin() + 9), in.rib_radius, PhantomHu::kBone, &v);
+  }
+  if (in.shoulders) {
+    // Collarbones: over the first ribs' front half, 16 mm outside them and 4 mm higher.
+    for (int side : {+1, -1}) {
+      Curve clavicle;
+      for (int s = 0; s <= 20; ++s) {
+        const double phi = ribs.phi1 - 0.05 - (ribs.phi1 - 0.05 - 1.35) * s / 20.0;
+        clavicle.emplace_back(side * (ribs.a_r + 0.016) * std::sin(phi), (ribs.b_r + 0.016) * std::cos(phi),
+                              ribs.Z(0, phi) + 0.004);
+      }
+      StampTube(clavicle, 0.006, PhantomHu::kBone, &v);
+    }
   }
   StampTube(out.truth.lad, 0.0016, PhantomHu::kArtery, &v);
   StampTube(out.truth.lima, 0.0015, PhantomHu::kArtery, &v);
@@ -316,6 +373,9 @@ void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat f
     // Non-default grid fields only; 12 digits so a regenerated CT has the very same grid.
     if (p.slice_spacing > 0.0) yaml << ", slice_spacing: " << p.slice_spacing;
     if (p.field_of_view > 0.0) yaml << ", field_of_view: " << p.field_of_view;
+    if (p.wall_thickness != PhantomParameters{}.wall_thickness) yaml << ", wall_thickness: " << p.wall_thickness;
+    if (p.ribs_reach_spine) yaml << ", ribs_reach_spine: true";
+    if (p.shoulders) yaml << ", shoulders: true";
     yaml << "}\n";
     WriteFileAtomically(JoinPath(tmp, "patient.yaml"), yaml.str());
   }

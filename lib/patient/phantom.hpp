@@ -31,6 +31,13 @@ struct PhantomParameters {
   /// m, the square in-plane extent of the scan centred on the body, as a clinical reconstruction's
   /// field of view (0: the body and 2 cm of air around it).
   double field_of_view = 0.0;
+  /// Ribs reaching the vertebral bodies at their heads (the costovertebral joints), as real ribs
+  /// do; off, they stop 2 cm short of the spine.
+  bool ribs_reach_spine = false;
+  /// The shoulder girdle and arms: shoulder blades in the back's muscle over the upper ribs,
+  /// collarbones over the first ribs, upper arms beside the chest (the field of view widens to
+  /// hold them). Needs `wall_thickness` of at least 0.02 m (the shoulder blade lies in it).
+  bool shoulders = false;
 };
 
 /// A polyline in the patient frame (m).
@@ -42,7 +49,7 @@ struct PhantomTruth {
     int index;  ///< 0 = the highest
     Curve centreline;
   };
-  std::vector<Rib> ribs;
+  std::vector<Rib> ribs;  ///< index 0 is rib 1 when the cage is whole (12 a side, top in view)
   /// Port candidate curves: the middle of each intercostal space on the skin, left side first.
   std::vector<Curve> intercostal_spaces;
   std::vector<int> intercostal_side;  ///< +1 left, −1 right, per space
@@ -63,7 +70,8 @@ struct Phantom {
 /// Tissue values (HU) used by the phantom.
 struct PhantomHu {
   static constexpr float kAir = -1000, kLung = -820, kFat = -100, kMuscle = 45, kBlood = 280,
-                         kMyocardium = 90, kArtery = 380, kBone = 750, kVertebra = 600;
+                         kMyocardium = 90, kArtery = 380, kBone = 750,
+                         kCancellous = 250, kDisc = 80, kMarrow = -50;
 };
 
 /// @throws trocar::Error for parameters out of their sensible ranges (named).
