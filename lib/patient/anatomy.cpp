@@ -56,15 +56,23 @@ Mask ThickParts(const Volume& ct, const Mask& bone, double radius) {
   coarse.origin_P = ct.origin_P + ct.index_to_P * (0.5 * (f.cast<double>() - Eigen::Vector3d::Ones()));
   const long cells = static_cast<long>(coarse.size.x()) * coarse.size.y() * coarse.size.z();
   std::vector<int> count(cells, 0), total(cells, 0);
-  auto cell_of = [&](int i, int j, int k) {
-    return i / f.x() + coarse.size.x() * (static_cast<long>(j / f.y()) + static_cast<long>(coarse.size.y()) * (k / f.z()));
-  };
-  for (int k = 0; k < ct.size.z(); ++k) {
-    for (int j = 0; j < ct.size.y(); ++j) {
-      for (int i = 0; i < ct.size.x(); ++i) {
-        const long c = cell_of(i, j, k);
-        ++total[c];
-        count[c] += bone.inside[ct.Index(i, j, k)] != 0;
+  // Each fine index's coarse index, per axis (no division per voxel); a coarse slab of f.z fine
+  // slices per thread, so that no two threads add to one cell.
+  std::vector<int> ci(ct.size.x()), cj(ct.size.y());
+  for (int i = 0; i < ct.size.x(); ++i) ci[i] = i / f.x();
+  for (int j = 0; j < ct.size.y(); ++j) cj[j] = j / f.y();
+  const long nxc = coarse.size.x(), nyc = coarse.size.y();
+#pragma omp parallel for schedule(static)
+  for (int kc = 0; kc < coarse.size.z(); ++kc) {
+    for (int k = kc * f.z(); k < std::min(ct.size.z(), (kc + 1) * f.z()); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        const long row = ct.Index(0, j, k);
+        const long cell_row = nxc * (cj[j] + nyc * kc);
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const long c = cell_row + ci[i];
+          ++total[c];
+          count[c] += bone.inside[row + i] != 0;
+        }
       }
     }
   }
@@ -88,11 +96,15 @@ Mask ThickParts(const Volume& ct, const Mask& bone, double radius) {
     if (!any) return thick;
   }
   const std::vector<float> to_core = SquaredDistanceToMask(coarse, core);
+#pragma omp parallel for schedule(static)
   for (int k = 0; k < ct.size.z(); ++k) {
+    const int kc = k / f.z();
     for (int j = 0; j < ct.size.y(); ++j) {
+      const long row = ct.Index(0, j, k);
+      const long cell_row = nxc * (cj[j] + nyc * kc);
       for (int i = 0; i < ct.size.x(); ++i) {
-        const long v = ct.Index(i, j, k);
-        const long c = cell_of(i, j, k);
+        const long v = row + i;
+        const long c = cell_row + ci[i];
         thick.inside[v] = bone.inside[v] && !outside.inside[c] && to_core[c] <= r2;
       }
     }
@@ -118,11 +130,14 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
   // The body's front-back extent in each slice: the spine lies in its back 40 %.
   std::vector<double> y_lo(slices.count, HUGE_VAL), y_hi(slices.count, -HUGE_VAL), x_sum(slices.count, 0.0);
   std::vector<long> x_n(slices.count, 0);
+  const Eigen::Vector3d step_i = ct.index_to_P.col(0);
   for (int k = 0; k < ct.size.z(); ++k) {
     for (int j = 0; j < ct.size.y(); ++j) {
+      const long row = ct.Index(0, j, k);
+      const Eigen::Vector3d row_P = ct.PatientPoint(0, j, k);
       for (int i = 0; i < ct.size.x(); ++i) {
-        if (!body.inside[ct.Index(i, j, k)]) continue;
-        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+        if (!body.inside[row + i]) continue;
+        const Eigen::Vector3d p = row_P + i * step_i;
         const int s = slices.Of(p.z());
         y_lo[s] = std::min(y_lo[s], p.y());
         y_hi[s] = std::max(y_hi[s], p.y());
@@ -185,8 +200,9 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
     a.known[s] = 1;
     a.any = true;
   }
-  // Running median over ±1 cm smooths out a slice caught on a disc or a process.
-  const int w = std::max(1, static_cast<int>(std::lround(0.01 / slices.dz)));
+  // A running median over more than a vertebra's height (`axis_smoothing` either side) smooths
+  // out a slice caught on a disc or on one side's processes: the spine bends slowly.
+  const int w = std::max(1, static_cast<int>(std::lround(o.axis_smoothing / slices.dz)));
   std::vector<double> sx = a.x, sy = a.y;
   for (int s = 0; s < slices.count; ++s) {
     if (!a.known[s]) continue;
@@ -340,11 +356,202 @@ Mask Above(const Volume& ct, const Mask& body, double threshold) {
   return m;
 }
 
+// A rib piece's course about the body's axis: per 3° bin of the angle (0 at the back, π/2 at the
+// side, π at the front, mirrored for the right), its voxel count, mean height and radius.
+constexpr int kProfileBins = 120;
+
+double SideAngle(const Eigen::Vector2d& d, int side) {
+  double a = std::atan2(side * d.x(), d.y());
+  if (a < -0.5 * M_PI) a += 2.0 * M_PI;  // [-π/2, 3π/2): a rib's course does not wrap
+  return a;
+}
+int ProfileBin(double angle) {
+  return std::clamp(static_cast<int>((angle + 0.5 * M_PI) / (2.0 * M_PI) * kProfileBins), 0, kProfileBins - 1);
+}
+double BinAngle(double b) { return (b + 0.5) * 2.0 * M_PI / kProfileBins - 0.5 * M_PI; }
+
+struct RibProfile {
+  std::vector<long> n = std::vector<long>(kProfileBins, 0);
+  std::vector<double> z = std::vector<double>(kProfileBins, 0.0), r = std::vector<double>(kProfileBins, 0.0);
+  int first = kProfileBins, last = -1;
+  bool Has(int b) const { return b >= 0 && b < kProfileBins && n[b] >= 2; }
+  void Finish() {
+    for (int b = 0; b < kProfileBins; ++b) {
+      if (n[b] == 0) continue;
+      z[b] /= static_cast<double>(n[b]);
+      r[b] /= static_cast<double>(n[b]);
+      if (!Has(b)) continue;
+      first = std::min(first, b);
+      last = std::max(last, b);
+    }
+  }
+  // Height and radius at bin `b`, by a line through the populated bins at one end (the last
+  // ones when `from_last`); with fewer than three, their mean.
+  Eigen::Vector2d At(double b, bool from_last) const {
+    std::vector<int> used;
+    for (int t = from_last ? last : first; t >= first && t <= last && used.size() < 6; t += from_last ? -1 : 1) {
+      if (Has(t)) used.push_back(t);
+    }
+    Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+    double bm = 0.0;
+    for (int t : used) {
+      mean += Eigen::Vector2d(z[t], r[t]);
+      bm += t;
+    }
+    mean /= static_cast<double>(used.size());
+    bm /= static_cast<double>(used.size());
+    if (used.size() < 3) return mean;
+    Eigen::Vector2d cov = Eigen::Vector2d::Zero();
+    double var = 0.0;
+    for (int t : used) {
+      cov += (t - bm) * (Eigen::Vector2d(z[t], r[t]) - mean);
+      var += (t - bm) * (t - bm);
+    }
+    return mean + (b - bm) * cov / var;
+  }
+};
+
+// Pieces of one rib joined: a crop face cuts a rib in two (its middle runs outside the scan),
+// and a thin stretch below the threshold breaks it. Two pieces of one side are one rib when one
+// ends where the other begins (at most two 3° bins of overlap), the stretch between them is
+// outside the scan or at most `rib_break_angle` long with no other rib in it, and their ends,
+// carried on by their own course, meet: heights within `rib_join_pitch` of the side's rib pitch,
+// radii within `rib_join_radius`. The best matches join first; a piece joins at most one piece at
+// each end. Labels of joined pieces are rewritten to the first piece's.
+void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const AnatomyOptions& o, std::vector<int>* labels,
+                   std::vector<Component>* left, std::vector<Component>* right, std::vector<std::string>* report) {
+  int max_label = 0;
+  for (const auto* ribs : {left, right}) {
+    for (const Component& c : *ribs) max_label = std::max(max_label, c.label);
+  }
+  if (max_label == 0) return;
+  std::vector<int> slot(max_label + 1, -1), side_of(max_label + 1, 0);
+  std::vector<RibProfile> profile;
+  for (int side : {+1, -1}) {
+    for (const Component& c : *(side > 0 ? left : right)) {
+      slot[c.label] = static_cast<int>(profile.size());
+      side_of[c.label] = side;
+      profile.emplace_back();
+    }
+  }
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const int l = (*labels)[ct.Index(i, j, k)];
+        if (l <= 0 || l > max_label || slot[l] < 0) continue;
+        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+        const Eigen::Vector2d d = p.head<2>() - centre;
+        RibProfile& f = profile[slot[l]];
+        const int b = ProfileBin(SideAngle(d, side_of[l]));
+        ++f.n[b];
+        f.z[b] += p.z();
+        f.r[b] += d.norm();
+      }
+    }
+  }
+  for (RibProfile& f : profile) f.Finish();
+  auto in_scan = [&](const Eigen::Vector3d& p) {
+    const Eigen::Vector3d ijk = ct.IndexOf(p);
+    return (ijk.array() >= -0.5).all() && (ijk.array() <= ct.size.cast<double>().array() - 0.5).all();
+  };
+  for (int side : {+1, -1}) {
+    std::vector<Component>& ribs = *(side > 0 ? left : right);
+    const int n = static_cast<int>(ribs.size());
+    auto prof = [&](int r) -> const RibProfile& { return profile[slot[ribs[r].label]]; };
+    // The rib pitch: the median height between pieces one above the other in a bin.
+    std::vector<double> steps;
+    for (int b = 0; b < kProfileBins; ++b) {
+      std::vector<double> zs;
+      for (int r = 0; r < n; ++r) {
+        if (prof(r).Has(b)) zs.push_back(prof(r).z[b]);
+      }
+      std::sort(zs.begin(), zs.end());
+      for (std::size_t t = 1; t < zs.size(); ++t) {
+        if (zs[t] - zs[t - 1] > 0.004) steps.push_back(zs[t] - zs[t - 1]);
+      }
+    }
+    const double pitch = steps.empty() ? 0.025 : Median(&steps);
+    const double tolerance = o.rib_join_pitch * pitch;
+    struct Join {
+      double score;
+      int before, after;
+    };
+    std::vector<Join> joins;
+    for (int a = 0; a < n; ++a) {
+      for (int c = 0; c < n; ++c) {
+        const RibProfile& P = prof(a);
+        const RibProfile& Q = prof(c);
+        if (a == c || P.last < 0 || Q.last < 0) continue;
+        if (!(P.first < Q.first && P.last < Q.last && P.last - Q.first + 1 <= 2)) continue;
+        const double mid = 0.5 * (P.last + Q.first);
+        const Eigen::Vector2d end = P.At(mid, true), start = Q.At(mid, false);
+        const double dz = std::abs(end.x() - start.x());
+        if (dz > tolerance || std::abs(end.y() - start.y()) > o.rib_join_radius) continue;
+        // The stretch between: out of the scan, or a short break with no other rib in it.
+        double in_view = 0.0;
+        bool blocked = false;
+        for (int b = P.last + 1; b < Q.first; ++b) {
+          const double t = (b - P.last) / static_cast<double>(Q.first - P.last);
+          const double z = (1 - t) * P.At(P.last, true).x() + t * Q.At(Q.first, false).x();
+          const double radius = (1 - t) * P.At(P.last, true).y() + t * Q.At(Q.first, false).y();
+          const double angle = BinAngle(b);
+          const Eigen::Vector2d xy = centre + radius * Eigen::Vector2d(side * std::sin(angle), std::cos(angle));
+          if (!in_scan(Eigen::Vector3d(xy.x(), xy.y(), z))) continue;
+          in_view += 2.0 * M_PI / kProfileBins;
+          for (int r = 0; r < n; ++r) {
+            blocked = blocked || (r != a && r != c && prof(r).Has(b) && std::abs(prof(r).z[b] - z) < tolerance);
+          }
+        }
+        if (blocked || in_view > o.rib_break_angle + 1e-9) continue;
+        joins.push_back({dz / tolerance, a, c});
+      }
+    }
+    std::sort(joins.begin(), joins.end(), [](const Join& x, const Join& y) {
+      return x.score != y.score ? x.score < y.score : std::make_pair(x.before, x.after) < std::make_pair(y.before, y.after);
+    });
+    std::vector<int> next(n, -1), previous(n, -1);
+    for (const Join& j : joins) {
+      if (next[j.before] >= 0 || previous[j.after] >= 0) continue;
+      next[j.before] = j.after;
+      previous[j.after] = j.before;
+    }
+    std::vector<Component> kept;
+    std::vector<int> relabel(max_label + 1, 0);
+    int joined = 0;
+    for (int r = 0; r < n; ++r) {
+      if (previous[r] >= 0) continue;  // joined to the piece before it
+      Component whole = ribs[r];
+      Eigen::Vector3d sum = whole.centroid_P * static_cast<double>(whole.voxels);
+      for (int t = next[r]; t >= 0; t = next[t]) {
+        const Component& c = ribs[t];
+        relabel[c.label] = whole.label;
+        sum += c.centroid_P * static_cast<double>(c.voxels);
+        whole.voxels += c.voxels;
+        whole.volume += c.volume;
+        whole.min_P = whole.min_P.cwiseMin(c.min_P);
+        whole.max_P = whole.max_P.cwiseMax(c.max_P);
+        ++joined;
+      }
+      whole.centroid_P = sum / static_cast<double>(whole.voxels);
+      kept.push_back(whole);
+    }
+    if (joined == 0) continue;
+    for (int& l : *labels) {
+      if (l > 0 && l <= max_label && relabel[l] != 0) l = relabel[l];
+    }
+    ribs = std::move(kept);
+    std::ostringstream s;
+    s << (side > 0 ? "left" : "right") << " rib pieces joined across a crop face or a break: " << joined
+      << " (rib pitch " << std::fixed << std::setprecision(0) << pitch * 1e3 << " mm)";
+    report->push_back(s.str());
+  }
+}
+
 }  // namespace
 
 void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o, double min_bone_volume) {
   const Slices slices(ct);
-  const Eigen::Vector2d centre = 0.5 * (seg->body_min_P + seg->body_max_P).head<2>();
+  Eigen::Vector2d centre = 0.5 * (seg->body_min_P + seg->body_max_P).head<2>();
   const double half_width = 0.5 * (seg->body_max_P.x() - seg->body_min_P.x());
   const double voxel_volume = std::abs(ct.index_to_P.determinant());
   Mask& bone = seg->bone;
@@ -358,6 +565,18 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   const long voxels_min_vessel = static_cast<long>(o.contrast_min_volume / voxel_volume);
   Mask thick_bone;
   seg->vessels = FindVessels(ct, seg->body, bone, slices, o, &axis, &thick_bone);
+  // The body's axis, that rays about it run from: the bounding box's centre, but left-right at
+  // the spine's midline when the box's centre is more than `axis_box_offset` off it (a crop face
+  // or an arm beside the body pulls the box aside; within it, the box is the steadier estimate).
+  if (axis.any) {
+    std::vector<double> xs;
+    for (int s = 0; s < slices.count; ++s) {
+      if (axis.known[s]) xs.push_back(axis.x[s]);
+    }
+    const double midline = Median(&xs);
+    if (std::abs(midline - centre.x()) > o.axis_box_offset) centre.x() = midline;
+  }
+  seg->axis_P = centre;
   if (ct.hounsfield && !o.plain_bone_hu.empty() && o.plain_bone_hu.front() < seg->bone_threshold) {
     // Contrast: a blood pool thick and bright enough to be found at all, beside the bone. Without
     // it, the plain threshold keeps thin ribs and coarse slices' partial-volume bone.
@@ -421,7 +640,10 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   Release(&region);
   for (const Component& c : pieces) {
     if (c.volume < min_bone_volume) continue;
-    if (c.volume < o.min_rib_volume && column_voxels[c.label] == 0) continue;  // a fragment
+    // A fragment: the stubs the column leaves of a rib's neck or a process' tip.
+    if ((c.volume < o.min_rib_volume || (c.max_P - c.min_P).norm() < o.min_rib_length) && column_voxels[c.label] == 0) {
+      continue;
+    }
     if (column_voxels[c.label] > 0) {
       kind[c.label] = 3;
       continue;
@@ -452,21 +674,36 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       const int b = std::min(kBins - 1, static_cast<int>(angle / (2 * M_PI) * kBins));
       return slices.Of(p.z()) * kBins + b;
     };
-    // Share of each rib candidate's voxels with another candidate beyond it by the gap along
-    // the same ray (inner) or before it (outer).
-    // Calls f(label, cell, r) for every voxel of a rib candidate.
-    auto for_each_candidate = [&](const auto& f) {
-      for (int k = 0; k < ct.size.z(); ++k) {
-        for (int j = 0; j < ct.size.y(); ++j) {
-          for (int i = 0; i < ct.size.x(); ++i) {
-            const int l = parts.labels[ct.Index(i, j, k)];
-            if (l == 0 || kind[l] != 1) continue;
-            double r;
-            const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
-            f(l, cell, r);
-          }
+    // The rib candidates' voxels with their cell and radius, gathered once (a few per mille of
+    // the scan): the passes below run over them, not over the whole grid.
+    struct RayVoxel {
+      int label, cell;
+      float r;
+    };
+    std::vector<RayVoxel> ray_voxels;
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        const long row = ct.Index(0, j, k);
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const int l = parts.labels[row + i];
+          if (l == 0 || kind[l] != 1) continue;
+          double r;
+          const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
+          ray_voxels.push_back({l, cell, static_cast<float>(r)});
         }
       }
+    }
+    // Calls f(label, cell, r) for every voxel of a piece that is still a rib candidate.
+    auto for_each_candidate = [&](const auto& f) {
+      for (const RayVoxel& rv : ray_voxels) {
+        if (kind[rv.label] == 1) f(rv.label, rv.cell, static_cast<double>(rv.r));
+      }
+    };
+    // Per piece: the share of its voxels with another candidate beyond it by the gap along the
+    // same ray (inner) or before it (outer), of all its voxels (`fraction`) and of those whose
+    // ray meets another candidate first (`shared`, outer only).
+    struct Layer {
+      std::vector<double> fraction, shared, of_shared;
     };
     auto layer_fractions = [&](bool outer) {
       std::vector<float> r_ext(cells, outer ? HUGE_VALF : -HUGE_VALF);
@@ -477,31 +714,66 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
           owner[cell] = l;
         }
       });
-      std::vector<double> fraction(pieces.size() + 1, 0.0);
+      Layer layer;
+      layer.fraction.assign(pieces.size() + 1, 0.0);
+      layer.shared.assign(pieces.size() + 1, 0.0);
+      layer.of_shared.assign(pieces.size() + 1, 0.0);
       for_each_candidate([&](int l, int cell, double r) {
         if (owner[cell] == l) return;
-        if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap) fraction[l] += 1.0;
+        layer.shared[l] += 1.0;
+        if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap) layer.fraction[l] += 1.0;
       });
-      for (const Component& c : pieces) fraction[c.label] /= static_cast<double>(c.voxels);
-      return fraction;
+      for (const Component& c : pieces) {
+        layer.of_shared[c.label] = layer.shared[c.label] > 0.0 ? layer.fraction[c.label] / layer.shared[c.label] : 0.0;
+        layer.fraction[c.label] /= static_cast<double>(c.voxels);
+        layer.shared[c.label] /= static_cast<double>(c.voxels);
+      }
+      return layer;
     };
-    const auto inner = layer_fractions(false);
-    double inner_volume = 0.0;
+    auto take_inner = [&](int as_kind) {
+      const Layer inner = layer_fractions(false);
+      bool any = false;
+      for (const Component& c : pieces) {
+        if (kind[c.label] == 1 && inner.fraction[c.label] > o.inner_fraction) {
+          kind[c.label] = as_kind;
+          any = true;
+        }
+      }
+      return any;
+    };
+    auto take_outer = [&] {
+      const Layer outer = layer_fractions(true);
+      for (const Component& c : pieces) {
+        // Outside: much of it behind other bone; or, where its rays meet other bone at all (a
+        // long arm bone beside the chest meets ribs only in the slices they cross), mostly
+        // behind it.
+        const bool behind = outer.fraction[c.label] > o.shoulder_fraction ||
+                            (outer.shared[c.label] >= o.shoulder_shared_min &&
+                             outer.of_shared[c.label] >= o.shoulder_of_shared);
+        if (kind[c.label] == 1 && behind) kind[c.label] = 4;
+      }
+    };
+    // Inside means inside the ribs, not inside the shoulder girdle: a first rib under its
+    // collarbone and shoulder blade is taken out as "inside" at first (kind 5), and put back
+    // once the girdle is known; the girdle is then looked for again with it in place.
+    constexpr int kTentative = 5;
+    if (take_inner(kTentative)) {
+      take_outer();
+      for (int& k : kind) k = k == kTentative ? 1 : k;
+    }
+    take_inner(kTentative);
+    take_outer();
+    double inner_volume = 0.0, shoulder_volume = 0.0;
     for (const Component& c : pieces) {
-      if (kind[c.label] == 1 && inner[c.label] > o.inner_fraction) {
+      if (kind[c.label] == kTentative) {
         kind[c.label] = 0;
         inner_volume += c.volume;
       }
+      if (kind[c.label] == 4) shoulder_volume += c.volume;
     }
     if (inner_volume > 0.0) {
       seg->anatomy.push_back("bone inside the rib cage (not rib; calcifications, bits beside the spine): " +
                              Ml(inner_volume));
-    }
-    const auto outer = layer_fractions(true);
-    double shoulder_volume = 0.0;
-    for (const Component& c : pieces) {
-      if (kind[c.label] == 1 && outer[c.label] > o.shoulder_fraction) kind[c.label] = 4;
-      if (kind[c.label] == 4) shoulder_volume += c.volume;
     }
     if (shoulder_volume > 0.0) {
       seg->anatomy.push_back("bone outside the rib cage (shoulder girdle, arms): " +
@@ -597,11 +869,13 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
     seg->anatomy.push_back("bone lumps off the midline, not slender like a rib (transverse processes, the sacrum's "
                            "wings, a scapula's edge): " + Ml(lump_volume));
   }
+  // 5. Pieces of one rib (cut by a crop face, or broken) joined.
+  JoinRibPieces(ct, centre, o, &parts.labels, &parts.ribs_left, &parts.ribs_right, &seg->anatomy);
   auto by_height = [](const Component& a, const Component& b) { return a.centroid_P.z() > b.centroid_P.z(); };
   std::sort(parts.ribs_left.begin(), parts.ribs_left.end(), by_height);
   std::sort(parts.ribs_right.begin(), parts.ribs_right.end(), by_height);
 
-  // 5. Numbering, per side: from rib 1 when the top of the rib cage is in view, from rib 12 when
+  // 6. Numbering, per side: from rib 1 when the top of the rib cage is in view, from rib 12 when
   //    its bottom is (the spine going on below the lowest rib); both must agree.
   double scan_top = -HUGE_VAL, scan_bottom = HUGE_VAL;
   for (int corner = 0; corner < 8; ++corner) {

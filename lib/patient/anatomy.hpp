@@ -8,6 +8,7 @@
 /// anterior midline; the ribs are what remains, numbered from rib 1 or rib 12 when the top or
 /// the bottom of the rib cage is in view, with a confidence.
 
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -40,14 +41,22 @@ struct AnatomyOptions {
   double spine_half_width = 0.026;
   double spine_front = 0.05, spine_back = 0.06;
   /// Bone near the posterior midline that fixes the spine's axis: within this of the midline (m).
-  double midline_band = 0.012;
+  double midline_band = 0.025;
   /// ... looked for this far either side of the body's centroid in each slice (m).
   double spine_search = 0.04;
+  /// The axis is smoothed by a running median over this far up and down (m).
+  double axis_smoothing = 0.03;
+  /// The body's axis is the bounding box's centre unless that lies further than this from the
+  /// spine's midline left-right (a crop face or an arm pulls it aside): then the midline (m).
+  double axis_box_offset = 0.01;
   /// A bone piece lies outside the rib cage (shoulder girdle, arm) when, along the rays from the
   /// body's axis, at least `shoulder_fraction` of it has other bone nearer the axis by more than
   /// `shoulder_gap` (m).
   double shoulder_gap = 0.012;
   double shoulder_fraction = 0.35;
+  /// ... or when at least `shoulder_shared_min` of it has other bone first along its rays and,
+  /// of that, at least `shoulder_of_shared` lies beyond it by more than the gap.
+  double shoulder_shared_min = 0.15, shoulder_of_shared = 0.6;
   /// ... and inside it (not rib) when more than this share has other bone beyond it.
   double inner_fraction = 0.6;
   /// Pieces whose centre is within this fraction of the half body width of the midline, in
@@ -64,6 +73,16 @@ struct AnatomyOptions {
   /// Bone pieces off the spine smaller than this are fragments (the stubs the spine's column
   /// leaves of a rib's neck), not ribs (m³).
   double min_rib_volume = 1e-6;
+  /// ... or shorter than this (bounding-box diagonal, m; a whole rib is 10-30 cm long).
+  double min_rib_length = 0.04;
+  /// Pieces of one rib are joined (JoinRibPieces) across a break of up to this angle about the
+  /// body's axis (rad; the rib dipping below the threshold), or across any stretch where the rib
+  /// would run outside the scan (a crop face), when their ends line up: heights within
+  /// `rib_join_pitch` of the rib pitch (the height between neighbouring ribs) and radii within
+  /// `rib_join_radius` (m).
+  double rib_break_angle = 15.0 * M_PI / 180.0;
+  double rib_join_pitch = 0.35;
+  double rib_join_radius = 0.03;
   /// Numbering: the top of the rib cage is in view when the scan reaches this far above the
   /// highest rib; the bottom when the spine continues this far below the lowest rib (m).
   double top_margin = 0.015, bottom_spine = 0.03;

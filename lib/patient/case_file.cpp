@@ -21,7 +21,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
   const YAML::Node& root = y.root();
   y.ExpectMap(root, "patient.yaml",
               {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
-               "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation"});  // plan: read by trocar plan
+               "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation", "bones"});  // plan: read by trocar plan
   c.name = root["name"] ? y.String(root["name"], "name")
                         : std::filesystem::path(case_dir).filename().string();
   c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
@@ -29,7 +29,8 @@ CaseSpec ReadCase(const std::string& case_dir) {
     const YAML::Node ph = root["phantom"];
     y.ExpectMap(ph, "phantom",
                 {"seed", "body_width", "body_depth", "length", "ribs_per_side", "rib_spacing",
-                 "heart_scale", "heart_offset", "voxel_size", "slice_spacing", "field_of_view"});
+                 "heart_scale", "heart_offset", "voxel_size", "slice_spacing", "field_of_view",
+                 "wall_thickness", "ribs_reach_spine", "shoulders"});
     c.has_phantom = true;
     PhantomParameters& p = c.phantom;
     // Whole numbers in range before the casts (a cast of a negative or huge double is undefined).
@@ -52,6 +53,9 @@ CaseSpec ReadCase(const std::string& case_dir) {
     p.voxel_size = y.NumberOr(ph, "voxel_size", "phantom", p.voxel_size);
     p.slice_spacing = y.NumberOr(ph, "slice_spacing", "phantom", p.slice_spacing);
     p.field_of_view = y.NumberOr(ph, "field_of_view", "phantom", p.field_of_view);
+    p.wall_thickness = y.NumberOr(ph, "wall_thickness", "phantom", p.wall_thickness);
+    if (ph["ribs_reach_spine"]) p.ribs_reach_spine = y.Bool(ph["ribs_reach_spine"], "phantom.ribs_reach_spine");
+    if (ph["shoulders"]) p.shoulders = y.Bool(ph["shoulders"], "phantom.shoulders");
   }
   if (root["units"]) {
     const std::string u = y.String(root["units"], "units");
@@ -69,6 +73,14 @@ CaseSpec ReadCase(const std::string& case_dir) {
     TROCAR_THROW_UNLESS(c.seg.body_hu < c.seg.bone_hu && c.seg.raw_body < c.seg.raw_bone,
                         y.Where(t, "thresholds")
                             << ": the body threshold must be below the bone threshold");
+  }
+  if (root["bones"]) {
+    // How bone is sorted into ribs, sternum and spine: by shape and place (the default), or by
+    // place in the body's bounding box alone (the earlier rule, kept for comparison).
+    const std::string b = y.String(root["bones"], "bones");
+    TROCAR_THROW_UNLESS(b == "shape" || b == "place", y.Where(root["bones"], "bones")
+                                                          << ": '" << b << "' (expected shape or place)");
+    c.seg.shape_anatomy = b == "shape";
   }
   if (root["heart"]) {
     const YAML::Node h = root["heart"];

@@ -1,7 +1,9 @@
 #include "patient/intercostal.hpp"
 
 #include <cmath>
+#include <algorithm>
 #include <map>
+#include <utility>
 
 #include "common/error.hpp"
 
@@ -10,9 +12,9 @@ namespace trocar::patient {
 std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segmentation& seg,
                                                     const IntercostalOptions& o) {
   TROCAR_THROW_UNLESS(o.bin > 0 && o.to_angle > o.from_angle, "intercostal spaces: bad angle range");
-  // The body axis: the centre of the body's bounding box across the slices.
+  // About the body's axis (Segmentation::axis_P).
   TROCAR_THROW_UNLESS(seg.body_max_P.x() > seg.body_min_P.x(), ct.source << ": empty body mask");
-  const Eigen::Vector2d axis = 0.5 * (seg.body_min_P + seg.body_max_P).head<2>();
+  const Eigen::Vector2d axis = seg.axis_P;
   const int bins = static_cast<int>(std::ceil((o.to_angle - o.from_angle) / o.bin));
 
   std::vector<IntercostalSpace> spaces;
@@ -54,13 +56,20 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
       return seg.body.inside[ct.Index(q.x(), q.y(), q.z())] != 0;
     };
     const double step = 0.5 * ct.spacing().minCoeff();
-    for (int r = 0; r + 1 < n; ++r) {
-      IntercostalSpace space;
-      space.side = side;
-      space.upper_rib = r;
-      for (int b = 0; b < bins; ++b) {
-        const int upper = r * bins + b, lower = (r + 1) * bins + b;
-        if (count[upper] == 0 || count[lower] == 0) continue;
+    // In each bin, the ribs there from top to bottom: each one and the next below it bound a
+    // space. Pieces of one rib (not joined) and ribs that end (the first, the lowest) are taken
+    // as they come at each angle; a space is the run of bins between the same two ribs.
+    std::map<std::pair<int, int>, IntercostalSpace> found;
+    for (int b = 0; b < bins; ++b) {
+      std::vector<int> here;
+      for (int r = 0; r < n; ++r) {
+        if (count[r * bins + b] > 0) here.push_back(r);
+      }
+      std::sort(here.begin(), here.end(), [&](int a, int c) {
+        return z_lo[a * bins + b] + z_hi[a * bins + b] > z_lo[c * bins + b] + z_hi[c * bins + b];
+      });
+      for (std::size_t t = 0; t + 1 < here.size(); ++t) {
+        const int upper = here[t] * bins + b, lower = here[t + 1] * bins + b;
         const double gap = z_lo[upper] - z_hi[lower];  // between the upper rib's bottom and the lower rib's top
         if (gap < o.min_gap) continue;
         const double angle = o.from_angle + (b + 0.5) * o.bin;
@@ -70,17 +79,40 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
         // Out along the ray to the skin: the last point inside the body.
         Eigen::Vector3d skin(axis.x() + rib_radius * direction.x(), axis.y() + rib_radius * direction.y(), z);
         if (!inside_body(skin)) continue;
-        for (double t = rib_radius; t < rib_radius + 0.2; t += step) {
-          const Eigen::Vector3d q(axis.x() + t * direction.x(), axis.y() + t * direction.y(), z);
-          if (!inside_body(q)) break;
+        // Out to the skin within the chest wall's reach: a ray that stays in the body further
+        // runs into an arm lying against the chest (no port there).
+        bool out = false;
+        for (double d = rib_radius; d <= rib_radius + o.max_wall_depth; d += step) {
+          const Eigen::Vector3d q(axis.x() + d * direction.x(), axis.y() + d * direction.y(), z);
+          if (!inside_body(q)) {
+            out = true;
+            break;
+          }
           skin = q;
         }
+        if (!out) continue;
+        IntercostalSpace& space = found[{here[t], here[t + 1]}];
+        space.side = side;
+        space.upper_rib = here[t];
+        space.lower_rib = here[t + 1];
         space.skin.push_back(skin);
         space.depth.emplace_back(axis.x() + rib_radius * direction.x(), axis.y() + rib_radius * direction.y(), z);
         space.gap.push_back(gap);
       }
-      if (static_cast<int>(space.skin.size()) >= o.min_points) spaces.push_back(space);
     }
+    std::vector<IntercostalSpace> side_spaces;
+    for (auto& [key, space] : found) {
+      if (static_cast<int>(space.skin.size()) >= o.min_points) side_spaces.push_back(std::move(space));
+    }
+    // Top to bottom by mean height.
+    auto mean_z = [](const IntercostalSpace& s) {
+      double z = 0.0;
+      for (const auto& p : s.depth) z += p.z();
+      return z / static_cast<double>(s.depth.size());
+    };
+    std::stable_sort(side_spaces.begin(), side_spaces.end(),
+                     [&](const IntercostalSpace& a, const IntercostalSpace& c) { return mean_z(a) > mean_z(c); });
+    for (auto& space : side_spaces) spaces.push_back(std::move(space));
   }
   return spaces;
 }

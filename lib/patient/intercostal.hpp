@@ -1,8 +1,8 @@
 #pragma once
 /// @file
-/// Intercostal spaces found automatically from the segmented ribs: for each pair of neighbouring
-/// ribs on a side, the middle of the gap between them, taken at a run of angles about the body
-/// axis and carried out to the skin, gives a port candidate curve.
+/// Intercostal spaces found automatically from the segmented ribs: at each angle about the body
+/// axis, the middle of the gap between each rib and the next one below it there, carried out to
+/// the skin; the run of angles between the same two ribs gives a port candidate curve.
 
 #include <vector>
 
@@ -18,6 +18,9 @@ struct IntercostalOptions {
   double bin = 2.0 * M_PI / 180.0;  ///< angular sampling (rad)
   /// Shortest gap between rib edges that counts as a space (m).
   double min_gap = 0.004;
+  /// Farthest the skin may lie beyond the ribs along a ray (m): beyond it the ray runs into an
+  /// arm against the chest, and the point is no port site.
+  double max_wall_depth = 0.08;
   /// Fewest angular samples for a curve to be kept.
   int min_points = 5;
   bool left = true;
@@ -27,11 +30,13 @@ struct IntercostalOptions {
 struct IntercostalSpace {
   int side = +1;       ///< +1 left, −1 right
   int upper_rib = 0;   ///< index of the rib above (in the side's top-to-bottom order)
+  int lower_rib = 1;   ///< index of the rib below
   Curve skin;          ///< on the skin, from the side of the chest toward the front
   Curve depth;         ///< the same points at the ribs' depth (the gap itself)
   std::vector<double> gap;  ///< width of the gap at each point (m)
 };
 
+/// Spaces of a side come top to bottom (by mean height).
 /// @throws trocar::Error naming the volume when a side asked for has fewer than two ribs.
 std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segmentation& seg,
                                                     const IntercostalOptions& options = {});

@@ -278,7 +278,7 @@ std::string SeriesFolder(const std::string& ct) {
 }  // namespace
 
 std::uint64_t CacheKey(const CaseSpec& c, const std::vector<std::string>& ct_files) {
-  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v4");
+  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v5");
   for (const auto& f : InputFiles(c, ct_files)) {
     h = Fnv1a(h, std::filesystem::path(f).filename().string());
     h = Fnv1a(h, ReadBinaryFile(f));

@@ -7,6 +7,8 @@
 #include <cstring>
 #include <filesystem>
 #include <functional>
+#include <exception>
+#include <optional>
 #include <iomanip>
 #include <sstream>
 
@@ -235,6 +237,21 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       m.warnings.push_back("orientation: the anatomy disagrees with the header (not checked, "
                            "orientation.check is false)");
     }
+    // What the bone sorting found, and on what the ribs' numbers rest (or why there are none).
+    for (const auto& a : seg.anatomy) m.checks.push_back("bones: " + a);
+    if (!have_labels) {
+      for (int side : {+1, -1}) {
+        const RibNumbering& n = side > 0 ? seg.numbering_left : seg.numbering_right;
+        const auto& ribs = side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
+        std::ostringstream line;
+        line << (side > 0 ? "left" : "right") << " ribs: " << ribs.size() << "; ";
+        if (n.numbered) {
+          line << "numbered, confidence " << std::fixed << std::setprecision(2) << n.confidence << ": ";
+        }
+        line << (n.basis.empty() ? std::string("not numbered (bones: place)") : n.basis);
+        m.checks.push_back(line.str());
+      }
+    }
     cut_faces = FindCutFaces(ct, seg.body);
     for (const CutFace& f : cut_faces) {
       m.cut_faces.push_back(f.name);
@@ -258,27 +275,54 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   }
   if (!heart_note.empty()) m.warnings.push_back(heart_note);
   const double voxel = std::abs(ct.index_to_P.determinant());
-  auto add = [&](const std::string& name, const Mask& mask, int budget) {
-    if (mask.count() == 0) return;
-    SurfaceOptions o = c.surface;
-    o.max_triangles = budget;
-    o.max_working_spacing = MaxWorkingSpacing(name);
-    SurfaceReport report;
-    Structure s;
-    s.name = name;
-    s.mesh = ExtractSurface(ct, mask, name, o, &report);
-    s.volume = mask.count() * voxel;
-    s.contoured_triangles = report.contoured_triangles;
-    m.structures.push_back(std::move(s));
-  };
   stage("surfaces", [&] {
-    add("skin", seg.body, c.budgets.skin);
-    add("ribs", LabelMask(ct, seg.bones.labels, {&seg.bones.ribs_left, &seg.bones.ribs_right}),
-        c.budgets.ribs);
-    add("sternum", LabelMask(ct, seg.bones.labels, {&seg.bones.sternum}), c.budgets.sternum);
-    add("spine", LabelMask(ct, seg.bones.labels, {&seg.bones.spine}), c.budgets.spine);
-    if (have_heart) add("heart", heart, c.budgets.heart);
-    if (have_labels) add("vessels", labelled.vessels, c.budgets.vessels);
+    // Each structure's surface on its own (VTK pipelines of their own), two at a time on two
+    // cores, the ribs (the largest contour) first; each mask is made in its job, so at most two
+    // are held at once. The model keeps the order below whatever finished first.
+    struct Job {
+      std::string name;
+      std::function<Mask()> mask;
+      int budget;
+    };
+    const Mask* heart_mask = have_heart ? &heart : nullptr;
+    std::vector<Job> jobs = {
+        {"ribs", [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.ribs_left, &seg.bones.ribs_right}); },
+         c.budgets.ribs},
+        {"skin", [&] { return seg.body; }, c.budgets.skin},
+        {"sternum", [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.sternum}); }, c.budgets.sternum},
+        {"spine", [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.spine}); }, c.budgets.spine},
+    };
+    if (heart_mask != nullptr) jobs.push_back({"heart", [&] { return *heart_mask; }, c.budgets.heart});
+    if (have_labels) jobs.push_back({"vessels", [&] { return labelled.vessels; }, c.budgets.vessels});
+    std::vector<std::optional<Structure>> made(jobs.size());
+    std::vector<std::exception_ptr> failed(jobs.size());
+#pragma omp parallel for schedule(dynamic, 1) num_threads(2)
+    for (int j = 0; j < static_cast<int>(jobs.size()); ++j) {
+      try {
+        const Mask mask = jobs[j].mask();
+        if (mask.count() == 0) continue;
+        SurfaceOptions o = c.surface;
+        o.max_triangles = jobs[j].budget;
+        o.max_working_spacing = MaxWorkingSpacing(jobs[j].name);
+        SurfaceReport report;
+        Structure s;
+        s.name = jobs[j].name;
+        s.mesh = ExtractSurface(ct, mask, jobs[j].name, o, &report);
+        s.volume = mask.count() * voxel;
+        s.contoured_triangles = report.contoured_triangles;
+        made[j] = std::move(s);
+      } catch (...) {
+        failed[j] = std::current_exception();
+      }
+    }
+    for (const auto& e : failed) {
+      if (e) std::rethrow_exception(e);
+    }
+    for (const char* name : {"skin", "ribs", "sternum", "spine", "heart", "vessels"}) {
+      for (auto& s : made) {
+        if (s && s->name == name) m.structures.push_back(std::move(*s));
+      }
+    }
   });
   stage("targets", [&] {
     for (const auto& spec : c.targets) {
@@ -334,17 +378,43 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       }
     }
     if (m.port_candidates.empty()) {
+      // Named from the ribs' anatomical numbers (a label map's, or the numbering of
+      // ClassifyBones with its confidence); spaces between ribs that are not numbered are
+      // called gap-L1, gap-L2, ... from the top: an order, never an anatomical name.
+      int unnamed[2] = {0, 0};
       for (const auto& space : FindIntercostalSpaces(ct, seg, c.intercostal)) {
         const auto& ribs = space.side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
-        int number = space.upper_rib + 1;  // by order, top to bottom
-        if (seg.bones.numbered) {
-          // The space below rib N is the Nth; ribs whose numbers are not consecutive (one not
-          // labelled) bound no space that can be named.
-          number = ribs[space.upper_rib].number;
-          if (ribs[space.upper_rib + 1].number != number + 1) continue;
+        const RibNumbering& numbering = space.side > 0 ? seg.numbering_left : seg.numbering_right;
+        const std::string side = space.side > 0 ? "L" : "R";
+        const int upper = ribs[space.upper_rib].number, lower = ribs[space.lower_rib].number;
+        PortCandidate candidate;
+        candidate.skin = space.skin;
+        if (upper > 0 && lower == upper + 1) {
+          // The space below rib N is the Nth.
+          candidate.name = "ICS-" + side + std::to_string(upper);
+          std::ostringstream source;
+          source << "intercostal:";
+          if (have_labels) {
+            source << "labels";
+          } else {
+            source << "numbered (confidence " << std::fixed << std::setprecision(2) << numbering.confidence << ": "
+                   << numbering.basis << ")";
+          }
+          candidate.source = source.str();
+        } else if (upper > 0 || lower > 0) {
+          continue;  // numbered ribs not consecutive (one not labelled or not found): no name fits
+        } else {
+          candidate.name = "gap-" + side + std::to_string(++unnamed[space.side > 0 ? 0 : 1]);
+          candidate.source = "intercostal (ribs not numbered: " +
+                             (numbering.basis.empty() ? std::string("no numbering") : numbering.basis) + ")";
         }
-        m.port_candidates.push_back({std::string(space.side > 0 ? "ICS-L" : "ICS-R") + std::to_string(number),
-                                     space.skin, seg.bones.numbered ? "intercostal:labels" : "intercostal"});
+        auto same = std::find_if(m.port_candidates.begin(), m.port_candidates.end(),
+                                 [&](const PortCandidate& p) { return p.name == candidate.name; });
+        if (same == m.port_candidates.end()) {
+          m.port_candidates.push_back(std::move(candidate));
+        } else if (candidate.skin.size() > same->skin.size()) {
+          *same = std::move(candidate);  // two pieces of one rib pair: the longer run
+        }
       }
     }
   });

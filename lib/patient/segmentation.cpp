@@ -250,6 +250,7 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
                                                      << ": empty segmentation");
   s.body_min_P = body_parts.front().min_P;  // filling holes inside does not move the bounds
   s.body_max_P = body_parts.front().max_P;
+  s.axis_P = 0.5 * (s.body_min_P + s.body_max_P).head<2>();
   s.body.size = ct.size;
   s.body.inside.resize(labels.size());
   for (std::size_t i = 0; i < labels.size(); ++i) s.body.inside[i] = labels[i] == 1;
@@ -270,7 +271,7 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
     ClassifyBones(ct, &s, o.anatomy, o.min_bone_volume);
     return s;
   }
-  // Place only (the default until the shape sorting holds on cropped scans, docs/decisions.md):
+  // Place only (`bones: place`, the earlier rule kept for comparison, docs/decisions.md):
   // each bone component by where it lies in the body's bounding box.
   const auto bone_parts = ConnectedComponents(ct, s.bone, &s.bones.labels);
   const Eigen::Vector3d centre = 0.5 * (s.body_min_P + s.body_max_P);

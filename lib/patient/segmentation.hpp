@@ -56,10 +56,10 @@ struct SegmentationOptions {
   /// Bone components smaller than this are noise (m³).
   double min_bone_volume = 0.3e-6;
   /// Bone sorted by shape and place (ClassifyBones, anatomy.hpp): contrast kept out of the bone,
-  /// ribs cut from the spine, the shoulder girdle kept out of the ribs, ribs numbered. Off by
-  /// default until it holds on cropped scans (a rib cut in two by a crop face); off, bone
-  /// components are sorted by where they lie in the body's bounding box.
-  bool shape_anatomy = false;
+  /// ribs cut from the spine, the shoulder girdle kept out of the ribs, pieces of one rib cut by a
+  /// crop face joined, ribs numbered. Off (patient.yaml `bones: place`), bone components are
+  /// sorted by where they lie in the body's bounding box, as before.
+  bool shape_anatomy = true;
   AnatomyOptions anatomy;
 };
 
@@ -75,6 +75,9 @@ struct Segmentation {
   Mask body;  ///< the patient, holes (lungs, airways) filled
   Eigen::Vector3d body_min_P = Eigen::Vector3d::Zero();  ///< the body's bounding box (m)
   Eigen::Vector3d body_max_P = Eigen::Vector3d::Zero();
+  /// The body's axis in the axial plane (m): the rays of the rib cage run from it. The spine's
+  /// midline left-right when the anatomy is sorted by shape, else the bounding box's centre.
+  Eigen::Vector2d axis_P = Eigen::Vector2d::Zero();
   Mask bone;
   BoneParts bones;
   /// Bright blobs inside the bone threshold that are not bone: contrast-filled heart chambers,

@@ -2,10 +2,14 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <map>
+#include <set>
 
 #include "common/error.hpp"
 #include "patient/label_map.hpp"
+#include "patient/patient_model.hpp"
 #include "patient/segmentation.hpp"
 #include "patient/volume.hpp"
 #include "test_util.hpp"
@@ -133,5 +137,191 @@ TEST(ShapeAnatomy, PhantomRibsAreFoundAndNotNumberedWithoutAWholeRibCage) {
   for (int side : {1, -1}) for (auto& c : side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right) std::printf("%d n%d %.1fml c(%.0f %.0f %.0f)\n", side, c.number, c.volume*1e6, c.centroid_P.x()*1e3, c.centroid_P.y()*1e3, c.centroid_P.z()*1e3);
   std::printf("%s\n%s\n", seg.numbering_left.basis.c_str(), seg.numbering_right.basis.c_str());
 }
+}  // namespace
+}  // namespace trocar
+
+namespace trocar {
+namespace {
+
+// Distance from p to a polyline (m).
+double DistanceToPolyline(const Eigen::Vector3d& p, const patient::Curve& c) {
+  double best = HUGE_VAL;
+  for (std::size_t s = 0; s + 1 < c.size(); ++s) {
+    const Eigen::Vector3d d = c[s + 1] - c[s];
+    const double t = std::clamp((p - c[s]).dot(d) / d.squaredNorm(), 0.0, 1.0);
+    best = std::min(best, (c[s] + t * d - p).norm());
+  }
+  return best;
+}
+
+// A field of view that cuts the left chest wall cuts each left rib in two (its back and its front
+// piece, the middle outside the scan). The pieces are joined into one rib each: nine left ribs,
+// each one holding voxels of one generated rib only, and every generated rib in one trocar rib;
+// the right side, whole, joins nothing. A join that paired the wrong pieces (a rib's back with the
+// next rib's front) or left them apart fails it.
+TEST(ShapeAnatomy, RibsCutInTwoByACropFaceAreJoinedIntoTheirOwnRibs) {
+  for (unsigned seed : {1u, 2u, 3u, 5u}) {
+    SCOPED_TRACE(seed);
+    patient::PhantomParameters p;
+    p.seed = seed;
+    p.voxel_size = 0.003;
+    p.rib_drop = 0.03 + 0.01 * (seed % 3);
+    const patient::Phantom ph = patient::GeneratePhantom(p);
+    patient::Volume ct = ph.ct;
+    const int nx = static_cast<int>(std::floor((0.11 + 0.005 * seed - ct.origin_P.x()) / ct.spacing().x()));
+    ct.size.x() = nx;
+    ct.values.resize(static_cast<std::size_t>(ct.voxel_count()));
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < nx; ++i) ct.values[ct.Index(i, j, k)] = ph.ct.at(i, j, k);
+      }
+    }
+    const auto seg = patient::Segment(ct);
+    bool joined = false;
+    for (const auto& s : seg.anatomy) joined = joined || s.find("left rib pieces joined") != std::string::npos;
+    EXPECT_TRUE(joined);
+    for (const auto& s : seg.anatomy) EXPECT_EQ(s.find("right rib pieces joined"), std::string::npos) << s;
+    ASSERT_EQ(seg.bones.ribs_left.size(), static_cast<std::size_t>(p.ribs_per_side));
+    EXPECT_EQ(seg.bones.ribs_right.size(), static_cast<std::size_t>(p.ribs_per_side));
+    // Each trocar left rib against the generated ribs: voxels within 2 rib radii of each.
+    std::map<int, std::map<int, long>> near;  // trocar rib → generated rib → voxels
+    std::map<int, int> rib_of_label;
+    for (std::size_t r = 0; r < seg.bones.ribs_left.size(); ++r) rib_of_label[seg.bones.ribs_left[r].label] = static_cast<int>(r);
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < nx; ++i) {
+          const auto it = rib_of_label.find(seg.bones.labels[ct.Index(i, j, k)]);
+          if (it == rib_of_label.end()) continue;
+          const Eigen::Vector3d q = ct.PatientPoint(i, j, k);
+          for (const auto& truth : ph.truth.ribs) {
+            if (truth.side > 0 && DistanceToPolyline(q, truth.centreline) < 2 * p.rib_radius) ++near[it->second][truth.index];
+          }
+        }
+      }
+    }
+    std::set<int> matched;
+    for (int r = 0; r < p.ribs_per_side; ++r) {
+      ASSERT_EQ(near[r].size(), 1u) << "trocar left rib " << r << " holds voxels of " << near[r].size() << " generated ribs";
+      matched.insert(near[r].begin()->first);
+      EXPECT_EQ(near[r].begin()->first, r) << "top to bottom";
+    }
+    EXPECT_EQ(matched.size(), static_cast<std::size_t>(p.ribs_per_side));
+  }
+}
+
+}  // namespace
+}  // namespace trocar
+
+namespace trocar {
+namespace {
+
+// A whole rib cage as real ones come: twelve ribs a side reaching the vertebrae at their heads,
+// shoulder blades over the upper ribs, collarbones over the first ribs, upper arms beside the
+// chest; over seeds, body sizes, rib spacings and voxel sizes. The ribs are numbered 1 to 12 from
+// the top of the rib cage with the lumbar spine in view, each trocar rib holding the voxels of
+// the generated rib of its number, and no bone of the shoulder girdle among the ribs.
+TEST(ShapeAnatomy, AWholePhantomRibCageIsNumberedOneToTwelveOverSeedsAndSizes) {
+  struct Size {
+    unsigned seed;
+    double width, depth, spacing, voxel;
+  };
+  for (const Size& z : {Size{1, 0.34, 0.24, 0.028, 0.003}, Size{2, 0.30, 0.22, 0.025, 0.0025},
+                        Size{3, 0.38, 0.26, 0.030, 0.0035}, Size{4, 0.34, 0.24, 0.027, 0.003}}) {
+    SCOPED_TRACE(z.seed);
+    patient::PhantomParameters p;
+    p.seed = z.seed;
+    p.body_width = z.width;
+    p.body_depth = z.depth;
+    p.rib_spacing = z.spacing;
+    p.voxel_size = z.voxel;
+    p.ribs_per_side = 12;
+    p.length = 0.05 + 0.05 + 1.04 * 11 * z.spacing + 0.05;
+    p.wall_thickness = 0.02;
+    p.ribs_reach_spine = true;
+    p.shoulders = true;
+    const patient::Phantom ph = patient::GeneratePhantom(p);
+    const auto seg = patient::Segment(ph.ct);
+    for (int side : {+1, -1}) {
+      SCOPED_TRACE(side);
+      const auto& ribs = side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
+      const patient::RibNumbering& numbering = side > 0 ? seg.numbering_left : seg.numbering_right;
+      ASSERT_EQ(ribs.size(), 12u);
+      EXPECT_TRUE(numbering.numbered) << numbering.basis;
+      EXPECT_GE(numbering.confidence, 0.9);
+      std::map<int, int> number_of_label;
+      for (const auto& c : ribs) number_of_label[c.label] = c.number;
+      // Each voxel of a trocar rib near a generated rib: the same number.
+      long right = 0, wrong = 0;
+      for (int k = 0; k < ph.ct.size.z(); ++k) {
+        for (int j = 0; j < ph.ct.size.y(); ++j) {
+          for (int i = 0; i < ph.ct.size.x(); ++i) {
+            const long v = ph.ct.Index(i, j, k);
+            const auto it = number_of_label.find(seg.bones.labels[v]);
+            if (it == number_of_label.end()) continue;
+            EXPECT_FALSE(seg.shoulder.inside[v]);
+            const Eigen::Vector3d q = ph.ct.PatientPoint(i, j, k);
+            for (const auto& truth : ph.truth.ribs) {
+              if (truth.side != side || DistanceToPolyline(q, truth.centreline) > 1.5 * p.rib_radius) continue;
+              (truth.index + 1 == it->second ? right : wrong) += 1;
+            }
+          }
+        }
+      }
+      EXPECT_GT(right, 0);
+      EXPECT_EQ(wrong, 0);
+    }
+  }
+}
+
+// The same whole rib cages imported as cases without annotated ports: the intercostal spaces
+// found are named from the ribs' numbers (ICS-L1 … ICS-L11, ICS-R…), each one lying along the
+// generated space of its name, and say what the names rest on.
+TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
+  struct Size {
+    unsigned seed;
+    double width, spacing, voxel;
+  };
+  for (const Size& z : {Size{6, 0.34, 0.028, 0.003}, Size{7, 0.31, 0.026, 0.0035}}) {
+    SCOPED_TRACE(z.seed);
+    const std::string dir = testing::TempDir() + "/trocar-whole-cage-" + std::to_string(z.seed);
+    std::filesystem::remove_all(dir);
+    std::filesystem::create_directories(dir);
+    const double length = 0.15 + 1.04 * 11 * z.spacing;
+    std::ofstream(dir + "/patient.yaml")
+        << "name: whole\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true, right: true}\n"
+        << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n"
+        << "phantom: {seed: " << z.seed << ", body_width: " << z.width << ", length: " << length
+        << ", ribs_per_side: 12, rib_spacing: " << z.spacing << ", voxel_size: " << z.voxel
+        << ", wall_thickness: 0.02, ribs_reach_spine: true, shoulders: true}\n";
+    const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+    patient::PhantomParameters p;
+    p.seed = z.seed;
+    p.body_width = z.width;
+    p.length = length;
+    p.ribs_per_side = 12;
+    p.rib_spacing = z.spacing;
+    p.voxel_size = z.voxel;
+    p.wall_thickness = 0.02;
+    p.ribs_reach_spine = p.shoulders = true;
+    const patient::Phantom ph = patient::GeneratePhantom(p);
+    std::map<char, int> named;
+    for (const auto& c : m.port_candidates) {
+      SCOPED_TRACE(c.name);
+      ASSERT_EQ(c.name.rfind("ICS-", 0), 0u);
+      const int side = c.name[4] == 'L' ? +1 : -1;
+      const int number = std::stoi(c.name.substr(5));
+      ASSERT_GE(number, 1);
+      ASSERT_LE(number, 11);
+      EXPECT_NE(c.source.find("numbered (confidence 0.95"), std::string::npos) << c.source;
+      ++named[c.name[4]];
+      // The generated space below rib `number` on that side (left first, 11 a side).
+      const auto& truth = ph.truth.intercostal_spaces[(side > 0 ? 0 : 11) + number - 1];
+      for (const auto& q : c.skin) EXPECT_LT(DistanceToPolyline(q, truth), 3 * z.voxel);
+    }
+    EXPECT_GE(named['L'], 9);
+    EXPECT_GE(named['R'], 9);
+  }
+}
+
 }  // namespace
 }  // namespace trocar

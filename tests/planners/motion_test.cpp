@@ -206,7 +206,9 @@ TEST(Motion, EveryPlannerOmplOffersRunsOrIsNamedInTheError) {
     const TargetMotion m = context.Plan(0, sample, mo);
     // Optimising planners use their whole time; any may fail to find a path in 0.3 s, but a
     // solved one passed the re-check.
-    if (m.solved) EXPECT_TRUE(m.correct) << name;
+    if (m.solved) {
+      EXPECT_TRUE(m.correct) << name;
+    }
     EXPECT_NE(m.status, MotionStatus::kInvalidStart) << name << ": " << m.reason;
     EXPECT_NE(m.status, MotionStatus::kCrash) << name;
   }
