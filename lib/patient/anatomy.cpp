@@ -547,6 +547,107 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
   }
 }
 
+// The index axis nearest the patient's z (the scan's slices), and the two across it.
+int SliceAxis(const Volume& ct) {
+  int axis = 2;
+  double best = -1.0;
+  for (int a = 0; a < 3; ++a) {
+    const double along = std::abs(ct.index_to_P.col(a).normalized().z());
+    if (along > best) {
+      best = along;
+      axis = a;
+    }
+  }
+  return axis;
+}
+
+// A rib is a cortical tube; its marrow lies below the bone threshold. In each slice, a hole a
+// rib's cross-section encloses (4-connected voxels inside the body and above `floor`, bounded by
+// that rib alone, at most `max_area` m²) is that rib's.
+long FillRibMarrow(const Volume& ct, const Mask& body, const std::vector<std::uint8_t>& is_rib, double floor,
+                   double max_area, std::vector<int>* labels, Mask* bone) {
+  const int axis = SliceAxis(ct);
+  const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
+  const long stride[3] = {1, ct.size.x(), static_cast<long>(ct.size.x()) * ct.size.y()};
+  const int nu = ct.size[u], nw = ct.size[w];
+  const double cell = ct.index_to_P.col(u).norm() * ct.index_to_P.col(w).norm();
+  const long cap = std::max<long>(1, static_cast<long>(max_area / cell));
+  auto rib_at = [&](long v) { const int l = (*labels)[v]; return l > 0 && l < static_cast<int>(is_rib.size()) && is_rib[l] ? l : 0; };
+  // stamp: the slice a voxel of the plane was last reached in; open: it belongs to no hole (a
+  // flood from it reached the slice's edge, the outside, air, other bone or the area cap). A
+  // flood stops as soon as it is open, so the lungs beside the ribs are not flooded whole.
+  std::vector<int> stamp(static_cast<std::size_t>(nu) * nw, -1);
+  std::vector<std::uint8_t> open(static_cast<std::size_t>(nu) * nw, 0);
+  std::vector<std::pair<int, int>> region, stack;
+  long filled = 0;
+  for (int s = 0; s < ct.size[axis]; ++s) {
+    const long base = s * stride[axis];
+    auto at = [&](int a, int b) { return base + a * stride[u] + b * stride[w]; };
+    auto cell_of = [&](int a, int b) { return a + static_cast<std::size_t>(nu) * b; };
+    for (int b = 0; b < nw; ++b) {
+      for (int a = 0; a < nu; ++a) {
+        if (rib_at(at(a, b)) == 0) continue;
+        const int da[4] = {1, -1, 0, 0}, db[4] = {0, 0, 1, -1};
+        for (int d = 0; d < 4; ++d) {
+          const int a0 = a + da[d], b0 = b + db[d];
+          if (a0 < 0 || b0 < 0 || a0 >= nu || b0 >= nw) continue;
+          const long v0 = at(a0, b0);
+          if ((*labels)[v0] != 0 || stamp[cell_of(a0, b0)] == s) continue;
+          // Flood the hole, noting the ribs around it.
+          region.clear();
+          stack.assign(1, {a0, b0});
+          stamp[cell_of(a0, b0)] = s;
+          open[cell_of(a0, b0)] = 0;
+          int around = 0;
+          bool hole = true;
+          while (hole && !stack.empty()) {
+            const auto [p, q] = stack.back();
+            stack.pop_back();
+            region.emplace_back(p, q);
+            const long v = at(p, q);
+            if (!body.inside[v] || ct.values[v] <= floor || static_cast<long>(region.size()) > cap) hole = false;
+            for (int e = 0; e < 4 && hole; ++e) {
+              const int p1 = p + da[e], q1 = q + db[e];
+              if (p1 < 0 || q1 < 0 || p1 >= nu || q1 >= nw) {
+                hole = false;
+                break;
+              }
+              const long v1 = at(p1, q1);
+              if ((*labels)[v1] != 0) {
+                const int r = rib_at(v1);
+                if (r == 0 || (around != 0 && around != r)) hole = false;
+                around = r;
+                continue;
+              }
+              const std::size_t c1 = cell_of(p1, q1);
+              if (stamp[c1] == s) {
+                if (open[c1]) hole = false;
+                continue;
+              }
+              stamp[c1] = s;
+              open[c1] = 0;
+              stack.emplace_back(p1, q1);
+            }
+          }
+          if (!hole) {
+            for (const auto& [p, q] : region) open[cell_of(p, q)] = 1;
+            for (const auto& [p, q] : stack) open[cell_of(p, q)] = 1;
+            continue;
+          }
+          if (around == 0) continue;
+          for (const auto& [p, q] : region) {
+            const long v = at(p, q);
+            (*labels)[v] = around;
+            bone->inside[v] = 1;
+            ++filled;
+          }
+        }
+      }
+    }
+  }
+  return filled;
+}
+
 }  // namespace
 
 void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o, double min_bone_volume) {
@@ -809,6 +910,14 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       const int l = parts.labels[v];
       if (l != 0 && kind[l] == 4) seg->shoulder.inside[v] = 1;
     }
+  }
+
+  // 4b. Marrow: the holes each rib's cross-section encloses in a slice are the rib's.
+  if (ct.hounsfield && o.marrow_max_area > 0.0) {
+    std::vector<std::uint8_t> is_rib(pieces.size() + 1, 0);
+    for (const Component& c : pieces) is_rib[c.label] = kind[c.label] == 1;
+    const long filled = FillRibMarrow(ct, seg->body, is_rib, o.marrow_floor_hu, o.marrow_max_area, &parts.labels, &bone);
+    if (filled > 0) seg->anatomy.push_back("rib marrow enclosed by the cortex: " + Ml(filled * voxel_volume) + ", taken into the ribs");
   }
 
   // Component statistics after growth.

@@ -67,6 +67,10 @@ struct AnatomyOptions {
   /// within `grow_distance` (m) of the bright bone.
   double grow_hu = 180.0, raw_grow = 0.0;  // above enhanced blood in a venous phase
   double grow_distance = 0.004;
+  /// Rib marrow, below the bone threshold: in each slice, a hole a rib's cross-section encloses
+  /// (above `marrow_floor_hu`, at most `marrow_max_area` m², bounded by that rib alone) is the
+  /// rib's (HU volumes; 0 = not filled).
+  double marrow_floor_hu = -200.0, marrow_max_area = 3e-4;
   /// A rib is slender: a piece over `lump_volume` (m³) whose bounding-box diagonal cubed is
   /// less than `min_rib_elongation` times its volume is a lump of other bone.
   double lump_volume = 2e-6, min_rib_elongation = 25.0;

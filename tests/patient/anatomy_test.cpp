@@ -113,6 +113,31 @@ TEST(ShapeAnatomy, ContrastIsNeverBoneAndArmsAreNeverRibsOnLabelledRealCts) {
   }
 }
 
+// A rib is a cortical tube round its marrow; a labelled rib is the whole tube. On the JPEG 2000
+// DICOM CT (ribs 6-12 labelled), most labelled ribs lie mostly in one trocar rib (the marrow the
+// cortex encloses taken in), and none is spread over two (a join of two ribs, or one rib cut in
+// two, would show as a second trocar rib holding a tenth of it).
+TEST(ShapeAnatomy, LabelledRibsLieInOneTrocarRibMarrowIncluded) {
+  const std::string ct_path = test::SharedDataPath("ct/totalseg-dicom-j2k/dicom");
+  TROCAR_REQUIRE_SHARED_FILE(ct_path);
+  const patient::Volume ct = patient::LoadVolume(ct_path);
+  const auto seg = patient::Segment(ct);
+  const auto map = patient::LoadLabelMap(test::SharedDataPath("ct/totalseg-dicom-j2k/example_seg_dicom.nii.gz"));
+  const Confusion c = Compare(ct, seg, map);
+  int mostly = 0;
+  for (const auto& [name, row] : c.counts) {
+    if (patient::ClassifyLabel(name).kind != LabelKind::kRib || c.totals.at(name) < 300) continue;
+    std::vector<double> shares;
+    for (const auto& [cls, n] : row) {
+      if (cls.rfind("rib", 0) == 0) shares.push_back(static_cast<double>(n) / c.totals.at(name));
+    }
+    std::sort(shares.rbegin(), shares.rend());
+    if (!shares.empty() && shares[0] >= 0.85) ++mostly;
+    if (shares.size() > 1) EXPECT_LT(shares[1], 0.1) << name;
+  }
+  EXPECT_GE(mostly, 5);
+}
+
 }  // namespace
 }  // namespace trocar
 
