@@ -1,4 +1,5 @@
 #include "patient/model_cache.hpp"
+#include "patient/model_code_version.hpp"
 
 #include <algorithm>
 #include <cctype>
@@ -277,8 +278,12 @@ std::string SeriesFolder(const std::string& ct) {
 
 }  // namespace
 
+const char* PatientModelCode() { return TROCAR_PATIENT_MODEL_CODE; }
+
 std::uint64_t CacheKey(const CaseSpec& c, const std::vector<std::string>& ct_files) {
-  std::uint64_t h = Fnv1a(14695981039346656037ull, "trocar patient model v5");
+  // The format and the code that built the model: other code may build another model from the
+  // same inputs.
+  std::uint64_t h = Fnv1a(14695981039346656037ull, std::string("trocar patient model v5 ") + PatientModelCode());
   for (const auto& f : InputFiles(c, ct_files)) {
     h = Fnv1a(h, std::filesystem::path(f).filename().string());
     h = Fnv1a(h, ReadBinaryFile(f));

@@ -28,6 +28,10 @@ std::vector<std::string> FolderFiles(const std::string& dir);
 /// chosen from. @throws trocar::Error when an input cannot be read.
 std::uint64_t CacheKey(const CaseSpec& c, const std::vector<std::string>& ct_files);
 
+/// The SHA-256 (hex) of the model-building code (lib/patient, the mesh code) this build was made
+/// from; part of CacheKey, so a cache written by other code is rebuilt, never trusted.
+const char* PatientModelCode();
+
 /// `cache/ct_files.txt`: the CT's files as the last build read them; empty when absent, damaged
 /// or naming a file that is gone.
 std::vector<std::string> ReadCtFiles(const std::string& cache_dir);

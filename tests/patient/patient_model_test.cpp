@@ -11,6 +11,7 @@
 #include "collision/triangle_bvh.hpp"
 #include "common/file_util.hpp"
 #include "patient/markups.hpp"
+#include "patient/model_cache.hpp"
 #include "patient/volume.hpp"
 #include "test_util.hpp"
 
@@ -375,6 +376,14 @@ TEST(PatientModel, Lidc2IntercostalAnnotationsLieOnTheSkinBetweenTheRibs) {
     ASSERT_GE(between.size(), 8u);
     EXPECT_LE(ClearOfRibs(ct, between, axis_P, 110.0), 0.3);
   }
+}
+
+// The cache key holds the hash of the code that builds models (generated at build time from
+// lib/patient and the mesh code), so a cache written by other code is rebuilt: a SHA-256 in hex.
+TEST(PatientModel, CacheKeyHoldsTheModelBuildingCodesHash) {
+  const std::string code = patient::PatientModelCode();
+  ASSERT_EQ(code.size(), 64u);
+  EXPECT_EQ(code.find_first_not_of("0123456789abcdef"), std::string::npos);
 }
 
 }  // namespace
