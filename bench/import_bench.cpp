@@ -42,10 +42,10 @@ Run Measure(const std::string& dir, bool cached) {
       trocar::patient::ImportOptions options;
       options.use_cache = cached;
       const auto t0 = std::chrono::steady_clock::now();
-      const auto model = trocar::patient::ImportPatient(dir, options);
+      const auto imported = trocar::patient::ImportCase(dir, options);
       out[0] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (model.from_cache != cached) out[0] = -2.0;
-      for (const auto& [stage, seconds] : model.timings) {
+      if (imported.report.from_cache != cached) out[0] = -2.0;
+      for (const auto& [stage, seconds] : imported.report.timings) {
         if (stage == "surfaces") out[1] = seconds;
       }
     } catch (const std::exception& e) {

@@ -50,7 +50,7 @@ int main(int argc, char** argv) {
   auto robot = std::make_shared<const robot::RobotModel>(
       robot::LoadRobot(source + "/robots/davinci-classic/cart.yaml"));
   auto patient =
-      std::make_shared<const patient::PatientModel>(patient::ImportPatient(case_dir));
+      patient::ImportCase(case_dir).model;
   std::cout << std::fixed;
   for (const std::vector<std::string>& arms :
        {std::vector<std::string>{"psm1"}, std::vector<std::string>{"psm1", "psm2"}}) {

@@ -52,7 +52,7 @@ int main(int argc, char** argv) {
     auto robot = std::make_shared<const robot::RobotModel>(
         robot::LoadRobot(std::string(TROCAR_SOURCE_DIR) + "/robots/davinci-classic/cart.yaml"));
     auto patient =
-        std::make_shared<const patient::PatientModel>(patient::ImportPatient(case_dir));
+        patient::ImportCase(case_dir).model;
     const planners::PortPlacementProblem problem(patient, robot, {});
     std::printf("port placement benchmark: %s, %zu arms, %zu target samples, %zu curves\n",
                 case_dir.c_str(), problem.arms().size(), problem.samples().size(),

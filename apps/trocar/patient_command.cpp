@@ -87,9 +87,11 @@ void RunImport(const ImportCommandOptions& o) {
   patient::ImportOptions options;
   options.use_cache = !o.rebuild && !o.no_cache;
   options.write_cache = !o.no_cache;
-  const patient::PatientModel m = patient::ImportPatient(o.case_dir, options);
+  const patient::ImportedPatient imported = patient::ImportCase(o.case_dir, options);
+  const patient::PatientModel& m = *imported.model;
+  const patient::ImportReport& report = imported.report;
   std::cout << std::fixed << std::setprecision(1);
-  std::cout << "patient " << m.name << (m.from_cache ? " (from cache)" : "") << "\n"
+  std::cout << "patient " << m.name << (report.from_cache ? " (from cache)" : "") << "\n"
             << "  CT: " << m.ct_source << "\n";
   const Eigen::Vector3d extent = (m.body_max_P - m.body_min_P) * 1e3;
   std::cout << "  body: " << extent.x() << " x " << extent.y() << " x " << extent.z()
@@ -111,25 +113,25 @@ void RunImport(const ImportCommandOptions& o) {
   if (!m.port_candidates.empty()) std::cout << " (" << m.port_candidates.front().source << ")";
   std::cout << "\n";
   for (const auto& c : m.port_candidates) std::cout << "    " << c.name << ": " << c.skin.size() << " points\n";
-  for (const auto& line : m.checks) std::cout << "  check: " << line << "\n";
-  for (const auto& line : m.warnings) std::cout << "  warning: " << line << "\n";
+  for (const auto& line : report.checks) std::cout << "  check: " << line << "\n";
+  for (const auto& line : report.warnings) std::cout << "  warning: " << line << "\n";
   std::cout << "  pose: left side up " << m.left_side_up * 180.0 / M_PI << " deg, table top at "
             << m.table.height * 1e3 << " mm\n";
   std::cout << std::setprecision(3) << "  timings (s):";
   double total = 0.0;
-  for (const auto& [stage, seconds] : m.timings) {
+  for (const auto& [stage, seconds] : report.timings) {
     std::cout << " " << stage << " " << seconds << ";";
     total += seconds;
   }
   std::cout << " total " << total << "\n";
-  if (!m.cache_error.empty()) {
-    std::cout << "  cache: not written: " << m.cache_error << "\n";
+  if (!report.cache_error.empty()) {
+    std::cout << "  cache: not written: " << report.cache_error << "\n";
   } else if (!o.no_cache) {
     std::cout << "  cache: " << JoinPath(m.case_dir, "cache") << "\n";
   }
   // A model without port candidates cannot be planned on: say why, and exit non-zero.
   if (m.port_candidates.empty()) {
-    for (const auto& w : m.warnings) {
+    for (const auto& w : report.warnings) {
       if (w.rfind("no port candidates", 0) == 0) throw trocar::Error(JoinPath(m.case_dir, "patient.yaml") + ": " + w);
     }
     throw trocar::Error(JoinPath(m.case_dir, "patient.yaml") + ": no port candidates");

@@ -65,11 +65,12 @@ int RunPlan(PlanOptions o) {
     auto arms = planners::FindArms(*robot, problem_options.roles);
     if (!problem_options.arms.empty()) planners::SelectArms(arms, problem_options.arms);
   }
-  auto patient = std::make_shared<const patient::PatientModel>(patient::ImportPatient(o.case_dir));
+  const patient::ImportedPatient imported = patient::ImportCase(o.case_dir);
+  const std::shared_ptr<const patient::PatientModel> patient = imported.model;
   const planners::PortPlacementProblem problem(patient, robot, problem_options);
   const bool terminal = !o.quiet && isatty(STDERR_FILENO);
   if (!o.quiet) {
-    std::cout << "patient " << patient->name << (patient->from_cache ? " (cached model)" : "")
+    std::cout << "patient " << patient->name << (imported.report.from_cache ? " (cached model)" : "")
               << ": " << patient->targets.size() << " targets, " << problem.samples().size()
               << " target samples, " << patient->port_candidates.size()
               << " port candidate curves\n";

@@ -37,7 +37,6 @@ void AddMotionOptions(CLI::App* cmd, planners::MotionOptions* o, int* threads) {
 
 void PrintVerification(const planners::PlanVerification& v, std::ostream& out) {
   int solved = 0;
-  double time = 0.0;
   std::vector<double> times;
   for (const auto& m : v.motions) {
     solved += m.solved;
@@ -46,7 +45,6 @@ void PrintVerification(const planners::PlanVerification& v, std::ostream& out) {
         m.status == planners::MotionStatus::kApproximateSolution ||
         m.status == planners::MotionStatus::kTimeout)
       times.push_back(m.planning_time);
-    time += m.planning_time;
   }
   std::sort(times.begin(), times.end());
   out << std::fixed << std::setprecision(0) << "  verified motions: " << solved << " of "
@@ -117,7 +115,7 @@ int RunVerify(const VerifyOptions& o) {
                         o.plan << ": robot file " << robot_file
                                << " changed since the plan was made (hash differs): plan again");
     robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(robot_file));
-    patient = std::make_shared<const patient::PatientModel>(patient::ImportPatient(case_dir));
+    patient = patient::ImportCase(case_dir).model;
     TROCAR_THROW_UNLESS(
         planners::HashPatientModel(*patient) == inputs.at("patient_model_hash").get<std::string>(),
         o.plan << ": the patient model of " << case_dir

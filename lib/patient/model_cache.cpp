@@ -97,7 +97,7 @@ struct Reader {
 
 }  // namespace
 
-std::string SerializeModel(const PatientModel& m, std::uint64_t key) {
+std::string SerializeModel(const PatientModel& m, const ImportReport& report, std::uint64_t key) {
   Writer w;
   w.out.append(kMagic, 8);
   w.Pod(key);
@@ -137,7 +137,7 @@ std::string SerializeModel(const PatientModel& m, std::uint64_t key) {
   }
   w.Vec(m.body_min_P);
   w.Vec(m.body_max_P);
-  for (const auto* lines : {&m.checks, &m.warnings, &m.cut_faces}) {
+  for (const auto* lines : {&report.checks, &report.warnings, &m.cut_faces}) {
     w.Pod<std::uint64_t>(lines->size());
     for (const auto& line : *lines) w.Str(line);
   }
@@ -146,7 +146,7 @@ std::string SerializeModel(const PatientModel& m, std::uint64_t key) {
   return w.out;
 }
 
-bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel* out,
+bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel* out, ImportReport* report,
                       std::string* damage) {
   auto damaged = [&](const char* why) {
     if (damage != nullptr) *damage = why;
@@ -208,12 +208,17 @@ bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel*
   }
   m.body_min_P = r.Vec();
   m.body_max_P = r.Vec();
-  for (auto* lines : {&m.checks, &m.warnings, &m.cut_faces}) {
+  ImportReport said;
+  for (auto* lines : {&said.checks, &said.warnings, &m.cut_faces}) {
     lines->resize(r.Count(8));
     for (auto& line : *lines) line = r.Str();
   }
   if (!r.ok || r.pos + 16 != bytes.size()) return damaged("its contents are inconsistent");
   *out = std::move(m);
+  if (report != nullptr) {
+    report->checks = std::move(said.checks);
+    report->warnings = std::move(said.warnings);
+  }
   return true;
 }
 
@@ -333,8 +338,8 @@ std::string CtFilesText(const std::vector<std::string>& files) {
 }  // namespace
 
 
-void WriteCacheFiles(const PatientModel& m, const std::string& cache_dir, std::uint64_t key,
-                     const std::vector<std::string>& ct_files) {
+void WriteCacheFiles(const PatientModel& m, const ImportReport& report, const std::string& cache_dir,
+                     std::uint64_t key, const std::vector<std::string>& ct_files) {
   std::error_code ec;
   std::filesystem::create_directories(cache_dir, ec);
   TROCAR_THROW_UNLESS(!ec, cache_dir << ": cannot create the cache folder: " << ec.message());
@@ -359,7 +364,7 @@ void WriteCacheFiles(const PatientModel& m, const std::string& cache_dir, std::u
   if (!ports.empty()) WriteMarkups(ports, JoinPath(cache_dir, "port_candidates.mrk.json"));
   WriteFileAtomically(JoinPath(cache_dir, "ct_files.txt"), CtFilesText(ct_files));
   // model.bin last: its presence with a matching key means the whole cache is written.
-  WriteFileAtomically(JoinPath(cache_dir, "model.bin"), SerializeModel(m, key));
+  WriteFileAtomically(JoinPath(cache_dir, "model.bin"), SerializeModel(m, report, key));
 }
 
 

@@ -37,7 +37,7 @@ const char* PatientModelCode();
 std::vector<std::string> ReadCtFiles(const std::string& cache_dir);
 
 /// Writes the cache folder; model.bin last. @throws trocar::Error when it cannot be written.
-void WriteCacheFiles(const PatientModel& m, const std::string& cache_dir, std::uint64_t key,
-                     const std::vector<std::string>& ct_files);
+void WriteCacheFiles(const PatientModel& m, const ImportReport& report, const std::string& cache_dir,
+                     std::uint64_t key, const std::vector<std::string>& ct_files);
 
 }  // namespace trocar::patient

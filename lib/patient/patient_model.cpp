@@ -104,7 +104,7 @@ Mask LabelMask(const Volume& ct, const std::vector<int>& labels,
 
 }  // namespace
 
-PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& options) {
+ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& options) {
   using Clock = std::chrono::steady_clock;
   std::vector<std::pair<std::string, double>> timings;
   auto stage = [&](const std::string& name, const std::function<void()>& f) {
@@ -122,17 +122,20 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   const std::string cache_dir = JoinPath(case_dir, "cache");
   const std::string model_bin = JoinPath(cache_dir, "model.bin");
   std::string cache_damage;  // why a cache that was there could not be trusted
-  auto load_cache = [&](std::uint64_t key, PatientModel* cached) {
+  // A cached model with the report of its build (checks, warnings) and of this load.
+  auto load_cache = [&](std::uint64_t key, ImportedPatient* cached) {
     const auto t0 = Clock::now();
     std::string damage;
-    if (!DeserializeModel(ReadBinaryFile(model_bin), key, cached, &damage)) {
+    PatientModel model;
+    if (!DeserializeModel(ReadBinaryFile(model_bin), key, &model, &cached->report, &damage)) {
       if (!damage.empty()) cache_damage = model_bin + ": " + damage + "; rebuilt from the CT";
       return false;
     }
-    cached->case_dir = case_dir;
-    cached->from_cache = true;
-    cached->timings = timings;
-    cached->timings.emplace_back("load cache", std::chrono::duration<double>(Clock::now() - t0).count());
+    model.case_dir = case_dir;
+    cached->model = std::make_shared<const PatientModel>(std::move(model));
+    cached->report.from_cache = true;
+    cached->report.timings = timings;
+    cached->report.timings.emplace_back("load cache", std::chrono::duration<double>(Clock::now() - t0).count());
     return true;
   };
   const bool cache_exists = options.use_cache && IsRegularFile(model_bin);
@@ -140,7 +143,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     // Keyed by the CT files the last build read, without decoding the CT (a clinical CT takes a
     // second to decode; the whole cached load must take less).
     const std::vector<std::string> last_ct_files = ReadCtFiles(cache_dir);
-    PatientModel cached;
+    ImportedPatient cached;
     if (!last_ct_files.empty()) {
       std::uint64_t key = 0;
       stage("key inputs", [&] { key = CacheKey(c, last_ct_files); });
@@ -151,16 +154,17 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
   stage("load CT", [&] { ct = LoadVolume(c.ct); });
   const std::uint64_t key = CacheKey(c, ct.files);
   if (cache_exists) {
-    PatientModel cached;
+    ImportedPatient cached;
     if (load_cache(key, &cached)) return cached;
   }
   if (c.units == 1) ct.hounsfield = true;
   if (c.units == 2) ct.hounsfield = false;
 
   PatientModel m;
+  ImportReport report;
   m.name = c.name;
   m.case_dir = case_dir;
-  m.warnings.insert(m.warnings.end(), ct.warnings.begin(), ct.warnings.end());
+  report.warnings.insert(report.warnings.end(), ct.warnings.begin(), ct.warnings.end());
   m.ct_source = c.ct;
   m.table = c.table;
   m.left_side_up = c.left_side_up;
@@ -225,7 +229,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     // Orientation from anatomy: a flipped or mirrored header is an error (or, with
     // orientation: {check: false}, a warning), never a silent import.
     const OrientationCheck o = CheckOrientation(ct, seg, have_heart ? &heart : nullptr);
-    for (const auto& f : o.findings) m.checks.push_back("orientation: " + f);
+    for (const auto& f : o.findings) report.checks.push_back("orientation: " + f);
     if (o.flipped()) {
       std::ostringstream what;
       what << c.ct << ": the anatomy disagrees with the header's orientation:";
@@ -234,11 +238,11 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
               "patient whose anatomy is mirrored, set orientation: {check: false} in "
            << c.file << ")";
       TROCAR_THROW_UNLESS(!c.check_orientation, what.str());
-      m.warnings.push_back("orientation: the anatomy disagrees with the header (not checked, "
+      report.warnings.push_back("orientation: the anatomy disagrees with the header (not checked, "
                            "orientation.check is false)");
     }
     // What the bone sorting found, and on what the ribs' numbers rest (or why there are none).
-    for (const auto& a : seg.anatomy) m.checks.push_back("bones: " + a);
+    for (const auto& a : seg.anatomy) report.checks.push_back("bones: " + a);
     if (!have_labels) {
       for (int side : {+1, -1}) {
         const RibNumbering& n = side > 0 ? seg.numbering_left : seg.numbering_right;
@@ -249,7 +253,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
           line << "numbered, confidence " << std::fixed << std::setprecision(2) << n.confidence << ": ";
         }
         line << (n.basis.empty() ? std::string("not numbered (bones: place)") : n.basis);
-        m.checks.push_back(line.str());
+        report.checks.push_back(line.str());
       }
     }
     cut_faces = FindCutFaces(ct, seg.body);
@@ -260,20 +264,20 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
         s << "the body is cut by the scan's " << f.name << " face (" << std::setprecision(2) << 100 * f.body_fraction
           << "% of it): the skin there is a crop face; no port candidate within "
           << PatientModel::kCutFaceMargin * 1e3 << " mm of it";
-        m.warnings.push_back(s.str());
+        report.warnings.push_back(s.str());
       }
     }
     if (!m.cut_faces.empty()) {
       std::string names;
       for (const auto& n : m.cut_faces) names += (names.empty() ? "" : ", ") + n;
-      m.checks.push_back("cut faces: " + names);
+      report.checks.push_back("cut faces: " + names);
     }
   });
   if (!have_heart) {
-    m.warnings.push_back("no heart in the model (heart.contrast is false and there is no heart "
+    report.warnings.push_back("no heart in the model (heart.contrast is false and there is no heart "
                          "mask or label): plans will not avoid it");
   }
-  if (!heart_note.empty()) m.warnings.push_back(heart_note);
+  if (!heart_note.empty()) report.warnings.push_back(heart_note);
   const double voxel = std::abs(ct.index_to_P.determinant());
   stage("surfaces", [&] {
     // Each structure's surface on its own (VTK pipelines of their own), two at a time on two
@@ -446,7 +450,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
       w << "port candidates: " << dropped_points << " points";
       if (dropped_curves > 0) w << " (" << dropped_curves << " whole curves)";
       w << " lay within " << PatientModel::kCutFaceMargin * 1e3 << " mm of the scan's cut faces and were left out";
-      m.warnings.push_back(w.str());
+      report.warnings.push_back(w.str());
     }
     m.port_candidates = std::move(kept);
     if (m.port_candidates.empty()) {
@@ -464,7 +468,7 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
           << (c.intercostal.right ? "right" : "") << ")";
       }
       w << "; annotate them (port_candidates: in patient.yaml) or give a label map (labels:)";
-      m.warnings.push_back(w.str());
+      report.warnings.push_back(w.str());
     }
   }
   m.X_WP = PoseOnTable(m.Find("skin")->mesh, m.left_side_up, m.table);
@@ -472,16 +476,20 @@ PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& opt
     // A case folder one cannot write to (a read-only checkout) still gives its model.
     stage("write cache", [&] {
       try {
-        WriteCacheFiles(m, cache_dir, key, ct.files);
+        WriteCacheFiles(m, report, cache_dir, key, ct.files);
       } catch (const Error& e) {
-        m.cache_error = e.what();
+        report.cache_error = e.what();
       }
     });
   }
   // Said for this import only (the cache just written is sound).
-  if (!cache_damage.empty()) m.warnings.push_back(cache_damage);
-  m.timings = timings;
-  return m;
+  if (!cache_damage.empty()) report.warnings.push_back(cache_damage);
+  report.timings = timings;
+  return {std::make_shared<const PatientModel>(std::move(m)), std::move(report)};
+}
+
+PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& options) {
+  return *ImportCase(case_dir, options).model;
 }
 
 }  // namespace trocar::patient

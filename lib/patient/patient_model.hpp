@@ -5,6 +5,7 @@
 /// curves, and the patient's pose on the operating table. Immutable once built; built from a case
 /// folder (`patients/<case>/patient.yaml`) and cached beside it.
 
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -59,15 +60,6 @@ struct PatientModel {
   double left_side_up = 0.0;  ///< rad
   Eigen::Vector3d body_min_P = Eigen::Vector3d::Zero(), body_max_P = Eigen::Vector3d::Zero();
   std::string ct_source;      ///< the CT it was built from
-  /// Time per build stage (s), in order; on a cached load, a single "load cache" entry.
-  std::vector<std::pair<std::string, double>> timings;
-  bool from_cache = false;
-  std::string cache_error;  ///< why the cache could not be written (the model itself is whole)
-  /// What the import checked and found (orientation from anatomy, contrast, cut faces), a line each.
-  std::vector<std::string> checks;
-  /// What a user must know before trusting the model (a doubtful orientation, port candidates cut
-  /// at the scan's edge, no heart, no port candidates), a line each.
-  std::vector<std::string> warnings;
   /// Faces of the scan's box the body is cut by ("superior", "left", ...): the skin there is a
   /// crop face; no port candidate lies within `kCutFaceMargin` of one.
   std::vector<std::string> cut_faces;
@@ -75,6 +67,27 @@ struct PatientModel {
 
   const Structure* Find(const std::string& name) const;
   long triangle_count() const;
+};
+
+/// What one import did and found, beside the model: the model is the patient (geometry and
+/// clinical content, the same whichever way it was built); the report is about this build of it.
+struct ImportReport {
+  /// Time per build stage (s), in order; on a cached load, a single "load cache" entry.
+  std::vector<std::pair<std::string, double>> timings;
+  bool from_cache = false;
+  std::string cache_error;  ///< why the cache could not be written (the model itself is whole)
+  /// What the import checked and found (orientation from anatomy, the bone sorting, the ribs'
+  /// numbering, cut faces), a line each.
+  std::vector<std::string> checks;
+  /// What a user must know before trusting the model (a doubtful orientation, port candidates cut
+  /// at the scan's edge, no heart, no port candidates), a line each.
+  std::vector<std::string> warnings;
+};
+
+/// An imported patient: the model, immutable and shared by whatever plans on it, and the report.
+struct ImportedPatient {
+  std::shared_ptr<const PatientModel> model;
+  ImportReport report;
 };
 
 struct ImportOptions {
@@ -89,6 +102,9 @@ struct ImportOptions {
 /// CT is missing is generated first. The cache (`case_dir/cache/`: model.bin, one STL per
 /// structure, ports and targets as markups) is keyed by the contents of every input file.
 /// @throws trocar::Error naming the file and field for bad input.
+ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& options = {});
+
+/// The model alone (a copy), for callers that need no report.
 PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& options = {});
 
 /// Surface normal of `mesh` nearest to `p_P` (area-weighted vertex normal, outward).
@@ -102,8 +118,9 @@ Eigen::Isometry3d PoseOnTable(const TriangleMesh& skin, double left_side_up, con
 /// mismatch or corruption (the caller rebuilds), never a half-read model. The file carries a
 /// checksum of its whole contents; `damage` says why a file that is not merely stale (built from
 /// other inputs) was refused: truncated, checksum failed, inconsistent.
-std::string SerializeModel(const PatientModel& model, std::uint64_t key);
-bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel* model,
+/// The report's checks and warnings travel with the model (a cached load reports them again).
+std::string SerializeModel(const PatientModel& model, const ImportReport& report, std::uint64_t key);
+bool DeserializeModel(const std::string& bytes, std::uint64_t key, PatientModel* model, ImportReport* report,
                       std::string* damage = nullptr);
 
 }  // namespace trocar::patient

@@ -229,7 +229,7 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
     PatientSetup p;
     p.name = PatientName(dir);
     progress("importing " + p.name);
-    p.model = std::make_shared<const patient::PatientModel>(patient::ImportPatient(dir));
+    p.model = patient::ImportCase(dir).model;
     ProblemOptions po;
     po.arms = spec.arms;
     po.samples_per_target = spec.samples_per_target;

@@ -355,10 +355,12 @@ TEST_F(Hostile, ADamagedCacheIsRebuiltWithAWarning) {
     std::string damaged = bytes;
     damaged[at] = static_cast<char>(damaged[at] ^ 0x20);
     { std::ofstream(bin, std::ios::binary) << damaged; }
-    const patient::PatientModel again = patient::ImportPatient(dir_);
-    EXPECT_FALSE(again.from_cache);
+    const patient::ImportedPatient again_imported = patient::ImportCase(dir_);
+    const patient::PatientModel& again = *again_imported.model;
+    const patient::ImportReport& again_report = again_imported.report;
+    EXPECT_FALSE(again_report.from_cache);
     bool warned = false;
-    for (const auto& w : again.warnings) warned = warned || w.find("checksum") != std::string::npos;
+    for (const auto& w : again_report.warnings) warned = warned || w.find("checksum") != std::string::npos;
     EXPECT_TRUE(warned) << "no warning about the damaged cache (byte " << at << ")";
     EXPECT_TRUE(again.X_WP.isApprox(fresh.X_WP, 1e-12));
     ASSERT_EQ(again.structures.size(), fresh.structures.size());
@@ -366,9 +368,10 @@ TEST_F(Hostile, ADamagedCacheIsRebuiltWithAWarning) {
       EXPECT_EQ(again.structures[s].mesh.vertices, fresh.structures[s].mesh.vertices);
     }
     // The rebuilt cache is sound again, and its warning is not carried into later loads.
-    const patient::PatientModel cached = patient::ImportPatient(dir_);
-    EXPECT_TRUE(cached.from_cache);
-    for (const auto& w : cached.warnings) EXPECT_EQ(w.find("checksum"), std::string::npos) << w;
+    const patient::ImportedPatient cached_imported = patient::ImportCase(dir_);
+    const patient::ImportReport& cached_report = cached_imported.report;
+    EXPECT_TRUE(cached_report.from_cache);
+    for (const auto& w : cached_report.warnings) EXPECT_EQ(w.find("checksum"), std::string::npos) << w;
   }
 }
 

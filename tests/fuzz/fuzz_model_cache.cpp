@@ -16,8 +16,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   }
   trocar::fuzz::Expect([&] {
     trocar::patient::PatientModel model;
+    trocar::patient::ImportReport report;
     std::string damage;
-    trocar::patient::DeserializeModel(bytes, key, &model, &damage);
+    trocar::patient::DeserializeModel(bytes, key, &model, &report, &damage);
   });
   return 0;
 }

@@ -126,8 +126,9 @@ int main(int argc, char** argv) {
     t.points = {Eigen::Vector3d(0.01, 0.02, 0.03)};
     t.normals = {Eigen::Vector3d(0, 0, 1)};
     m.targets.push_back(t);
-    m.warnings = {"a warning"};
-    Text(out + "/model_cache/model.bin", patient::SerializeModel(m, 0x1234));
+    patient::ImportReport report;
+    report.warnings = {"a warning"};
+    Text(out + "/model_cache/model.bin", patient::SerializeModel(m, report, 0x1234));
   }
   // Recorded hand motion.
   {

@@ -185,10 +185,12 @@ TEST(Heart, WithoutContrastTheMediastinumApproximatesTheHeart) {
       if (v > 150.0f && v < 450.0f) v = 40.0f;
     }
     patient::WritePhantomCase(plain, dir);
-    const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+    const patient::ImportedPatient m_imported = patient::ImportCase(dir, {false, false});
+    const patient::PatientModel& m = *m_imported.model;
+    const patient::ImportReport& m_report = m_imported.report;
     ASSERT_NE(m.Find("heart"), nullptr);
     bool flagged = false;
-    for (const auto& w : m.warnings) flagged = flagged || w.find("APPROXIMATED from the mediastinum") != std::string::npos;
+    for (const auto& w : m_report.warnings) flagged = flagged || w.find("APPROXIMATED from the mediastinum") != std::string::npos;
     EXPECT_TRUE(flagged);
   }
 }

@@ -38,8 +38,10 @@ std::string MakeCase(const std::string& name, const std::string& extra_yaml = ""
 
 TEST(PatientModel, PhantomCaseBuildsClosedSurfacesTargetsPortsAndPose) {
   const std::string dir = MakeCase("model");
-  const patient::PatientModel m = patient::ImportPatient(dir);
-  EXPECT_FALSE(m.from_cache);
+  const patient::ImportedPatient m_imported = patient::ImportCase(dir);
+  const patient::PatientModel& m = *m_imported.model;
+  const patient::ImportReport& m_report = m_imported.report;
+  EXPECT_FALSE(m_report.from_cache);
   for (const char* name : {"skin", "ribs", "sternum", "spine", "heart"}) {
     const patient::Structure* s = m.Find(name);
     ASSERT_NE(s, nullptr) << name;
@@ -91,8 +93,10 @@ TEST(PatientModel, PhantomCaseBuildsClosedSurfacesTargetsPortsAndPose) {
 TEST(PatientModel, CacheIsReusedAndInvalidatedWhenAnInputChanges) {
   const std::string dir = MakeCase("cache");
   const patient::PatientModel cold = patient::ImportPatient(dir);
-  const patient::PatientModel warm = patient::ImportPatient(dir);
-  EXPECT_TRUE(warm.from_cache);
+  const patient::ImportedPatient warm_imported = patient::ImportCase(dir);
+  const patient::PatientModel& warm = *warm_imported.model;
+  const patient::ImportReport& warm_report = warm_imported.report;
+  EXPECT_TRUE(warm_report.from_cache);
   ASSERT_EQ(warm.structures.size(), cold.structures.size());
   for (std::size_t s = 0; s < cold.structures.size(); ++s) {
     EXPECT_EQ(warm.structures[s].mesh.vertices, cold.structures[s].mesh.vertices);
@@ -101,7 +105,7 @@ TEST(PatientModel, CacheIsReusedAndInvalidatedWhenAnInputChanges) {
   EXPECT_EQ(warm.targets[0].normals, cold.targets[0].normals);
   EXPECT_TRUE(warm.X_WP.isApprox(cold.X_WP, 0.0));
   // A cached load keys the model by the CT's files without decoding the CT.
-  for (const auto& [stage, seconds] : warm.timings) EXPECT_NE(stage, "load CT");
+  for (const auto& [stage, seconds] : warm_report.timings) EXPECT_NE(stage, "load CT");
   // The CT changes (another phantom written over it): rebuilt from the new CT.
   long rebuilt_triangles = 0;
   {
@@ -111,26 +115,30 @@ TEST(PatientModel, CacheIsReusedAndInvalidatedWhenAnInputChanges) {
     const std::string ct_dir = testing::TempDir() + "/trocar-cache-ct7";
     patient::WritePhantomCase(patient::GeneratePhantom(p), ct_dir);
     fs::copy_file(JoinPath(ct_dir, "ct.nrrd"), JoinPath(dir, "ct.nrrd"), fs::copy_options::overwrite_existing);
-    const patient::PatientModel other = patient::ImportPatient(dir);
-    EXPECT_FALSE(other.from_cache);
+    const patient::ImportedPatient other_imported = patient::ImportCase(dir);
+    const patient::PatientModel& other = *other_imported.model;
+    const patient::ImportReport& other_report = other_imported.report;
+    EXPECT_FALSE(other_report.from_cache);
     EXPECT_NE(other.Find("skin")->volume, cold.Find("skin")->volume);
     rebuilt_triangles = other.triangle_count();
-    EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+    EXPECT_TRUE(patient::ImportCase(dir).report.from_cache);
   }
   // A damaged list of the CT's files: the CT is read and keys the model as before.
   std::ofstream(JoinPath(dir, "cache/ct_files.txt"), std::ios::trunc) << "garbage\n";
-  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  EXPECT_TRUE(patient::ImportCase(dir).report.from_cache);
   // An annotation changes: rebuilt.
   std::ofstream(JoinPath(dir, "markups/LIMA.mrk.json"), std::ios::app) << "\n";
-  EXPECT_FALSE(patient::ImportPatient(dir).from_cache);
-  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  EXPECT_FALSE(patient::ImportCase(dir).report.from_cache);
+  EXPECT_TRUE(patient::ImportCase(dir).report.from_cache);
   // A damaged cache is rebuilt, never half read.
   const std::string bin = JoinPath(dir, "cache/model.bin");
   const std::string bytes = ReadTextFile(bin);
   for (std::size_t cut : {bytes.size() / 2, bytes.size() - 3, std::size_t(20)}) {
     std::ofstream(bin, std::ios::binary | std::ios::trunc) << bytes.substr(0, cut);
-    const patient::PatientModel again = patient::ImportPatient(dir);
-    EXPECT_FALSE(again.from_cache);
+    const patient::ImportedPatient again_imported = patient::ImportCase(dir);
+    const patient::PatientModel& again = *again_imported.model;
+    const patient::ImportReport& again_report = again_imported.report;
+    EXPECT_FALSE(again_report.from_cache);
     EXPECT_EQ(again.triangle_count(), rebuilt_triangles);
   }
 }
@@ -146,11 +154,11 @@ TEST(PatientModel, DicomFolderCacheFollowsTheFolder) {
   std::ofstream(JoinPath(dir, "patient.yaml"))
       << "name: dicom-cache\nct: ct\nunits: hounsfield\nsurfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
   const patient::PatientModel cold = patient::ImportPatient(dir);
-  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  EXPECT_TRUE(patient::ImportCase(dir).report.from_cache);
   // A stray file added to the folder: the folder changed, rebuilt (the series is the same).
   std::ofstream(JoinPath(dir, "ct/README.txt")) << "notes\n";
-  EXPECT_FALSE(patient::ImportPatient(dir).from_cache);
-  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  EXPECT_FALSE(patient::ImportCase(dir).report.from_cache);
+  EXPECT_TRUE(patient::ImportCase(dir).report.from_cache);
   // The top slice removed: rebuilt, on one slice fewer.
   std::vector<std::string> slices;
   for (const auto& e : fs::directory_iterator(JoinPath(dir, "ct"))) {
@@ -162,8 +170,10 @@ TEST(PatientModel, DicomFolderCacheFollowsTheFolder) {
   const patient::Volume before = patient::LoadVolume(JoinPath(dir, "ct"));
   fs::remove(slices.back());
   slices.pop_back();
-  const patient::PatientModel after = patient::ImportPatient(dir);
-  EXPECT_FALSE(after.from_cache);
+  const patient::ImportedPatient after_imported = patient::ImportCase(dir);
+  const patient::PatientModel& after = *after_imported.model;
+  const patient::ImportReport& after_report = after_imported.report;
+  EXPECT_FALSE(after_report.from_cache);
   EXPECT_LT(after.body_max_P.z(), cold.body_max_P.z() - 0.5 * before.spacing().z());
   EXPECT_EQ(patient::LoadVolume(JoinPath(dir, "ct")).size.z(), before.size.z() - 1);
 
@@ -175,21 +185,27 @@ TEST(PatientModel, DicomFolderCacheFollowsTheFolder) {
   std::ofstream(JoinPath(dir, "patient.yaml"), std::ios::trunc)
       << "name: dicom-cache\nct: ct/" << fs::path(slices[slices.size() / 2]).filename().string()
       << "\nunits: hounsfield\nsurfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
-  const patient::PatientModel shorter = patient::ImportPatient(dir);
-  EXPECT_FALSE(shorter.from_cache);
-  EXPECT_TRUE(patient::ImportPatient(dir).from_cache);
+  const patient::ImportedPatient shorter_imported = patient::ImportCase(dir);
+  const patient::PatientModel& shorter = *shorter_imported.model;
+  const patient::ImportReport& shorter_report = shorter_imported.report;
+  EXPECT_FALSE(shorter_report.from_cache);
+  EXPECT_TRUE(patient::ImportCase(dir).report.from_cache);
   WriteFileAtomically(lowest, lowest_bytes);
-  const patient::PatientModel longer = patient::ImportPatient(dir);
-  EXPECT_FALSE(longer.from_cache);
+  const patient::ImportedPatient longer_imported = patient::ImportCase(dir);
+  const patient::PatientModel& longer = *longer_imported.model;
+  const patient::ImportReport& longer_report = longer_imported.report;
+  EXPECT_FALSE(longer_report.from_cache);
   EXPECT_LT(longer.body_min_P.z(), shorter.body_min_P.z() - 0.5 * before.spacing().z());
 }
 
 TEST(PatientModel, AnUnwritableCacheStillGivesTheModelAndSaysWhy) {
   const std::string dir = MakeCase("unwritable");
   std::ofstream(JoinPath(dir, "cache")) << "a file where the cache folder would go";
-  const patient::PatientModel m = patient::ImportPatient(dir);
+  const patient::ImportedPatient m_imported = patient::ImportCase(dir);
+  const patient::PatientModel& m = *m_imported.model;
+  const patient::ImportReport& m_report = m_imported.report;
   EXPECT_GT(m.triangle_count(), 0);
-  EXPECT_NE(m.cache_error.find("cache"), std::string::npos) << m.cache_error;
+  EXPECT_NE(m_report.cache_error.find("cache"), std::string::npos) << m_report.cache_error;
   EXPECT_EQ(ReadTextFile(JoinPath(dir, "cache")), "a file where the cache folder would go");
 }
 
@@ -201,17 +217,24 @@ TEST(PatientModel, SerialisationRejectsOtherKeysAndGarbage) {
   s.mesh.vertices = {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0)};
   s.mesh.triangles = {Eigen::Vector3i(0, 1, 2)};
   m.structures.push_back(s);
-  const std::string bytes = patient::SerializeModel(m, 42);
+  patient::ImportReport report;
+  report.checks = {"a check"};
+  report.warnings = {"a warning"};
+  const std::string bytes = patient::SerializeModel(m, report, 42);
   patient::PatientModel back;
-  EXPECT_TRUE(patient::DeserializeModel(bytes, 42, &back));
+  patient::ImportReport back_report;
+  EXPECT_TRUE(patient::DeserializeModel(bytes, 42, &back, &back_report));
   EXPECT_EQ(back.structures[0].mesh.vertices, s.mesh.vertices);
-  EXPECT_FALSE(patient::DeserializeModel(bytes, 43, &back));
+  // The build's checks and warnings travel with the model.
+  EXPECT_EQ(back_report.checks, report.checks);
+  EXPECT_EQ(back_report.warnings, report.warnings);
+  EXPECT_FALSE(patient::DeserializeModel(bytes, 43, &back, nullptr));
   std::string bad = bytes;
   bad[bad.size() / 2] ^= 0x7f;  // may or may not be caught structurally; must not crash
-  patient::DeserializeModel(bad, 42, &back);
+  patient::DeserializeModel(bad, 42, &back, nullptr);
   std::string huge = bytes;
   std::memset(&huge[16], 0xff, 8);  // a string length of 2^64-1
-  EXPECT_FALSE(patient::DeserializeModel(huge, 42, &back));
+  EXPECT_FALSE(patient::DeserializeModel(huge, 42, &back, nullptr));
 }
 
 void ExpectImportError(const std::string& dir, const std::string& needle) {

@@ -53,11 +53,12 @@ std::string ImportError(const std::string& dir) {
 TEST(Orientation, FlippedOrMirroredHeadersAreReportedOverSeeds) {
   for (unsigned seed : {1u, 4u}) {
     SCOPED_TRACE(seed);
-    const patient::PatientModel ok = patient::ImportPatient(FlippedCase("none", seed, {1, 1, 1}), {false, false});
+    const patient::ImportedPatient ok_imported = patient::ImportCase(FlippedCase("none", seed, {1, 1, 1}), {false, false});
+    const patient::ImportReport& ok_report = ok_imported.report;
     int agreed = 0;
-    for (const auto& line : ok.checks) agreed += line.find("as the header says") != std::string::npos;
+    for (const auto& line : ok_report.checks) agreed += line.find("as the header says") != std::string::npos;
     EXPECT_GE(agreed, 3);
-    for (const auto& w : ok.warnings) EXPECT_EQ(w.find("orientation"), std::string::npos) << w;
+    for (const auto& w : ok_report.warnings) EXPECT_EQ(w.find("orientation"), std::string::npos) << w;
 
     struct Flip {
       const char* name;
@@ -81,10 +82,11 @@ TEST(Orientation, FlippedOrMirroredHeadersAreReportedOverSeeds) {
     }
   }
   // Asked not to check (a mirrored patient): imported, with a warning.
-  const patient::PatientModel mirrored = patient::ImportPatient(
+  const patient::ImportedPatient mirrored_imported = patient::ImportCase(
       FlippedCase("x-unchecked", 1, {-1, 1, 1}, "orientation: {check: false}\n"), {false, false});
+  const patient::ImportReport& mirrored_report = mirrored_imported.report;
   bool warned = false;
-  for (const auto& w : mirrored.warnings) warned = warned || w.find("orientation") != std::string::npos;
+  for (const auto& w : mirrored_report.warnings) warned = warned || w.find("orientation") != std::string::npos;
   EXPECT_TRUE(warned);
 }
 
@@ -116,10 +118,12 @@ TEST(CutFaces, CropFacesAreNamedAndCarryNoPortCandidates) {
     std::ofstream(JoinPath(dir, "patient.yaml"))
         << "name: cut\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true}\n"
         << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
-    const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+    const patient::ImportedPatient m_imported = patient::ImportCase(dir, {false, false});
+    const patient::PatientModel& m = *m_imported.model;
+    const patient::ImportReport& m_report = m_imported.report;
     EXPECT_NE(std::find(m.cut_faces.begin(), m.cut_faces.end(), "left"), m.cut_faces.end());
     bool warned = false;
-    for (const auto& w : m.warnings) warned = warned || w.find("left face") != std::string::npos;
+    for (const auto& w : m_report.warnings) warned = warned || w.find("left face") != std::string::npos;
     EXPECT_TRUE(warned);
     ASSERT_FALSE(m.port_candidates.empty());
     const double face_x = ct.PatientPoint(nx - 0.5, 0, 0).x();
@@ -142,7 +146,9 @@ TEST(CutFaces, TotalSegmentatorCtaCropCarriesNoPortCandidatesOnItsCropFaces) {
   fs::create_directories(dir);
   std::ofstream(JoinPath(dir, "patient.yaml"))
       << "ct: " << ct << "\nheart: {mask: " << heart << "}\nintercostal: {left: true}\n";
-  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  const patient::ImportedPatient m_imported = patient::ImportCase(dir, {false, false});
+  const patient::PatientModel& m = *m_imported.model;
+  const patient::ImportReport& m_report = m_imported.report;
   for (const char* face : {"left", "right", "anterior", "posterior"}) {
     EXPECT_NE(std::find(m.cut_faces.begin(), m.cut_faces.end(), face), m.cut_faces.end()) << face;
   }
@@ -156,7 +162,7 @@ TEST(CutFaces, TotalSegmentatorCtaCropCarriesNoPortCandidatesOnItsCropFaces) {
     }
   }
   bool said = false;
-  for (const auto& w : m.warnings) said = said || w.find("cut faces") != std::string::npos;
+  for (const auto& w : m_report.warnings) said = said || w.find("cut faces") != std::string::npos;
   EXPECT_TRUE(said);
 }
 
