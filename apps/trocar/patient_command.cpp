@@ -166,6 +166,10 @@ void AddPatientCommands(CLI::App* app) {
   cmd->add_option("--voxel", o->p.voxel_size, "voxel size (m)")->capture_default_str();
   cmd->add_option("--slice", o->p.slice_spacing, "axial slice spacing (m; 0: the voxel size)")->capture_default_str();
   cmd->add_option("--fov", o->p.field_of_view, "square in-plane field of view (m; 0: the body and 2 cm around it)")->capture_default_str();
+  cmd->add_option("--wall", o->p.wall_thickness, "chest-wall muscle outside the ribs (m)")->capture_default_str();
+  cmd->add_flag("--ribs-reach-spine", o->p.ribs_reach_spine, "ribs meet the vertebral bodies, as real ribs do");
+  cmd->add_flag("--shoulders", o->p.shoulders,
+                "shoulder blades, collarbones and upper arms (needs --wall 0.02 or more)");
   cmd->add_flag("--force", o->force, "overwrite the case already in --out (its patient.yaml too)");
   cmd->add_flag("--ras", o->ras, "write the CT with a RAS header (default LPS)");
   cmd->add_flag("--dicom", o->dicom, "write the CT as a DICOM series folder ct/ instead of ct.nrrd")

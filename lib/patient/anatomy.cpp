@@ -547,26 +547,12 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
   }
 }
 
-// The index axis nearest the patient's z (the scan's slices), and the two across it.
-int SliceAxis(const Volume& ct) {
-  int axis = 2;
-  double best = -1.0;
-  for (int a = 0; a < 3; ++a) {
-    const double along = std::abs(ct.index_to_P.col(a).normalized().z());
-    if (along > best) {
-      best = along;
-      axis = a;
-    }
-  }
-  return axis;
-}
-
 // A rib is a cortical tube; its marrow lies below the bone threshold. In each slice, a hole a
 // rib's cross-section encloses (4-connected voxels inside the body and above `floor`, bounded by
 // that rib alone, at most `max_area` m²) is that rib's.
 long FillRibMarrow(const Volume& ct, const Mask& body, const std::vector<std::uint8_t>& is_rib, double floor,
                    double max_area, std::vector<int>* labels, Mask* bone) {
-  const int axis = SliceAxis(ct);
+  const int axis = AxialAxis(ct);
   const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
   const long stride[3] = {1, ct.size.x(), static_cast<long>(ct.size.x()) * ct.size.y()};
   const int nu = ct.size[u], nw = ct.size[w];

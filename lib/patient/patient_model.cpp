@@ -280,40 +280,44 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
   if (!heart_note.empty()) report.warnings.push_back(heart_note);
   const double voxel = std::abs(ct.index_to_P.determinant());
   stage("surfaces", [&] {
-    // Each structure's surface on its own (VTK pipelines of their own), two at a time on two
-    // cores, the ribs (the largest contour) first; each mask is made in its job, so at most two
-    // are held at once. The model keeps the order below whatever finished first.
+    // Each structure's surface on its own (VTK pipelines of their own), at most two at a time
+    // (each made mask is a whole-volume array), the ribs (the largest contour) first. The model
+    // keeps the order below whatever finished first.
+    // A job surfaces a mask the import holds (`given`) or one it makes from the bone labels.
     struct Job {
       std::string name;
-      std::function<Mask()> mask;
+      const Mask* given;
+      std::function<Mask()> make;
       int budget;
     };
-    const Mask* heart_mask = have_heart ? &heart : nullptr;
     std::vector<Job> jobs = {
-        {"ribs", [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.ribs_left, &seg.bones.ribs_right}); },
+        {"ribs", nullptr,
+         [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.ribs_left, &seg.bones.ribs_right}); },
          c.budgets.ribs},
-        {"skin", [&] { return seg.body; }, c.budgets.skin},
-        {"sternum", [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.sternum}); }, c.budgets.sternum},
-        {"spine", [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.spine}); }, c.budgets.spine},
+        {"skin", &seg.body, nullptr, c.budgets.skin},
+        {"sternum", nullptr, [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.sternum}); }, c.budgets.sternum},
+        {"spine", nullptr, [&] { return LabelMask(ct, seg.bones.labels, {&seg.bones.spine}); }, c.budgets.spine},
     };
-    if (heart_mask != nullptr) jobs.push_back({"heart", [&] { return *heart_mask; }, c.budgets.heart});
-    if (have_labels) jobs.push_back({"vessels", [&] { return labelled.vessels; }, c.budgets.vessels});
+    if (have_heart) jobs.push_back({"heart", &heart, nullptr, c.budgets.heart});
+    if (have_labels) jobs.push_back({"vessels", &labelled.vessels, nullptr, c.budgets.vessels});
     std::vector<std::optional<Structure>> made(jobs.size());
     std::vector<std::exception_ptr> failed(jobs.size());
 #pragma omp parallel for schedule(dynamic, 1) num_threads(2)
     for (int j = 0; j < static_cast<int>(jobs.size()); ++j) {
       try {
-        const Mask mask = jobs[j].mask();
+        Mask owned;
+        if (jobs[j].given == nullptr) owned = jobs[j].make();
+        const Mask& mask = jobs[j].given != nullptr ? *jobs[j].given : owned;
         if (mask.count() == 0) continue;
         SurfaceOptions o = c.surface;
         o.max_triangles = jobs[j].budget;
         o.max_working_spacing = MaxWorkingSpacing(jobs[j].name);
-        SurfaceReport report;
+        SurfaceReport surface_report;
         Structure s;
         s.name = jobs[j].name;
-        s.mesh = ExtractSurface(ct, mask, jobs[j].name, o, &report);
+        s.mesh = ExtractSurface(ct, mask, jobs[j].name, o, &surface_report);
         s.volume = mask.count() * voxel;
-        s.contoured_triangles = report.contoured_triangles;
+        s.contoured_triangles = surface_report.contoured_triangles;
         made[j] = std::move(s);
       } catch (...) {
         failed[j] = std::current_exception();

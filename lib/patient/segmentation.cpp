@@ -13,17 +13,6 @@ long Mask::count() const {
   return n;
 }
 
-namespace {
-
-Mask Threshold(const Volume& v, double threshold) {
-  Mask m;
-  m.size = v.size;
-  m.inside.resize(v.values.size());
-  for (std::size_t i = 0; i < v.values.size(); ++i) m.inside[i] = v.values[i] > threshold;
-  return m;
-}
-
-// The index axis that runs most nearly along the patient's z (superior).
 int AxialAxis(const Volume& v) {
   int best = 2;
   double best_z = -1.0;
@@ -35,6 +24,16 @@ int AxialAxis(const Volume& v) {
     }
   }
   return best;
+}
+
+namespace {
+
+Mask Threshold(const Volume& v, double threshold) {
+  Mask m;
+  m.size = v.size;
+  m.inside.resize(v.values.size());
+  for (std::size_t i = 0; i < v.values.size(); ++i) m.inside[i] = v.values[i] > threshold;
+  return m;
 }
 
 // Voxel index of in-slice coordinates (a along axis u, b along axis w) on axial slice s.

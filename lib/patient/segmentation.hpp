@@ -23,6 +23,10 @@ struct Mask {
   long count() const;
 };
 
+/// The index axis that runs most nearly along the patient's z (superior): the scan's slices lie
+/// across it.
+int AxialAxis(const Volume& v);
+
 struct Component {
   int label = 0;           ///< 1-based label in the label image
   long voxels = 0;

@@ -133,7 +133,9 @@ TEST(ShapeAnatomy, LabelledRibsLieInOneTrocarRibMarrowIncluded) {
     }
     std::sort(shares.rbegin(), shares.rend());
     if (!shares.empty() && shares[0] >= 0.85) ++mostly;
-    if (shares.size() > 1) EXPECT_LT(shares[1], 0.1) << name;
+    if (shares.size() > 1) {
+      EXPECT_LT(shares[1], 0.1) << name;
+    }
   }
   EXPECT_GE(mostly, 5);
 }
