@@ -35,6 +35,9 @@ void AddBenchCommand(CLI::App* app);
 /// `trocar verify PLAN.json`: verified motions for a plan's ranked plans.
 void AddVerifyCommand(CLI::App* app);
 
+/// `trocar view CASE [PLAN.json]`: the workstation window, or --screenshot FILE.png.
+void AddViewCommand(CLI::App* app);
+
 /// Re-checks every claim of a plan file (trocar check --plan); prints what fails.
 /// @return 0 when every claim holds, 3 otherwise. @throws trocar::Error for a malformed file.
 int CheckPlanFile(const std::string& path, std::ostream& out);

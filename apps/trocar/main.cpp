@@ -18,6 +18,7 @@ int main(int argc, char** argv) {
   trocar::apps::AddPlanCommand(&app);
   trocar::apps::AddVerifyCommand(&app);
   trocar::apps::AddBenchCommand(&app);
+  trocar::apps::AddViewCommand(&app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,120 @@
+// trocar view: a case and its plans in the workstation's 3D scene — a window, or screenshots.
+#include <iostream>
+#include <sstream>
+#include <memory>
+
+#include "apps/trocar/commands.hpp"
+#include "common/error.hpp"
+#include "scene.hpp"
+#include "view_inputs.hpp"
+#include "workstation.hpp"
+
+namespace trocar::apps {
+namespace {
+
+struct ViewOptions {
+  viz::ViewInputs inputs;
+  std::string screenshot;
+  std::string grab;
+  std::vector<std::string> views;
+  std::string size = "1280x720";
+  double light = 1.0;
+};
+
+std::pair<int, int> ParseSize(const std::string& text) {
+  int w = 0, h = 0;
+  char x = 0, extra = 0;
+  std::istringstream in(text);
+  in >> w >> x >> h;
+  TROCAR_THROW_UNLESS(in && !(in >> extra) && x == 'x' && w >= 16 && h >= 16 && w <= 8192 && h <= 8192,
+                      "--size '" << text << "': expected WIDTHxHEIGHT, each 16..8192 pixels");
+  return {w, h};
+}
+
+int RunView(const ViewOptions& o) {
+  viz::LoadedView loaded = viz::LoadView(o.inputs);
+  if (o.screenshot.empty()) {
+    viz::WorkstationOptions wo;
+    wo.case_dir = o.inputs.case_dir;
+    wo.plan_path = o.inputs.plan;
+    wo.plan_index = o.inputs.plan_index - 1;
+    wo.grab_path = o.grab;
+    return viz::RunWorkstation(std::move(loaded.scene), loaded.plan.get(), wo);
+  }
+  const auto [width, height] = ParseSize(o.size);
+  std::vector<std::string> names = o.views;
+  if (names.empty()) {
+    names.push_back("external");
+    if (loaded.plan && !loaded.plan->plans.empty() &&
+        !loaded.plan->plans[o.inputs.plan_index - 1].views.empty()) {
+      names.push_back("endoscope");
+    }
+  }
+  const planners::StoredPlan* plan =
+      loaded.plan ? &loaded.plan->plans[o.inputs.plan_index - 1] : nullptr;
+  std::vector<std::pair<viz::ViewSpec, viz::CameraPose>> views;
+  const double aspect = static_cast<double>(width) / names.size() / height;
+  for (const std::string& name : names) {
+    viz::ViewSpec spec = viz::ViewSpec::Parse(name);
+    spec.camera.light_intensity = o.light;
+    viz::FrameCamera used;
+    const viz::CameraPose pose = viz::ViewCamera(*loaded.scene, spec, aspect, plan, &used);
+    spec.camera = used;
+    spec.camera.light_intensity = o.light;
+    views.emplace_back(spec, pose);
+  }
+  viz::Screenshot(*loaded.scene, views, width, height, o.screenshot);
+  std::cout << "wrote " << o.screenshot << " (" << width << "x" << height << ", "
+            << names.size() << " view" << (names.size() > 1 ? "s" : "") << ", "
+            << loaded.scene->triangle_count() << " triangles)\n";
+  return 0;
+}
+
+}  // namespace
+
+void AddViewInputOptions(CLI::App* cmd, viz::ViewInputs* in) {
+  cmd->add_option("case", in->case_dir, "patient case folder (patient.yaml)")->required();
+  cmd->add_option("plan_file", in->plan, "a plan.json of this case (trocar plan --out DIR)");
+  cmd->add_option("--plan", in->plan_index, "which ranked plan to show (1: the best)")
+      ->check(CLI::Range(1, 1000000))
+      ->capture_default_str();
+  cmd->add_option("--robot", in->robot,
+                  "robot description to show when no plan is given (default: none)");
+  cmd->add_option("--motion", in->motion,
+                  "pose the robot on a verified motion of the plan: ARM:SAMPLE[:WAYPOINT] "
+                  "(default waypoint: the last, at the target)");
+  cmd->add_option("--colour", in->colours,
+                  "GROUP=r,g,b (0..1 or 0..255); groups: skin ribs sternum spine heart "
+                  "target:<name> cones candidates ports pivots table floor robot collision, "
+                  "or background");
+  cmd->add_option("--opacity", in->opacities, "GROUP=opacity (0..1)");
+  cmd->add_option("--hide", in->hidden, "a group not to draw");
+  cmd->add_flag("--flat", in->flat, "unlit exact colours (a pixel's colour names its group)");
+}
+
+void AddViewCommand(CLI::App* app) {
+  auto o = std::make_shared<ViewOptions>();
+  CLI::App* cmd = app->add_subcommand(
+      "view",
+      "The case (and a plan's ranked plans) in the workstation: a window, or --screenshot FILE.png "
+      "(needs an X display; headless: xvfb-run -a trocar view ...)");
+  AddViewInputOptions(cmd, &o->inputs);
+  cmd->add_option("--screenshot", o->screenshot,
+                  "render one frame of the views side by side into this PNG, no window");
+  cmd->add_option("--grab", o->grab,
+                  "open the window, render it, save an image of the whole window (sidebar and "
+                  "views) to this PNG, and close");
+  cmd->add_option("--view", o->views,
+                  "external, endoscope (the plan's scope camera) or frame:<robot frame>; repeat "
+                  "for side by side (default: external, and endoscope when the plan has one)");
+  cmd->add_option("--size", o->size, "screenshot WIDTHxHEIGHT in pixels")->capture_default_str();
+  cmd->add_option("--light", o->light, "intensity of the light at the scope tip (0..)")
+      ->check(CLI::Range(0.0, 10.0))
+      ->capture_default_str();
+  cmd->callback([o]() {
+    const int code = RunView(*o);
+    if (code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+}  // namespace trocar::apps

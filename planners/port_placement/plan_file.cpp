@@ -1,0 +1,276 @@
+#include "port_placement/plan_file.hpp"
+
+#include <cmath>
+#include <filesystem>
+
+#include <nlohmann/json.hpp>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "port_placement/plan_io.hpp"
+
+namespace trocar::planners {
+namespace {
+
+using nlohmann::json;
+
+/// A JSON value with its path in the document, for messages.
+struct Field {
+  const std::string& file;
+  const json& j;
+  std::string path;
+
+  [[noreturn]] void Fail(const std::string& expected) const {
+    TROCAR_THROW(file << ": " << (path.empty() ? "the document" : path) << ": expected "
+                      << expected << (j.is_null() ? "" : ", found " + j.dump().substr(0, 60)));
+  }
+  bool Has(const std::string& key) const { return j.is_object() && j.contains(key); }
+  Field operator[](const std::string& key) const {
+    if (!j.is_object()) Fail("an object");
+    if (!j.contains(key)) {
+      TROCAR_THROW(file << ": " << (path.empty() ? "" : path + ".") << key << ": missing");
+    }
+    return {file, j.at(key), path.empty() ? key : path + "." + key};
+  }
+  Field operator[](std::size_t i) const {
+    return {file, j.at(i), path + "[" + std::to_string(i) + "]"};
+  }
+  std::size_t Size() const {
+    if (!j.is_array()) Fail("an array");
+    return j.size();
+  }
+  double Number() const {
+    if (!j.is_number()) Fail("a number");
+    const double v = j.get<double>();
+    if (!std::isfinite(v)) Fail("a finite number");
+    return v;
+  }
+  int Integer() const {
+    if (!j.is_number_integer()) Fail("an integer");
+    return j.get<int>();
+  }
+  bool Bool() const {
+    if (!j.is_boolean()) Fail("true or false");
+    return j.get<bool>();
+  }
+  std::string String() const {
+    if (!j.is_string()) Fail("a string");
+    return j.get<std::string>();
+  }
+  Eigen::Vector3d Vec3() const {
+    if (Size() != 3) Fail("3 numbers");
+    return {(*this)[0].Number(), (*this)[1].Number(), (*this)[2].Number()};
+  }
+  Eigen::Isometry3d Pose() const {
+    if (Size() != 4) Fail("a 4x4 matrix");
+    Eigen::Matrix4d m;
+    for (int r = 0; r < 4; ++r) {
+      const Field row = (*this)[r];
+      if (row.Size() != 4) row.Fail("4 numbers");
+      for (int c = 0; c < 4; ++c) m(r, c) = row[c].Number();
+    }
+    const Eigen::Matrix3d R = m.topLeftCorner<3, 3>();
+    if ((R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-6 || R.determinant() < 0 ||
+        m.row(3).head<3>().norm() > 1e-9 || std::abs(m(3, 3) - 1) > 1e-9) {
+      Fail("a rigid transform (rotation and translation)");
+    }
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.linear() = R;
+    X.translation() = m.topRightCorner<3, 1>();
+    return X;
+  }
+  std::vector<std::string> Strings() const {
+    std::vector<std::string> out;
+    for (std::size_t i = 0; i < Size(); ++i) out.push_back((*this)[i].String());
+    return out;
+  }
+  std::vector<std::pair<std::string, double>> NamedNumbers() const {
+    if (!j.is_object()) Fail("an object of joint names and values");
+    std::vector<std::pair<std::string, double>> out;
+    for (const auto& [name, value] : j.items()) out.emplace_back(name, (*this)[name].Number());
+    return out;
+  }
+};
+
+StoredPlan ReadPlan(const Field& p) {
+  StoredPlan plan;
+  plan.rank = p["rank"].Integer();
+  plan.status = p["status"].String();
+  plan.score = p["score"].Number();
+  plan.rank_score = p["rank_score"].Number();
+  if (p.Has("message")) plan.message = p["message"].String();
+  plan.X_WB = p["cart"]["X_WB"].Pose();
+  plan.setup_joints = p["setup_joints"].NamedNumbers();
+  plan.q_nominal = p["q_nominal"].NamedNumbers();
+  const Field ports = p["ports"];
+  for (std::size_t i = 0; i < ports.Size(); ++i) {
+    StoredPort port;
+    port.arm = ports[i]["arm"].String();
+    port.candidate = ports[i]["candidate"].String();
+    port.p_W = ports[i]["p_W"].Vec3();
+    port.rcm_W = ports[i]["rcm_W"].Vec3();
+    plan.ports.push_back(port);
+  }
+  if (p.Has("views")) {
+    const Field views = p["views"];
+    for (std::size_t i = 0; i < views.Size(); ++i) {
+      StoredView view;
+      view.arm = views[i]["arm"].String();
+      view.frame = views[i]["frame"].String();
+      view.axis_F = views[i]["axis_F"].Vec3();
+      if (std::abs(view.axis_F.norm() - 1) > 1e-3) views[i]["axis_F"].Fail("a unit vector");
+      plan.views.push_back(view);
+    }
+  }
+  const Field terms = p["terms"];
+  for (std::size_t i = 0; i < terms.Size(); ++i) {
+    plan.terms.push_back(
+        {terms[i]["name"].String(), terms[i]["value"].Number(), terms[i]["score"].Number()});
+  }
+  if (p.Has("verification")) {
+    const Field v = p["verification"];
+    plan.verified = true;
+    plan.verified_coverage = v["verified_coverage"].Number();
+    plan.served_fraction = v["served_fraction"].Number();
+    plan.verified_suitable = v["suitable"].Bool();
+    plan.verification_reasons = v["reasons"].Strings();
+    const Field motions = v["motions"];
+    for (std::size_t i = 0; i < motions.Size(); ++i) {
+      const Field m = motions[i];
+      StoredMotion motion;
+      motion.arm = m["arm"].String();
+      motion.sample = m["sample"].Integer();
+      motion.outcome = m["outcome"].String();
+      if (m.Has("reason")) motion.reason = m["reason"].String();
+      motion.solved = m["solved"].Bool();
+      if (m.Has("min_clearance_m")) motion.min_clearance = m["min_clearance_m"].Number();
+      if (m.Has("waypoints")) {
+        motion.joints = m["joints"].Strings();
+        const Field w = m["waypoints"];
+        for (std::size_t k = 0; k < w.Size(); ++k) {
+          if (w[k].Size() != motion.joints.size()) {
+            w[k].Fail(std::to_string(motion.joints.size()) + " joint values");
+          }
+          Eigen::VectorXd q(motion.joints.size());
+          for (std::size_t d = 0; d < motion.joints.size(); ++d) q[d] = w[k][d].Number();
+          motion.waypoints.push_back(q);
+        }
+      }
+      plan.motions.push_back(std::move(motion));
+    }
+  }
+  return plan;
+}
+
+}  // namespace
+
+PlanFile ReadPlanFile(const std::string& path) {
+  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": no such plan file");
+  json doc;
+  try {
+    doc = json::parse(ReadTextFile(path));
+  } catch (const json::exception& e) {
+    TROCAR_THROW(path << ": not a plan (JSON: " << e.what() << ")");
+  }
+  const Field root{path, doc, ""};
+  TROCAR_THROW_UNLESS(doc.is_object() && doc.value("format", "") == "trocar-plan",
+                      path << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
+  TROCAR_THROW_UNLESS(root["version"].Integer() == kPlanFormatVersion,
+                      path << ": plan format version " << doc.at("version")
+                           << ", this trocar reads version " << kPlanFormatVersion);
+  PlanFile file;
+  file.path = path;
+  const std::string plan_dir = ParentDirectory(path);
+  auto resolve = [&](const std::string& p) {
+    return std::filesystem::exists(p) ? p : JoinPath(plan_dir, p);
+  };
+  const Field inputs = root["inputs"];
+  file.case_dir = resolve(inputs["case"].String());
+  file.robot_file = resolve(inputs["robot"].String());
+  file.case_hash = inputs["case_hash"].String();
+  file.robot_hash = inputs["robot_hash"].String();
+  file.model_hash = inputs["patient_model_hash"].String();
+  file.patient_name = root["patient"]["name"].String();
+  file.X_WP = root["patient"]["X_WP"].Pose();
+  const Field arms = root["robot"]["arms"];
+  for (std::size_t i = 0; i < arms.Size(); ++i) {
+    StoredArm arm;
+    arm.name = arms[i]["name"].String();
+    arm.role = arms[i]["role"].String();
+    arm.tool_frame = arms[i]["tool_frame"].String();
+    arm.rcm_frame = arms[i]["rcm_frame"].String();
+    arm.joints = arms[i]["joints"].Strings();
+    file.arms.push_back(arm);
+  }
+  const Field verdict = root["verdict"];
+  file.suitable = verdict["suitable"].Bool();
+  file.summary = verdict["summary"].String();
+  file.reasons = verdict["reasons"].Strings();
+  const Field samples = root["target_samples"];
+  for (std::size_t i = 0; i < samples.Size(); ++i) {
+    StoredSample s;
+    s.index = samples[i]["index"].Integer();
+    s.target = samples[i]["target"].String();
+    s.p_W = samples[i]["p_W"].Vec3();
+    s.n_W = samples[i]["n_W"].Vec3();
+    file.samples.push_back(s);
+  }
+  const Field plans = root["plans"];
+  for (std::size_t i = 0; i < plans.Size(); ++i) {
+    file.plans.push_back(ReadPlan(plans[i]));
+    const StoredPlan& plan = file.plans.back();
+    for (const StoredMotion& m : plan.motions) {
+      TROCAR_THROW_UNLESS(m.sample >= 0 && m.sample < static_cast<int>(file.samples.size()),
+                          path << ": plans[" << i << "].verification: a motion names sample "
+                               << m.sample << ", the plan has " << file.samples.size());
+    }
+    TROCAR_THROW_UNLESS(plan.ports.size() == file.arms.size(),
+                        path << ": plans[" << i << "].ports: " << plan.ports.size()
+                             << " ports for " << file.arms.size() << " arms");
+  }
+  return file;
+}
+
+robot::RobotState NominalState(const robot::RobotModel& robot, const StoredPlan& plan,
+                               const std::string& where) {
+  robot::RobotState state(robot);
+  state.X_WB = plan.X_WB;
+  for (const auto& [name, value] : plan.setup_joints) {
+    try {
+      kinematics::SetHeldJoint(robot, name, value, &state);
+    } catch (const Error& e) {
+      TROCAR_THROW(where << ": setup joint '" << name << "': " << e.what());
+    }
+  }
+  for (const auto& [name, value] : plan.q_nominal) {
+    const int j = robot.FindJoint(name);
+    TROCAR_THROW_UNLESS(j >= 0 && robot.joint(j).q_index >= 0,
+                        where << ": q_nominal names '" << name << "', not an active joint of "
+                              << robot.name());
+    state.q[robot.joint(j).q_index] = value;
+  }
+  const auto fk = kinematics::ForwardKinematics(robot, state.q, &state);
+  TROCAR_THROW_UNLESS(fk.ok, where << ": nominal pose: " << fk.message);
+  return state;
+}
+
+void SetWaypoint(const robot::RobotModel& robot, const StoredMotion& motion, std::size_t k,
+                 robot::RobotState* state) {
+  TROCAR_THROW_UNLESS(k < motion.waypoints.size(),
+                      "motion of " << motion.arm << " to sample " << motion.sample << " has "
+                                   << motion.waypoints.size() << " waypoints, not " << k + 1);
+  Eigen::VectorXd q = state->q;
+  for (std::size_t d = 0; d < motion.joints.size(); ++d) {
+    const int j = robot.FindJoint(motion.joints[d]);
+    TROCAR_THROW_UNLESS(j >= 0 && robot.joint(j).q_index >= 0,
+                        "motion of " << motion.arm << ": '" << motion.joints[d]
+                                     << "' is not an active joint of " << robot.name());
+    q[robot.joint(j).q_index] = motion.waypoints[k][d];
+  }
+  const auto fk = kinematics::ForwardKinematics(robot, q, state);
+  TROCAR_THROW_UNLESS(fk.ok, "motion of " << motion.arm << " to sample " << motion.sample
+                                          << ", waypoint " << k << ": " << fk.message);
+}
+
+}  // namespace trocar::planners

@@ -1,0 +1,110 @@
+#pragma once
+/// @file
+/// Reading a plan file (`plan.json`, docs/plan-format.md) back: what a viewer, a report or a
+/// sign-off needs of it — the inputs, the verdict, the target samples, and per ranked plan its
+/// status, scores, ports, cart pose, setup joints, nominal pose, endoscope views and verified
+/// motions with their waypoints. Every field is checked for type and size as it is read; a bad
+/// one is named with its path in the document ("plans[2].cart.X_WB").
+
+#include <limits>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "robot/robot_model.hpp"
+#include "robot/robot_state.hpp"
+
+namespace trocar::planners {
+
+struct StoredPort {
+  std::string arm, candidate;
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();    ///< the incision on the skin
+  Eigen::Vector3d rcm_W = Eigen::Vector3d::Zero();  ///< the pivot
+};
+
+/// An endoscope's camera: it looks along `axis_F` of robot frame `frame`.
+struct StoredView {
+  std::string arm, frame;
+  Eigen::Vector3d axis_F = Eigen::Vector3d::UnitZ();
+};
+
+struct StoredTerm {
+  std::string name;
+  double value = 0.0, score = 0.0;
+};
+
+/// One verified motion (an instrument arm to a target sample).
+struct StoredMotion {
+  std::string arm;
+  int sample = -1;
+  std::string outcome, reason;
+  bool solved = false;
+  double min_clearance = std::numeric_limits<double>::quiet_NaN();  ///< m, solved paths
+  std::vector<std::string> joints;          ///< the arm's active joints, by name
+  std::vector<Eigen::VectorXd> waypoints;   ///< joint values; the first is the nominal pose
+};
+
+struct StoredPlan {
+  int rank = 0;
+  std::string status;  ///< "placed", "in collision", "unreachable"
+  double score = 0.0, rank_score = 0.0;
+  std::string message;
+  Eigen::Isometry3d X_WB = Eigen::Isometry3d::Identity();  ///< the cart
+  std::vector<std::pair<std::string, double>> setup_joints;  ///< held joints, by name
+  std::vector<std::pair<std::string, double>> q_nominal;     ///< active joints, by name
+  std::vector<StoredPort> ports;
+  std::vector<StoredView> views;
+  std::vector<StoredTerm> terms;
+  bool verified = false;  ///< has a "verification" part
+  double verified_coverage = 0.0, served_fraction = 0.0;
+  bool verified_suitable = false;
+  std::vector<std::string> verification_reasons;
+  std::vector<StoredMotion> motions;
+};
+
+struct StoredSample {
+  int index = 0;
+  std::string target;
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero(), n_W = Eigen::Vector3d::UnitZ();
+};
+
+struct StoredArm {
+  std::string name, role, tool_frame, rcm_frame;
+  std::vector<std::string> joints;
+};
+
+struct PlanFile {
+  std::string path;
+  /// The inputs as written, and resolved: as given when that path exists (relative to the
+  /// working directory), else relative to the plan's folder.
+  std::string case_dir, robot_file;
+  std::string case_hash, robot_hash, model_hash;
+  std::string patient_name;
+  Eigen::Isometry3d X_WP = Eigen::Isometry3d::Identity();
+  std::vector<StoredArm> arms;
+  bool suitable = false;
+  std::string summary;
+  std::vector<std::string> reasons;
+  std::vector<StoredSample> samples;
+  std::vector<StoredPlan> plans;  ///< best first
+};
+
+/// Reads and checks a plan file. @throws trocar::Error naming the file and the field (its path
+/// in the document) and what was expected: missing, not JSON, another format or version, a field
+/// of the wrong type or size, a non-finite number.
+PlanFile ReadPlanFile(const std::string& path);
+
+/// The robot at a stored plan's nominal pose: cart at X_WB, setup joints held, active joints at
+/// q_nominal (others at the model's neutral values), forward kinematics done.
+/// @throws trocar::Error naming `where` and the joint when the plan does not fit the robot.
+robot::RobotState NominalState(const robot::RobotModel& robot, const StoredPlan& plan,
+                               const std::string& where);
+
+/// `state` with one motion's waypoint `k` set on its arm's joints (then forward kinematics).
+/// @throws trocar::Error when the motion names a joint the robot has not.
+void SetWaypoint(const robot::RobotModel& robot, const StoredMotion& motion, std::size_t k,
+                 robot::RobotState* state);
+
+}  // namespace trocar::planners

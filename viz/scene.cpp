@@ -1,0 +1,792 @@
+#include "scene.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <sstream>
+
+#include <unistd.h>
+
+#include <vtkActor.h>
+#include <vtkAppendPolyData.h>
+#include <vtkCamera.h>
+#include <vtkCellArray.h>
+#include <vtkConeSource.h>
+#include <vtkCubeSource.h>
+#include <vtkCylinderSource.h>
+#include <vtkLight.h>
+#include <vtkMatrix4x4.h>
+#include <vtkNew.h>
+#include <vtkPNGWriter.h>
+#include <vtkPoints.h>
+#include <vtkPolyData.h>
+#include <vtkPolyDataMapper.h>
+#include <vtkPolyDataNormals.h>
+#include <vtkPolyLine.h>
+#include <vtkProperty.h>
+#include <vtkRenderWindow.h>
+#include <vtkRenderer.h>
+#include <vtkSmartPointer.h>
+#include <vtkSphereSource.h>
+#include <vtkTransform.h>
+#include <vtkTransformPolyDataFilter.h>
+#include <vtkTubeFilter.h>
+#include <vtkWindowToImageFilter.h>
+
+#include "common/error.hpp"
+#include "kinematics/forward_kinematics.hpp"
+
+namespace trocar::viz {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+vtkSmartPointer<vtkMatrix4x4> ToVtk(const Eigen::Isometry3d& X) {
+  auto m = vtkSmartPointer<vtkMatrix4x4>::New();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) m->SetElement(r, c, X.matrix()(r, c));
+  return m;
+}
+
+/// A triangle mesh (scaled) as VTK polygons with smooth normals.
+vtkSmartPointer<vtkPolyData> ToPolyData(const TriangleMesh& mesh,
+                                        const Eigen::Vector3d& scale = Eigen::Vector3d::Ones()) {
+  vtkNew<vtkPoints> points;
+  points->SetDataTypeToDouble();
+  points->SetNumberOfPoints(static_cast<vtkIdType>(mesh.vertices.size()));
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) {
+    const Eigen::Vector3d p = mesh.vertices[i].cwiseProduct(scale);
+    points->SetPoint(static_cast<vtkIdType>(i), p.data());
+  }
+  vtkNew<vtkCellArray> cells;
+  const auto n = static_cast<vtkIdType>(mesh.vertices.size());
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    if (t.minCoeff() < 0 || t.maxCoeff() >= n) continue;  // a validated mesh has none
+    const vtkIdType ids[3] = {t[0], t[1], t[2]};
+    cells->InsertNextCell(3, ids);
+  }
+  vtkNew<vtkPolyData> poly;
+  poly->SetPoints(points);
+  poly->SetPolys(cells);
+  vtkNew<vtkPolyDataNormals> normals;
+  normals->SetInputData(poly);
+  normals->SetFeatureAngle(60);
+  normals->ConsistencyOn();
+  normals->Update();
+  vtkSmartPointer<vtkPolyData> out = normals->GetOutput();
+  return out;
+}
+
+vtkSmartPointer<vtkPolyData> Output(vtkPolyDataAlgorithm* algorithm) {
+  algorithm->Update();
+  vtkSmartPointer<vtkPolyData> out = algorithm->GetOutput();
+  return out;
+}
+
+/// A cylinder of `radius` and `length` along z, centred on the origin (VTK's is along y).
+vtkSmartPointer<vtkPolyData> CylinderZ(double radius, double length, bool caps) {
+  vtkNew<vtkCylinderSource> cylinder;
+  cylinder->SetRadius(radius);
+  cylinder->SetHeight(length);
+  cylinder->SetResolution(20);
+  cylinder->SetCapping(caps);
+  vtkNew<vtkTransform> turn;
+  turn->RotateX(90);
+  vtkNew<vtkTransformPolyDataFilter> filter;
+  filter->SetTransform(turn);
+  filter->SetInputConnection(cylinder->GetOutputPort());
+  return Output(filter);
+}
+
+vtkSmartPointer<vtkPolyData> Sphere(const Eigen::Vector3d& centre, double radius, int resolution = 16) {
+  vtkNew<vtkSphereSource> sphere;
+  sphere->SetCenter(centre.data());
+  sphere->SetRadius(radius);
+  sphere->SetThetaResolution(resolution);
+  sphere->SetPhiResolution(resolution);
+  return Output(sphere);
+}
+
+vtkSmartPointer<vtkPolyData> ShapePolyData(const robot::Geometry& g) {
+  using Shape = robot::Geometry::Shape;
+  switch (g.shape) {
+    case Shape::kMesh:
+      if (!g.mesh) return nullptr;
+      return ToPolyData(*g.mesh, g.mesh_scale);
+    case Shape::kBox: {
+      vtkNew<vtkCubeSource> box;
+      box->SetXLength(g.size.x());
+      box->SetYLength(g.size.y());
+      box->SetZLength(g.size.z());
+      return Output(box);
+    }
+    case Shape::kCylinder:
+      return CylinderZ(g.size.x(), g.size.y(), true);
+    case Shape::kSphere:
+      return Sphere(Eigen::Vector3d::Zero(), g.size.x());
+    case Shape::kCapsule: {
+      vtkNew<vtkAppendPolyData> append;
+      append->AddInputData(CylinderZ(g.size.x(), g.size.y(), false));
+      append->AddInputData(Sphere(Eigen::Vector3d(0, 0, g.size.y() / 2), g.size.x()));
+      append->AddInputData(Sphere(Eigen::Vector3d(0, 0, -g.size.y() / 2), g.size.x()));
+      return Output(append);
+    }
+  }
+  return nullptr;
+}
+
+/// A polyline thickened into a tube.
+vtkSmartPointer<vtkPolyData> Tube(const std::vector<Eigen::Vector3d>& points, double radius) {
+  if (points.size() < 2) return nullptr;
+  vtkNew<vtkPoints> p;
+  p->SetDataTypeToDouble();
+  vtkNew<vtkPolyLine> line;
+  line->GetPointIds()->SetNumberOfIds(static_cast<vtkIdType>(points.size()));
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    p->InsertNextPoint(points[i].data());
+    line->GetPointIds()->SetId(static_cast<vtkIdType>(i), static_cast<vtkIdType>(i));
+  }
+  vtkNew<vtkCellArray> lines;
+  lines->InsertNextCell(line);
+  vtkNew<vtkPolyData> poly;
+  poly->SetPoints(p);
+  poly->SetLines(lines);
+  vtkNew<vtkTubeFilter> tube;
+  tube->SetInputData(poly);
+  tube->SetRadius(radius);
+  tube->SetNumberOfSides(10);
+  tube->CappingOn();
+  return Output(tube);
+}
+
+/// Approach cones: apex at each point, opening along its normal (the instrument's side).
+vtkSmartPointer<vtkPolyData> Cones(const std::vector<Eigen::Vector3d>& points,
+                                   const std::vector<Eigen::Vector3d>& normals, double height,
+                                   double half_angle) {
+  vtkNew<vtkAppendPolyData> append;
+  int added = 0;
+  for (std::size_t i = 0; i < points.size() && i < normals.size(); ++i) {
+    if (!normals[i].allFinite() || normals[i].norm() < 1e-9) continue;
+    const Eigen::Vector3d n = normals[i].normalized();
+    vtkNew<vtkConeSource> cone;
+    const Eigen::Vector3d centre = points[i] + n * height / 2;
+    const Eigen::Vector3d direction = -n;
+    cone->SetCenter(centre.data());
+    cone->SetDirection(direction.data());
+    cone->SetHeight(height);
+    cone->SetRadius(height * std::tan(half_angle));
+    cone->SetResolution(20);
+    cone->CappingOff();
+    append->AddInputData(Output(cone));
+    ++added;
+  }
+  if (added == 0) return nullptr;
+  return Output(append);
+}
+
+std::vector<Eigen::Vector3d> ToWorld(const std::vector<Eigen::Vector3d>& points_P,
+                                     const Eigen::Isometry3d& X_WP) {
+  std::vector<Eigen::Vector3d> out;
+  out.reserve(points_P.size());
+  for (const auto& p : points_P) out.push_back(X_WP * p);
+  return out;
+}
+
+bool IsBone(const std::string& name) {
+  return name == "ribs" || name == "sternum" || name == "spine" || name == "bone" ||
+         name == "girdle" || name == "costal_cartilage";
+}
+
+std::string KindOf(const std::string& group) {
+  if (group.rfind("target:", 0) == 0) return "target";
+  return group;
+}
+
+}  // namespace
+
+SceneStyle SceneStyle::Default() {
+  SceneStyle s;
+  s.colours = {
+      {"skin", {0.93, 0.74, 0.62}},    {"ribs", {0.95, 0.93, 0.84}},
+      {"sternum", {0.92, 0.90, 0.78}}, {"spine", {0.86, 0.84, 0.74}},
+      {"bone", {0.90, 0.88, 0.80}},    {"heart", {0.80, 0.16, 0.16}},
+      {"aorta", {0.85, 0.25, 0.20}},   {"organ", {0.70, 0.45, 0.55}},
+      {"target", {1.00, 0.85, 0.10}},  {"cones", {0.30, 0.85, 0.95}},
+      {"candidates", {0.20, 0.75, 0.35}}, {"ports", {0.15, 0.95, 0.25}},
+      {"pivots", {0.95, 0.30, 0.95}},  {"table", {0.45, 0.50, 0.58}},
+      {"floor", {0.28, 0.29, 0.31}},   {"robot", {0.78, 0.80, 0.86}},
+      {"collision", {1.00, 0.30, 0.05}},
+  };
+  s.opacities = {{"skin", 0.35}, {"cones", 0.55}};
+  return s;
+}
+
+Eigen::Vector3d SceneStyle::Colour(const std::string& group) const {
+  if (auto it = colours.find(group); it != colours.end()) return it->second;
+  if (auto it = colours.find(KindOf(group)); it != colours.end()) return it->second;
+  if (IsBone(group)) {
+    if (auto it = colours.find("bone"); it != colours.end()) return it->second;
+  }
+  if (auto it = colours.find("organ"); it != colours.end()) return it->second;
+  return {0.7, 0.7, 0.7};
+}
+
+double SceneStyle::Opacity(const std::string& group) const {
+  if (auto it = opacities.find(group); it != opacities.end()) return it->second;
+  if (auto it = opacities.find(KindOf(group)); it != opacities.end()) return it->second;
+  return 1.0;
+}
+
+bool SceneStyle::Visible(const std::string& group) const {
+  if (auto it = visible.find(group); it != visible.end()) return it->second;
+  if (auto it = visible.find(KindOf(group)); it != visible.end()) return it->second;
+  return true;
+}
+
+namespace {
+std::pair<std::string, std::string> SplitAssignment(const std::string& text, const char* what) {
+  const auto eq = text.find('=');
+  TROCAR_THROW_UNLESS(eq != std::string::npos && eq > 0 && eq + 1 < text.size(),
+                      "'" << text << "': expected " << what);
+  return {text.substr(0, eq), text.substr(eq + 1)};
+}
+double ParseNumber(const std::string& text, const std::string& whole, const char* what) {
+  std::size_t used = 0;
+  double v = 0;
+  try {
+    v = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  TROCAR_THROW_UNLESS(used == text.size() && std::isfinite(v),
+                      "'" << whole << "': '" << text << "' is not a number (" << what << ")");
+  return v;
+}
+}  // namespace
+
+void SceneStyle::ParseColour(const std::string& text) {
+  const char* what = "name=r,g,b with each in 0..1 (or all in 0..255)";
+  const auto [name, value] = SplitAssignment(text, what);
+  std::vector<double> c;
+  std::stringstream ss(value);
+  std::string part;
+  while (std::getline(ss, part, ',')) c.push_back(ParseNumber(part, text, what));
+  TROCAR_THROW_UNLESS(c.size() == 3, "'" << text << "': expected " << what);
+  const double top = *std::max_element(c.begin(), c.end());
+  const double scale = top > 1.0 ? 255.0 : 1.0;
+  for (double v : c) {
+    TROCAR_THROW_UNLESS(v >= 0 && v <= scale, "'" << text << "': expected " << what);
+  }
+  const Eigen::Vector3d rgb = Eigen::Vector3d(c[0], c[1], c[2]) / scale;
+  if (name == "background") {
+    background = rgb;
+  } else {
+    colours[name] = rgb;
+  }
+}
+
+void SceneStyle::ParseOpacity(const std::string& text) {
+  const char* what = "name=opacity in 0..1";
+  const auto [name, value] = SplitAssignment(text, what);
+  const double v = ParseNumber(value, text, what);
+  TROCAR_THROW_UNLESS(v >= 0 && v <= 1, "'" << text << "': expected " << what);
+  opacities[name] = v;
+}
+
+struct Scene::Impl {
+  std::shared_ptr<const patient::PatientModel> patient;
+  std::shared_ptr<const robot::RobotModel> robot;
+  SceneStyle style;
+  std::unique_ptr<robot::RobotState> state;
+
+  struct Group {
+    std::string name;
+    std::vector<vtkSmartPointer<vtkActor>> actors;
+  };
+  std::vector<Group> groups;
+  struct LinkActor {
+    int link = -1;
+    Eigen::Isometry3d X_LG = Eigen::Isometry3d::Identity();
+    vtkSmartPointer<vtkActor> actor;
+  };
+  std::vector<LinkActor> links;
+  std::vector<int> highlighted;
+
+  Group& GetGroup(const std::string& name) {
+    for (Group& g : groups)
+      if (g.name == name) return g;
+    groups.push_back({name, {}});
+    return groups.back();
+  }
+  const Group* FindGroup(const std::string& name) const {
+    for (const Group& g : groups)
+      if (g.name == name) return &g;
+    return nullptr;
+  }
+  Group* FindGroup(const std::string& name) {
+    for (Group& g : groups)
+      if (g.name == name) return &g;
+    return nullptr;
+  }
+
+  vtkSmartPointer<vtkActor> Add(const std::string& group, vtkSmartPointer<vtkPolyData> poly,
+                                const Eigen::Isometry3d& X_W = Eigen::Isometry3d::Identity()) {
+    Group& g = GetGroup(group);  // a group exists even when it draws nothing
+    if (!poly || poly->GetNumberOfCells() == 0) return nullptr;
+    vtkNew<vtkPolyDataMapper> mapper;
+    mapper->SetInputData(poly);
+    mapper->ScalarVisibilityOff();
+    auto actor = vtkSmartPointer<vtkActor>::New();
+    actor->SetMapper(mapper);
+    actor->SetUserMatrix(ToVtk(X_W));
+    g.actors.push_back(actor);
+    ApplyStyle(g);
+    return actor;
+  }
+
+  void ApplyStyle(const Group& g) {
+    const bool is_robot = g.name == "robot";
+    for (const auto& actor : g.actors) {
+      Eigen::Vector3d colour = style.Colour(g.name);
+      if (is_robot) {
+        for (const LinkActor& la : links) {
+          if (la.actor == actor &&
+              std::find(highlighted.begin(), highlighted.end(), la.link) != highlighted.end()) {
+            colour = style.Colour("collision");
+          }
+        }
+      }
+      vtkProperty* p = actor->GetProperty();
+      p->SetColor(colour.data());
+      p->SetOpacity(style.Opacity(g.name));
+      actor->SetVisibility(style.Visible(g.name));
+      // Closed surfaces are seen from outside only: a camera inside one (the endoscope in the
+      // chest, a scope tip at a port) looks through it.
+      p->SetBackfaceCulling(g.name == "skin" || g.name == "ports" || g.name == "pivots");
+      if (style.flat) {
+        p->LightingOff();
+        p->SetAmbient(1.0);
+        p->SetDiffuse(0.0);
+        p->SetSpecular(0.0);
+      } else {
+        p->LightingOn();
+        p->SetAmbient(0.12);
+        p->SetDiffuse(0.85);
+        p->SetSpecular(g.name == "skin" ? 0.05 : 0.25);
+        p->SetSpecularPower(20);
+      }
+    }
+  }
+
+  void BuildPatient() {
+    const patient::PatientModel& m = *patient;
+    for (const patient::Structure& s : m.structures) Add(s.name, ToPolyData(s.mesh), m.X_WP);
+    for (const patient::Target& t : m.targets) {
+      Add("target:" + t.name, Tube(ToWorld(t.points, m.X_WP), 0.0015));
+    }
+    {
+      vtkNew<vtkAppendPolyData> append;
+      int n = 0;
+      for (const patient::PortCandidate& c : m.port_candidates) {
+        if (auto tube = Tube(ToWorld(c.skin, m.X_WP), 0.0012)) {
+          append->AddInputData(tube);
+          ++n;
+        }
+      }
+      Add("candidates", n ? Output(append) : nullptr);
+    }
+    ShowModelCones();
+    GetGroup("ports");
+    GetGroup("pivots");
+    // The table (its top at `height`, long axis along x_W) and the floor (z = 0).
+    vtkNew<vtkCubeSource> table;
+    table->SetXLength(m.table.length);
+    table->SetYLength(m.table.width);
+    table->SetZLength(m.table.thickness);
+    table->SetCenter(0, 0, m.table.height - m.table.thickness / 2);
+    Add("table", Output(table));
+    vtkNew<vtkCubeSource> floor;
+    floor->SetXLength(5.0);
+    floor->SetYLength(5.0);
+    floor->SetZLength(0.002);
+    floor->SetCenter(0, 0, -0.001);
+    Add("floor", Output(floor));
+  }
+
+  /// Cones from the model's targets: at most 8 per target, evenly along it.
+  void ShowModelCones() {
+    std::vector<Eigen::Vector3d> points, normals;
+    for (const patient::Target& t : patient->targets) {
+      const std::size_t n = std::min(t.points.size(), t.normals.size());
+      const std::size_t step = std::max<std::size_t>(1, (n + 7) / 8);
+      for (std::size_t i = 0; i < n; i += step) {
+        points.push_back(patient->X_WP * t.points[i]);
+        normals.push_back(patient->X_WP.linear() * t.normals[i]);
+      }
+    }
+    ReplaceGroup("cones", Cones(points, normals, 0.02, 30 * kPi / 180));
+  }
+
+  void ReplaceGroup(const std::string& name, vtkSmartPointer<vtkPolyData> poly) {
+    Group& g = GetGroup(name);
+    for (auto& a : g.actors) {
+      if (a) a->GetMapper()->RemoveAllInputConnections(0);
+    }
+    if (!g.actors.empty() && poly) {
+      vtkPolyDataMapper::SafeDownCast(g.actors[0]->GetMapper())->SetInputData(poly);
+      g.actors.resize(1);
+      ApplyStyle(g);
+      return;
+    }
+    if (!g.actors.empty()) {
+      // Nothing to draw: keep the actor (a window may hold it) with an empty input.
+      vtkPolyDataMapper::SafeDownCast(g.actors[0]->GetMapper())->SetInputData(vtkNew<vtkPolyData>());
+      g.actors.resize(1);
+      return;
+    }
+    Add(name, poly);
+  }
+
+  void BuildRobot() {
+    const robot::RobotModel& r = *robot;
+    for (int l = 0; l < r.num_links(); ++l) {
+      const robot::Link& link = r.link(l);
+      const auto& shapes = link.visuals.empty() ? link.collisions : link.visuals;
+      for (const robot::Geometry& g : shapes) {
+        vtkSmartPointer<vtkPolyData> poly = ShapePolyData(g);
+        if (!poly) continue;
+        auto actor = Add("robot", poly);
+        if (actor) links.push_back({l, g.X_LG, actor});
+      }
+    }
+    state = std::make_unique<robot::RobotState>(r);
+    kinematics::ForwardKinematics(r, r.neutral_configuration(), state.get());
+    PoseRobot();
+  }
+
+  void PoseRobot() {
+    if (!state) return;
+    for (const LinkActor& la : links) {
+      if (la.link < static_cast<int>(state->X_WL.size())) {
+        la.actor->SetUserMatrix(ToVtk(state->X_WL[la.link] * la.X_LG));
+      }
+    }
+  }
+};
+
+Scene::Scene(std::shared_ptr<const patient::PatientModel> patient,
+             std::shared_ptr<const robot::RobotModel> robot, SceneStyle style)
+    : impl_(std::make_unique<Impl>()) {
+  TROCAR_THROW_UNLESS(patient != nullptr, "a scene needs a patient model");
+  impl_->patient = std::move(patient);
+  impl_->robot = std::move(robot);
+  impl_->style = std::move(style);
+  impl_->BuildPatient();
+  if (impl_->robot) impl_->BuildRobot();
+}
+
+Scene::~Scene() = default;
+
+const patient::PatientModel& Scene::patient() const { return *impl_->patient; }
+const robot::RobotModel* Scene::robot() const { return impl_->robot.get(); }
+const SceneStyle& Scene::style() const { return impl_->style; }
+
+std::vector<std::string> Scene::groups() const {
+  std::vector<std::string> out;
+  for (const auto& g : impl_->groups) out.push_back(g.name);
+  return out;
+}
+
+void Scene::SetColour(const std::string& group, const Eigen::Vector3d& rgb) {
+  impl_->style.colours[group] = rgb;
+  for (const auto& g : impl_->groups) impl_->ApplyStyle(g);
+}
+void Scene::SetOpacity(const std::string& group, double opacity) {
+  impl_->style.opacities[group] = std::clamp(opacity, 0.0, 1.0);
+  if (auto* g = impl_->FindGroup(group)) impl_->ApplyStyle(*g);
+}
+void Scene::SetVisible(const std::string& group, bool visible) {
+  impl_->style.visible[group] = visible;
+  for (const auto& g : impl_->groups) impl_->ApplyStyle(g);
+}
+void Scene::SetBackground(const Eigen::Vector3d& rgb) { impl_->style.background = rgb; }
+void Scene::SetFlat(bool flat) {
+  impl_->style.flat = flat;
+  for (const auto& g : impl_->groups) impl_->ApplyStyle(g);
+}
+
+void Scene::ShowPlan(const planners::PlanFile& file, std::size_t index) {
+  TROCAR_THROW_UNLESS(index < file.plans.size(),
+                      file.path << ": has " << file.plans.size() << " plans, not " << index + 1);
+  const planners::StoredPlan& plan = file.plans[index];
+  const std::string where = file.path + ": plan " + std::to_string(index + 1);
+  if (impl_->robot) {
+    SetRobotState(planners::NominalState(*impl_->robot, plan, where));
+  }
+  vtkNew<vtkAppendPolyData> ports, pivots;
+  for (const planners::StoredPort& port : plan.ports) {
+    ports->AddInputData(Sphere(port.p_W, 0.006));
+    pivots->AddInputData(Sphere(port.rcm_W, 0.004));
+  }
+  impl_->ReplaceGroup("ports", plan.ports.empty() ? nullptr : Output(ports));
+  impl_->ReplaceGroup("pivots", plan.ports.empty() ? nullptr : Output(pivots));
+  std::vector<Eigen::Vector3d> points, normals;
+  for (const planners::StoredSample& s : file.samples) {
+    points.push_back(s.p_W);
+    normals.push_back(s.n_W);
+  }
+  impl_->ReplaceGroup("cones", Cones(points, normals, 0.02, 30 * kPi / 180));
+}
+
+void Scene::SetRobotState(const robot::RobotState& state) {
+  TROCAR_THROW_UNLESS(impl_->robot, "the scene has no robot to pose");
+  *impl_->state = state;
+  impl_->PoseRobot();
+}
+
+const robot::RobotState* Scene::robot_state() const { return impl_->state.get(); }
+
+void Scene::HighlightLinks(const std::vector<int>& links) {
+  impl_->highlighted = links;
+  if (auto* g = impl_->FindGroup("robot")) impl_->ApplyStyle(*g);
+}
+
+CameraPose Scene::ExternalCamera(double aspect) const {
+  // Bounds of the patient, the table and the robot (not the floor).
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e9), hi = Eigen::Vector3d::Constant(-1e9);
+  for (const auto& g : impl_->groups) {
+    if (g.name == "floor") continue;
+    for (const auto& a : g.actors) {
+      double b[6];
+      a->GetBounds(b);
+      if (!(b[0] <= b[1])) continue;
+      lo = lo.cwiseMin(Eigen::Vector3d(b[0], b[2], b[4]));
+      hi = hi.cwiseMax(Eigen::Vector3d(b[1], b[3], b[5]));
+    }
+  }
+  if (!(lo.array() <= hi.array()).all()) {
+    lo = -Eigen::Vector3d::Ones();
+    hi = Eigen::Vector3d::Ones();
+  }
+  CameraPose pose;
+  // Between the middle of everything and the patient (the subject), which the view keeps central.
+  Eigen::Vector3d centre = (lo + hi) / 2;
+  if (const auto* skin = impl_->FindGroup("skin"); skin && !skin->actors.empty()) {
+    double b[6];
+    skin->actors[0]->GetBounds(b);
+    centre = 0.5 * centre + 0.5 * Eigen::Vector3d((b[0] + b[1]) / 2, (b[2] + b[3]) / 2, (b[4] + b[5]) / 2);
+  }
+  pose.focal_point = centre;
+  const double radius = std::max(0.2, (hi - lo).norm() / 2);
+  const Eigen::Vector3d direction = Eigen::Vector3d(-0.55, -0.75, 0.75).normalized();
+  const double half = pose.view_angle_deg / 2 * kPi / 180;
+  const double half_h = std::atan(std::tan(half) * std::max(aspect, 1e-3));
+  const double fit = std::min(half, half_h);
+  pose.position = pose.focal_point + direction * radius / std::sin(fit) * 0.7;
+  pose.view_up = Eigen::Vector3d::UnitZ();
+  return pose;
+}
+
+CameraPose Scene::OnFrame(const FrameCamera& camera) const {
+  TROCAR_THROW_UNLESS(impl_->robot && impl_->state, "a camera on frame '" << camera.frame
+                                                    << "' needs a robot in the scene");
+  const robot::Frame& frame = impl_->robot->GetFrame(camera.frame);
+  const Eigen::Isometry3d X_WF = kinematics::FramePose(*impl_->state, frame);
+  const Eigen::Vector3d axis_F = camera.axis_F.normalized();
+  const Eigen::Vector3d e = std::abs(axis_F.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  const Eigen::Vector3d up_F = (e - axis_F * axis_F.dot(e)).normalized();
+  CameraPose pose;
+  pose.position = X_WF.translation();
+  pose.focal_point = pose.position + X_WF.linear() * axis_F * 0.08;
+  pose.view_up = X_WF.linear() * up_F;
+  pose.view_angle_deg = camera.view_angle_deg;
+  return pose;
+}
+
+void Scene::AddTo(vtkRenderer* renderer) const {
+  for (const auto& g : impl_->groups)
+    for (const auto& a : g.actors) renderer->AddActor(a);
+  renderer->SetBackground(impl_->style.background.data());
+}
+
+void Scene::Apply(const CameraPose& pose, vtkRenderer* renderer, const FrameCamera* scope) {
+  vtkCamera* camera = renderer->GetActiveCamera();
+  camera->SetPosition(pose.position.data());
+  camera->SetFocalPoint(pose.focal_point.data());
+  camera->SetViewUp(pose.view_up.data());
+  camera->SetViewAngle(pose.view_angle_deg);
+  camera->OrthogonalizeViewUp();
+  if (scope) {
+    renderer->AutomaticLightCreationOff();
+    renderer->RemoveAllLights();
+    vtkNew<vtkLight> light;
+    light->SetLightTypeToHeadlight();
+    light->SetIntensity(scope->light_intensity);
+    renderer->AddLight(light);
+    // A scope sees from about a centimetre (its own tip's shapes are nearer).
+    camera->SetClippingRange(0.012, 3.0);
+  } else {
+    renderer->ResetCameraClippingRange();
+  }
+}
+
+long Scene::triangle_count() const {
+  long n = 0;
+  for (const auto& g : impl_->groups) {
+    if (!impl_->style.Visible(g.name)) continue;
+    for (const auto& a : g.actors) {
+      if (auto* poly = vtkPolyData::SafeDownCast(a->GetMapper()->GetInput())) {
+        n += poly->GetNumberOfPolys() + poly->GetNumberOfStrips();
+      }
+    }
+  }
+  return n;
+}
+
+int Scene::actor_count() const {
+  int n = 0;
+  for (const auto& g : impl_->groups) n += static_cast<int>(g.actors.size());
+  return n;
+}
+
+namespace {
+std::vector<double> Numbers(const std::string& text, const char* what) {
+  std::string t = text;
+  std::replace(t.begin(), t.end(), ',', ' ');
+  std::istringstream in(t);
+  std::vector<double> v;
+  std::string word;
+  while (in >> word) v.push_back(ParseNumber(word, text, what));
+  return v;
+}
+}  // namespace
+
+Eigen::Isometry3d ParseBasePose(const std::string& position, const std::string& rotation) {
+  const std::vector<double> p = Numbers(position, "x, y, z in metres");
+  TROCAR_THROW_UNLESS(p.size() == 3, "base position '" << position << "': expected x, y, z (m)");
+  const char* what = "XYZ Euler angles (3 numbers, deg), a quaternion (w x y z) or a rotation "
+                     "matrix (9 numbers, by rows)";
+  const std::vector<double> r = Numbers(rotation, what);
+  Eigen::Matrix3d R;
+  if (r.size() == 3) {
+    R = (Eigen::AngleAxisd(r[0] * kPi / 180, Eigen::Vector3d::UnitX()) *
+         Eigen::AngleAxisd(r[1] * kPi / 180, Eigen::Vector3d::UnitY()) *
+         Eigen::AngleAxisd(r[2] * kPi / 180, Eigen::Vector3d::UnitZ()))
+            .toRotationMatrix();
+  } else if (r.size() == 4) {
+    const Eigen::Quaterniond q(r[0], r[1], r[2], r[3]);
+    TROCAR_THROW_UNLESS(q.norm() > 1e-9, "base rotation '" << rotation << "': a zero quaternion");
+    R = q.normalized().toRotationMatrix();
+  } else if (r.size() == 9) {
+    R << r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8];
+    TROCAR_THROW_UNLESS((R.transpose() * R - Eigen::Matrix3d::Identity()).norm() < 1e-6 &&
+                            R.determinant() > 0,
+                        "base rotation '" << rotation
+                                          << "': the matrix is not a rotation (orthonormal, determinant +1)");
+  } else {
+    TROCAR_THROW("base rotation '" << rotation << "': " << r.size() << " numbers; expected " << what);
+  }
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = R;
+  X.translation() = Eigen::Vector3d(p[0], p[1], p[2]);
+  return X;
+}
+
+Eigen::Vector3d EulerXyzDeg(const Eigen::Matrix3d& R) {
+  // R = Rx(a) Ry(b) Rz(c): R(0,2) = sin b.
+  const double b = std::asin(std::clamp(R(0, 2), -1.0, 1.0));
+  double a = 0, c = 0;
+  if (std::abs(R(0, 2)) < 1 - 1e-12) {
+    a = std::atan2(-R(1, 2), R(2, 2));
+    c = std::atan2(-R(0, 1), R(0, 0));
+  } else {  // gimbal lock: a and c turn about the same axis; put it all in a
+    a = std::atan2(R(2, 1), R(1, 1));
+  }
+  return Eigen::Vector3d(a, b, c) * 180 / kPi;
+}
+
+ViewSpec ViewSpec::Parse(const std::string& text) {
+  ViewSpec v;
+  if (text == "external") return v;
+  if (text == "endoscope") {
+    v.kind = Kind::kEndoscope;
+    return v;
+  }
+  if (text.rfind("frame:", 0) == 0 && text.size() > 6) {
+    v.kind = Kind::kFrame;
+    v.camera.frame = text.substr(6);
+    return v;
+  }
+  TROCAR_THROW("view '" << text << "': expected external, endoscope or frame:<robot frame>");
+}
+
+CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
+                      const planners::StoredPlan* plan, FrameCamera* used) {
+  FrameCamera camera = view.camera;
+  switch (view.kind) {
+    case ViewSpec::Kind::kExternal:
+      return scene.ExternalCamera(aspect);
+    case ViewSpec::Kind::kEndoscope: {
+      TROCAR_THROW_UNLESS(plan && !plan->views.empty(),
+                          "the endoscope view needs a plan whose robot has an endoscope arm");
+      camera.frame = plan->views.front().frame;
+      camera.axis_F = plan->views.front().axis_F;
+      break;
+    }
+    case ViewSpec::Kind::kFrame:
+      break;
+  }
+  if (used) *used = camera;
+  return scene.OnFrame(camera);
+}
+
+void Screenshot(const Scene& scene, const std::vector<std::pair<ViewSpec, CameraPose>>& views,
+                int width, int height, const std::string& path) {
+  TROCAR_THROW_UNLESS(width >= 16 && height >= 16 && width <= 8192 && height <= 8192,
+                      "screenshot size " << width << "x" << height
+                                         << ": expected 16..8192 pixels a side");
+  TROCAR_THROW_UNLESS(!views.empty(), "a screenshot needs at least one view");
+  const char* display = std::getenv("DISPLAY");
+  TROCAR_THROW_UNLESS(display && *display,
+                      "rendering " << path << " needs an X display (DISPLAY is not set): "
+                                   << "run under xvfb-run -a -s \"-screen 0 1280x1024x24\"");
+  vtkNew<vtkRenderWindow> window;
+  window->SetOffScreenRendering(1);
+  window->SetSize(width, height);
+  window->SetMultiSamples(0);
+  const double n = static_cast<double>(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    vtkNew<vtkRenderer> renderer;
+    renderer->SetViewport(i / n, 0, (i + 1) / n, 1);
+    scene.AddTo(renderer);
+    const bool scope = views[i].first.kind != ViewSpec::Kind::kExternal;
+    Scene::Apply(views[i].second, renderer, scope ? &views[i].first.camera : nullptr);
+    window->AddRenderer(renderer);
+  }
+  window->Render();
+  vtkNew<vtkWindowToImageFilter> grab;
+  grab->SetInput(window);
+  grab->SetInputBufferTypeToRGB();
+  grab->ReadFrontBufferOff();
+  grab->Update();
+  const std::string tmp = path + ".tmp" + std::to_string(::getpid());
+  vtkNew<vtkPNGWriter> writer;
+  writer->SetFileName(tmp.c_str());
+  writer->SetInputConnection(grab->GetOutputPort());
+  writer->Write();
+  std::error_code ec;
+  if (writer->GetErrorCode() != 0 || !std::filesystem::exists(tmp, ec)) {
+    std::filesystem::remove(tmp, ec);
+    TROCAR_THROW(path << ": cannot write the screenshot (" << tmp << " not written)");
+  }
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::filesystem::remove(tmp);
+    TROCAR_THROW(path << ": cannot write the screenshot (" << ec.message() << ")");
+  }
+  // Each renderer gives the scene's actors back so that they can join another window.
+  window->Finalize();
+}
+
+}  // namespace trocar::viz

@@ -1,0 +1,156 @@
+#pragma once
+/// @file
+/// The workstation's 3D scene (VTK): a patient model (skin, bones, heart, other structures),
+/// its targets with their approach-normal cones, the candidate port curves, a plan's ports, the
+/// table and floor, and a robot drawn from its links' visual shapes (collision shapes where a
+/// link has none: the bundled da Vinci cart is described by primitives), posed by a RobotState.
+///
+/// Every actor belongs to a named *group* ("skin", "ribs", "heart", "target:LAD", "cones",
+/// "candidates", "ports", "table", "floor", "robot"), whose colour, opacity and visibility the
+/// style sets and the window changes. Flat style draws each group unlit in its exact colour, so
+/// that a picture can be checked pixel by pixel (tests) and read by eye as a map of what is where.
+///
+/// Cameras (thesis §2.10): the external view frames the patient, table and robot; the endoscope
+/// view looks from a robot frame along an axis of that frame (the ECM's tool or its 30° camera
+/// frame, or any end effector), with a light at the scope tip of adjustable intensity (thesis
+/// requirement 2).
+
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "patient/patient_model.hpp"
+#include "port_placement/plan_file.hpp"
+#include "robot/robot_model.hpp"
+#include "robot/robot_state.hpp"
+
+class vtkRenderer;
+
+namespace trocar::viz {
+
+/// Colours (RGB 0..1) and opacities per group, and the background. Groups not named take the
+/// defaults of their kind ("target:*" → "target", a structure not listed → "organ").
+struct SceneStyle {
+  std::map<std::string, Eigen::Vector3d> colours;
+  std::map<std::string, double> opacities;
+  std::map<std::string, bool> visible;
+  Eigen::Vector3d background{0.10, 0.11, 0.14};
+  /// Unlit, exact colours (no shading): a pixel's colour names its group.
+  bool flat = false;
+
+  static SceneStyle Default();
+  Eigen::Vector3d Colour(const std::string& group) const;
+  double Opacity(const std::string& group) const;
+  bool Visible(const std::string& group) const;
+  /// Sets a colour from "name=r,g,b" (0..1 or 0..255), an opacity from "name=v".
+  /// @throws trocar::Error naming the text and what was expected.
+  void ParseColour(const std::string& text);
+  void ParseOpacity(const std::string& text);
+};
+
+/// A camera in the world frame W (m).
+struct CameraPose {
+  Eigen::Vector3d position = Eigen::Vector3d(2, -2, 2);
+  Eigen::Vector3d focal_point = Eigen::Vector3d::Zero();
+  Eigen::Vector3d view_up = Eigen::Vector3d::UnitZ();
+  double view_angle_deg = 30.0;  ///< vertical field of view
+};
+
+/// A camera riding on a robot frame: it looks along `axis_F` of `frame` (an endoscope's view, or
+/// an end effector's).
+struct FrameCamera {
+  std::string frame;
+  Eigen::Vector3d axis_F = Eigen::Vector3d::UnitZ();
+  double view_angle_deg = 70.0;  ///< the scope's field of view (2 × the plan's half angle)
+  double light_intensity = 1.0;  ///< the light at the scope tip
+};
+
+class Scene {
+ public:
+  /// `robot` may be null (a patient alone). @throws trocar::Error for a robot mesh VTK cannot
+  /// take (it names the link).
+  Scene(std::shared_ptr<const patient::PatientModel> patient,
+        std::shared_ptr<const robot::RobotModel> robot, SceneStyle style = SceneStyle::Default());
+  ~Scene();
+  Scene(const Scene&) = delete;
+  Scene& operator=(const Scene&) = delete;
+
+  const patient::PatientModel& patient() const;
+  const robot::RobotModel* robot() const;
+  const SceneStyle& style() const;
+
+  /// Every group in the scene, in drawing order.
+  std::vector<std::string> groups() const;
+  void SetColour(const std::string& group, const Eigen::Vector3d& rgb);
+  void SetOpacity(const std::string& group, double opacity);
+  void SetVisible(const std::string& group, bool visible);
+  void SetBackground(const Eigen::Vector3d& rgb);
+  void SetFlat(bool flat);
+
+  /// Shows a plan of `file`: its ports (incision and pivot), its target samples' approach cones,
+  /// and the robot at its nominal pose. @throws trocar::Error when the plan does not fit the robot.
+  void ShowPlan(const planners::PlanFile& file, std::size_t index);
+  /// The robot at `state` (link poses from its X_WL).
+  void SetRobotState(const robot::RobotState& state);
+  const robot::RobotState* robot_state() const;
+
+  /// Highlights robot links (by index) in the "collision" colour, the others back to theirs.
+  void HighlightLinks(const std::vector<int>& links);
+
+  /// The external camera: the patient, table and robot framed from the foot end, above the
+  /// patient's right side, image `aspect` = width / height.
+  CameraPose ExternalCamera(double aspect) const;
+  /// The camera on a robot frame at the robot's current state.
+  /// @throws trocar::Error when there is no robot state or the frame is unknown.
+  CameraPose OnFrame(const FrameCamera& camera) const;
+
+  /// Adds every actor to `renderer` (several renderers of one window may share them) and sets
+  /// its background.
+  void AddTo(vtkRenderer* renderer) const;
+  /// Places `renderer`'s camera; `scope` adds a light at the camera (the scope tip) and turns
+  /// the renderer's automatic lights off.
+  static void Apply(const CameraPose& pose, vtkRenderer* renderer, const FrameCamera* scope = nullptr);
+
+  /// Triangles drawn (visible groups).
+  long triangle_count() const;
+  int actor_count() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// A base pose from typed values (thesis §2.8): `position` "x, y, z" (m) and `rotation` as XYZ
+/// Euler angles "a, b, c" (deg, R = Rx(a) Ry(b) Rz(c)), a quaternion "w, x, y, z" (normalised), or
+/// a rotation matrix of 9 numbers by rows (orthonormal within 1e-6, determinant +1).
+/// Commas or spaces separate numbers. @throws trocar::Error naming the text and what was expected.
+Eigen::Isometry3d ParseBasePose(const std::string& position, const std::string& rotation);
+/// XYZ Euler angles (deg) of R = Rx(a) Ry(b) Rz(c).
+Eigen::Vector3d EulerXyzDeg(const Eigen::Matrix3d& R);
+
+/// One view of a screenshot or a window pane.
+struct ViewSpec {
+  enum class Kind { kExternal, kEndoscope, kFrame };
+  Kind kind = Kind::kExternal;
+  FrameCamera camera;  ///< kEndoscope (from the plan's view) and kFrame
+  /// "external", "endoscope", "frame:<name>" (along the frame's z axis).
+  /// @throws trocar::Error for any other text.
+  static ViewSpec Parse(const std::string& text);
+};
+
+/// Renders `views` side by side (one renderer each, equal widths) into a PNG of
+/// `width` × `height` pixels, written atomically. Needs an X display (Xvfb when headless).
+/// @throws trocar::Error naming the path when it cannot be written, and when no display is open.
+void Screenshot(const Scene& scene, const std::vector<std::pair<ViewSpec, CameraPose>>& views,
+                int width, int height, const std::string& path);
+
+/// The camera a view spec gives in `scene` at `aspect`. An endoscope view takes the first view
+/// of the shown plan (`views` of the plan file); without one, the frame of an arm whose role is
+/// "endoscope". @throws trocar::Error when there is none.
+CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
+                      const planners::StoredPlan* plan, FrameCamera* used = nullptr);
+
+}  // namespace trocar::viz

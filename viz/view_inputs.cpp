@@ -1,0 +1,98 @@
+#include "view_inputs.hpp"
+
+#include <sstream>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "port_placement/plan_io.hpp"
+#include "robot/load_robot.hpp"
+
+namespace trocar::viz {
+
+SceneStyle StyleOf(const ViewInputs& inputs) {
+  SceneStyle style = SceneStyle::Default();
+  for (const auto& c : inputs.colours) style.ParseColour(c);
+  for (const auto& o : inputs.opacities) style.ParseOpacity(o);
+  for (const auto& h : inputs.hidden) style.visible[h] = false;
+  style.flat = inputs.flat;
+  return style;
+}
+
+const planners::StoredMotion& FindMotion(const planners::StoredPlan& plan, const std::string& text,
+                                         std::size_t* waypoint) {
+  std::vector<std::string> parts;
+  std::stringstream in(text);
+  std::string part;
+  while (std::getline(in, part, ':')) parts.push_back(part);
+  auto integer = [&](const std::string& s) {
+    std::size_t used = 0;
+    long v = -1;
+    try {
+      v = std::stol(s, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    TROCAR_THROW_UNLESS(used == s.size() && v >= 0,
+                        "--motion '" << text << "': '" << s << "' is not a whole number");
+    return v;
+  };
+  TROCAR_THROW_UNLESS(parts.size() == 2 || parts.size() == 3,
+                      "--motion '" << text << "': expected ARM:SAMPLE[:WAYPOINT]");
+  const long sample = integer(parts[1]);
+  for (const planners::StoredMotion& m : plan.motions) {
+    if (m.arm != parts[0] || m.sample != sample) continue;
+    TROCAR_THROW_UNLESS(!m.waypoints.empty(), "--motion '" << text << "': that motion was not solved ("
+                                                           << m.outcome << ": " << m.reason << ")");
+    const long k = parts.size() == 3 ? integer(parts[2]) : static_cast<long>(m.waypoints.size()) - 1;
+    TROCAR_THROW_UNLESS(k < static_cast<long>(m.waypoints.size()),
+                        "--motion '" << text << "': the motion has " << m.waypoints.size()
+                                     << " waypoints (0.." << m.waypoints.size() - 1 << ")");
+    *waypoint = static_cast<std::size_t>(k);
+    return m;
+  }
+  TROCAR_THROW("--motion '" << text << "': the plan has no verified motion of arm '" << parts[0]
+                            << "' to sample " << sample);
+}
+
+LoadedView LoadView(const ViewInputs& in) {
+  LoadedView out;
+  const SceneStyle style = StyleOf(in);
+  TROCAR_THROW_UNLESS(!in.case_dir.empty(), "view: no case folder given");
+  if (!in.plan.empty()) {
+    out.plan = std::make_unique<planners::PlanFile>(planners::ReadPlanFile(in.plan));
+    TROCAR_THROW_UNLESS(!out.plan->plans.empty(), in.plan << ": holds no plans");
+    TROCAR_THROW_UNLESS(in.plan_index >= 1 && in.plan_index <= static_cast<int>(out.plan->plans.size()),
+                        in.plan << ": --plan " << in.plan_index << ": the file holds "
+                                << out.plan->plans.size() << " plans (1.." << out.plan->plans.size() << ")");
+    TROCAR_THROW_UNLESS(IsRegularFile(out.plan->robot_file),
+                        in.plan << ": its robot " << out.plan->robot_file << " does not exist");
+    TROCAR_THROW_UNLESS(planners::HashFile(out.plan->robot_file) == out.plan->robot_hash,
+                        in.plan << ": robot file " << out.plan->robot_file
+                                << " changed since the plan was made (hash differs): plan again");
+  }
+  out.patient = patient::ImportCase(in.case_dir).model;
+  if (out.plan) {
+    TROCAR_THROW_UNLESS(planners::HashPatientModel(*out.patient) == out.plan->model_hash,
+                        in.plan << ": was made for another patient model than " << in.case_dir
+                                << "'s (hash differs): view it with its own case, or plan again");
+    out.robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(out.plan->robot_file));
+  } else if (!in.robot.empty()) {
+    out.robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(in.robot));
+  }
+  TROCAR_THROW_UNLESS(in.motion.empty() || out.plan, "--motion needs a plan file");
+  out.scene = std::make_unique<Scene>(out.patient, out.robot, style);
+  if (out.plan) {
+    const std::size_t k = static_cast<std::size_t>(in.plan_index - 1);
+    out.scene->ShowPlan(*out.plan, k);
+    if (!in.motion.empty()) {
+      std::size_t waypoint = 0;
+      const planners::StoredMotion& m = FindMotion(out.plan->plans[k], in.motion, &waypoint);
+      robot::RobotState state = *out.scene->robot_state();
+      planners::SetWaypoint(*out.robot, m, waypoint, &state);
+      out.scene->SetRobotState(state);
+    }
+  }
+  return out;
+}
+
+}  // namespace trocar::viz

@@ -1,0 +1,48 @@
+#pragma once
+/// @file
+/// What a view is opened on — a case, optionally a plan file and one of its plans, or a robot
+/// alone — loaded and checked against each other: the plan must have been made for this patient
+/// model and this robot file (their hashes), and its nominal pose must fit the robot. Shared by
+/// `trocar view` (window and screenshots) and the report.
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "port_placement/plan_file.hpp"
+#include "scene.hpp"
+
+namespace trocar::viz {
+
+struct ViewInputs {
+  std::string case_dir;
+  std::string plan;        ///< a plan.json; empty: the case alone
+  int plan_index = 1;      ///< 1-based, best first
+  std::string robot;       ///< without a plan: a robot to show at its neutral pose
+  std::string motion;      ///< "ARM:SAMPLE[:WAYPOINT]": the robot on a verified motion
+  std::vector<std::string> colours, opacities, hidden;
+  bool flat = false;
+};
+
+struct LoadedView {
+  std::shared_ptr<const patient::PatientModel> patient;
+  std::shared_ptr<const robot::RobotModel> robot;
+  std::unique_ptr<planners::PlanFile> plan;  ///< null without a plan file
+  std::unique_ptr<Scene> scene;
+};
+
+/// @throws trocar::Error naming the file and what does not match: a missing or malformed case,
+/// plan or robot; a plan made for another patient model or robot file; a plan index out of
+/// range; a motion the plan has not.
+LoadedView LoadView(const ViewInputs& inputs);
+
+/// The style of `inputs` (colours, opacities, hidden groups, flat) over the default.
+/// @throws trocar::Error naming a malformed colour or opacity.
+SceneStyle StyleOf(const ViewInputs& inputs);
+
+/// Finds a verified motion by "ARM:SAMPLE[:WAYPOINT]" in a plan, and the waypoint (default: the
+/// last). @throws trocar::Error naming the text when the plan has no such motion.
+const planners::StoredMotion& FindMotion(const planners::StoredPlan& plan, const std::string& text,
+                                         std::size_t* waypoint);
+
+}  // namespace trocar::viz

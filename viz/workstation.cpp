@@ -1,0 +1,488 @@
+#include "workstation.hpp"
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <iomanip>
+#include <iostream>
+#include <sstream>
+
+#include <QApplication>
+#include <QCheckBox>
+#include <QComboBox>
+#include <QFileDialog>
+#include <QFormLayout>
+#include <QHBoxLayout>
+#include <QLabel>
+#include <QLineEdit>
+#include <QListWidget>
+#include <QMainWindow>
+#include <QMenuBar>
+#include <QMessageBox>
+#include <QPushButton>
+#include <QScrollArea>
+#include <QSlider>
+#include <QSplitter>
+#include <QStatusBar>
+#include <QSurfaceFormat>
+#include <QTabWidget>
+#include <QTextBrowser>
+#include <QTimer>
+#include <QVBoxLayout>
+#include <QVTKOpenGLNativeWidget.h>
+#include <vtkGenericOpenGLRenderWindow.h>
+#include <vtkInteractorStyleTrackballCamera.h>
+#include <vtkNew.h>
+#include <vtkObjectFactory.h>
+#include <vtkRenderWindowInteractor.h>
+#include <vtkRenderer.h>
+
+#include <unistd.h>
+
+#include "common/error.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "port_placement/plan_io.hpp"
+
+namespace trocar::viz {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+/// VTK's trackball camera with the thesis' buttons: right pans, middle zooms.
+class ThesisCameraStyle : public vtkInteractorStyleTrackballCamera {
+ public:
+  static ThesisCameraStyle* New();
+  vtkTypeMacro(ThesisCameraStyle, vtkInteractorStyleTrackballCamera);
+  void OnRightButtonDown() override {
+    FindPokedRenderer(Interactor->GetEventPosition()[0], Interactor->GetEventPosition()[1]);
+    if (CurrentRenderer) StartPan();
+  }
+  void OnRightButtonUp() override {
+    if (State == VTKIS_PAN) EndPan();
+  }
+  void OnMiddleButtonDown() override {
+    FindPokedRenderer(Interactor->GetEventPosition()[0], Interactor->GetEventPosition()[1]);
+    if (CurrentRenderer) StartDolly();
+  }
+  void OnMiddleButtonUp() override {
+    if (State == VTKIS_DOLLY) EndDolly();
+  }
+};
+vtkStandardNewMacro(ThesisCameraStyle);
+
+/// A joint's slider range: its limits, or a turn either way (half a metre) where they are open.
+std::pair<double, double> SliderRange(const robot::Joint& joint) {
+  const double open = joint.type == robot::JointType::kPrismatic ? 0.5 : kPi;
+  return {std::isfinite(joint.limits.lower) ? joint.limits.lower : -open,
+          std::isfinite(joint.limits.upper) ? joint.limits.upper : open};
+}
+
+QString Fixed(double v, int digits) { return QString::number(v, 'f', digits); }
+
+std::string PlanTitle(const planners::StoredPlan& p) {
+  std::ostringstream s;
+  s << p.rank << " · " << p.status << " · score " << std::fixed << std::setprecision(3) << p.score;
+  if (p.verified) s << " · verified " << std::setprecision(0) << 100 * p.verified_coverage << " %";
+  return s.str();
+}
+
+/// The selected plan's score breakdown, verdict and verification, as HTML.
+QString PlanHtml(const planners::PlanFile& file, const planners::StoredPlan& p) {
+  QString h;
+  h += "<h3>Plan " + QString::number(p.rank) + ": " + QString::fromStdString(p.status) + "</h3>";
+  h += "<p>score <b>" + Fixed(p.score, 3) + "</b>, rank score " + Fixed(p.rank_score, 3) + "</p>";
+  h += "<table border=1 cellspacing=0 cellpadding=2><tr><th>term</th><th>value</th><th>score</th></tr>";
+  for (const auto& t : p.terms) {
+    h += "<tr><td>" + QString::fromStdString(t.name) + "</td><td>" + Fixed(t.value, 3) +
+         "</td><td>" + Fixed(t.score, 3) + "</td></tr>";
+  }
+  h += "</table><p>ports: ";
+  for (const auto& port : p.ports) {
+    h += QString::fromStdString(port.arm) + " in " + QString::fromStdString(port.candidate) + "; ";
+  }
+  h += "</p>";
+  if (p.verified) {
+    h += "<p>verified coverage " + Fixed(100 * p.verified_coverage, 0) + " %, samples served " +
+         Fixed(100 * p.served_fraction, 0) + " %: " +
+         (p.verified_suitable ? "<b>suitable</b>" : "<b>not suitable</b>") + "</p><ul>";
+    for (const auto& r : p.verification_reasons) h += "<li>" + QString::fromStdString(r).toHtmlEscaped() + "</li>";
+    h += "</ul>";
+  }
+  h += "<h4>Verdict (best plan)</h4><p>" + QString::fromStdString(file.summary).toHtmlEscaped() + "</p><ul>";
+  for (const auto& r : file.reasons) h += "<li>" + QString::fromStdString(r).toHtmlEscaped() + "</li>";
+  h += "</ul>";
+  if (!p.message.empty()) h += "<p><i>" + QString::fromStdString(p.message).toHtmlEscaped() + "</i></p>";
+  return h;
+}
+
+class Workstation {
+ public:
+  Workstation(std::unique_ptr<Scene> scene, const planners::PlanFile* plan,
+              const WorkstationOptions& options)
+      : scene_(std::move(scene)), options_(options) {
+    if (plan) plan_ = std::make_unique<planners::PlanFile>(*plan);
+    window_.setWindowTitle(QString::fromStdString("trocar — " + scene_->patient().name));
+    window_.resize(options.width, options.height);
+    auto* splitter = new QSplitter;
+    auto* tabs = new QTabWidget;
+    tabs->setMinimumWidth(330);
+    tabs->addTab(BuildPlansTab(), "Plans");
+    tabs->addTab(BuildStructuresTab(), "Structures");
+    tabs->addTab(BuildRobotTab(), "Robot");
+    tabs->addTab(BuildViewTab(), "View");
+    splitter->addWidget(tabs);
+    vtk_widget_ = new QVTKOpenGLNativeWidget;
+    render_window_ = vtkSmartPointer<vtkGenericOpenGLRenderWindow>::New();
+    vtk_widget_->setRenderWindow(render_window_);
+    external_->SetViewport(0, 0, 0.5, 1);
+    scope_->SetViewport(0.5, 0, 1, 1);
+    scene_->AddTo(external_);
+    scene_->AddTo(scope_);
+    render_window_->AddRenderer(external_);
+    render_window_->AddRenderer(scope_);
+    vtkNew<ThesisCameraStyle> style;
+    style->SetDefaultRenderer(external_);
+    render_window_->GetInteractor()->SetInteractorStyle(style);
+    splitter->addWidget(vtk_widget_);
+    splitter->setStretchFactor(1, 1);
+    window_.setCentralWidget(splitter);
+    auto* open = window_.menuBar()->addMenu("&File")->addAction("&Open plan…");
+    QObject::connect(open, &QAction::triggered, [this] {
+      const QString path = QFileDialog::getOpenFileName(&window_, "Open plan", "", "Plans (*.json)");
+      if (!path.isEmpty()) OpenPlan(path.toStdString());
+    });
+    if (plan_) SelectPlan(std::min<std::size_t>(options.plan_index, plan_->plans.size() - 1));
+    UpdateScope();
+    const double aspect = (scope_available_ ? 0.5 : 1.0) * options.width / options.height;
+    Scene::Apply(scene_->ExternalCamera(aspect), external_);
+    window_.statusBar()->showMessage(QString::number(scene_->triangle_count()) + " triangles");
+  }
+
+  int Run(QApplication& app) {
+    window_.show();
+    if (!options_.grab_path.empty()) {
+      QTimer::singleShot(300, [this, &app] {
+        Render();
+        const QImage image = window_.grab().toImage();
+        const std::string tmp = options_.grab_path + ".tmp" + std::to_string(::getpid()) + ".png";
+        if (!image.save(QString::fromStdString(tmp), "PNG")) {
+          std::cerr << "error: " << options_.grab_path << ": cannot write the window's image\n";
+          code_ = 1;
+        } else {
+          std::error_code ec;
+          std::filesystem::rename(tmp, options_.grab_path, ec);
+          if (ec) {
+            std::cerr << "error: " << options_.grab_path << ": " << ec.message() << "\n";
+            code_ = 1;
+          }
+        }
+        app.quit();
+      });
+    }
+    app.exec();
+    return code_;
+  }
+
+ private:
+  void Render() { render_window_->Render(); }
+
+  void Fail(const std::string& what) {
+    std::cerr << "error: " << what << "\n";
+    window_.statusBar()->showMessage(QString::fromStdString("error: " + what));
+    if (options_.grab_path.empty()) QMessageBox::warning(&window_, "trocar", QString::fromStdString(what));
+  }
+
+  QWidget* BuildPlansTab() {
+    auto* w = new QWidget;
+    auto* layout = new QVBoxLayout(w);
+    plans_ = new QListWidget;
+    plans_->setObjectName("plans");
+    details_ = new QTextBrowser;
+    layout->addWidget(new QLabel("Ranked plans"));
+    layout->addWidget(plans_, 1);
+    layout->addWidget(details_, 2);
+    FillPlans();
+    QObject::connect(plans_, &QListWidget::currentRowChanged, [this](int row) {
+      if (row >= 0 && !filling_) SelectPlan(static_cast<std::size_t>(row));
+    });
+    return w;
+  }
+
+  void FillPlans() {
+    filling_ = true;
+    plans_->clear();
+    if (plan_) {
+      for (const auto& p : plan_->plans) plans_->addItem(QString::fromStdString(PlanTitle(p)));
+    } else {
+      details_->setHtml("<p>No plan: <code>trocar view CASE PLAN.json</code>, or File ▸ Open plan.</p>");
+    }
+    filling_ = false;
+  }
+
+  void SelectPlan(std::size_t k) {
+    try {
+      scene_->ShowPlan(*plan_, k);
+      plan_index_ = k;
+      details_->setHtml(PlanHtml(*plan_, plan_->plans[k]));
+      if (plans_->currentRow() != static_cast<int>(k)) plans_->setCurrentRow(static_cast<int>(k));
+      SyncJoints();
+      UpdateScope();
+      Render();
+    } catch (const Error& e) {
+      Fail(e.what());
+    }
+  }
+
+  void OpenPlan(const std::string& path) {
+    try {
+      auto file = std::make_unique<planners::PlanFile>(planners::ReadPlanFile(path));
+      TROCAR_THROW_UNLESS(!file->plans.empty(), path << ": holds no plans");
+      TROCAR_THROW_UNLESS(planners::HashPatientModel(scene_->patient()) == file->model_hash,
+                          path << ": was made for another patient model than the one shown");
+      TROCAR_THROW_UNLESS(scene_->robot() && planners::HashFile(file->robot_file) == file->robot_hash,
+                          path << ": its robot " << file->robot_file
+                               << " is not the one shown, or changed since the plan was made");
+      plan_ = std::move(file);
+      FillPlans();
+      SelectPlan(0);
+    } catch (const Error& e) {
+      Fail(e.what());  // the plan shown before stays
+    }
+  }
+
+  QWidget* BuildStructuresTab() {
+    auto* w = new QWidget;
+    auto* form = new QFormLayout(w);
+    for (const std::string& g : scene_->groups()) {
+      auto* row = new QWidget;
+      auto* h = new QHBoxLayout(row);
+      h->setContentsMargins(0, 0, 0, 0);
+      auto* show = new QCheckBox;
+      show->setChecked(scene_->style().Visible(g));
+      auto* opacity = new QSlider(Qt::Horizontal);
+      opacity->setRange(0, 100);
+      opacity->setValue(static_cast<int>(std::lround(100 * scene_->style().Opacity(g))));
+      h->addWidget(show);
+      h->addWidget(opacity, 1);
+      form->addRow(QString::fromStdString(g), row);
+      QObject::connect(show, &QCheckBox::toggled, [this, g](bool on) {
+        scene_->SetVisible(g, on);
+        Render();
+      });
+      QObject::connect(opacity, &QSlider::valueChanged, [this, g](int v) {
+        scene_->SetOpacity(g, v / 100.0);
+        Render();
+      });
+    }
+    return w;
+  }
+
+  QWidget* BuildRobotTab() {
+    auto* scroll = new QScrollArea;
+    auto* w = new QWidget;
+    auto* form = new QFormLayout(w);
+    const robot::RobotModel* robot = scene_->robot();
+    if (!robot) {
+      form->addRow(new QLabel("No robot: open a plan, or trocar view CASE --robot FILE"));
+      scroll->setWidget(w);
+      return scroll;
+    }
+    position_ = new QLineEdit;
+    rotation_ = new QLineEdit;
+    rotation_->setToolTip("XYZ Euler angles (3 numbers, deg), a quaternion (w x y z) or a "
+                          "rotation matrix (9 numbers, by rows)");
+    auto* apply = new QPushButton("Move the base");
+    form->addRow("base position (m)", position_);
+    form->addRow("base rotation", rotation_);
+    form->addRow(apply);
+    QObject::connect(apply, &QPushButton::clicked, [this] {
+      try {
+        robot::RobotState state = *scene_->robot_state();
+        state.X_WB = ParseBasePose(position_->text().toStdString(), rotation_->text().toStdString());
+        kinematics::ForwardKinematics(*scene_->robot(), &state);
+        scene_->SetRobotState(state);
+        UpdateScope();
+        Render();
+      } catch (const Error& e) {
+        Fail(e.what());
+      }
+    });
+    for (int j = 0; j < robot->num_joints(); ++j) {
+      const robot::Joint& joint = robot->joint(j);
+      if (joint.q_index < 0) continue;
+      auto* slider = new QSlider(Qt::Horizontal);
+      slider->setRange(0, 1000);
+      slider->setObjectName(QString::fromStdString(joint.name));
+      form->addRow(QString::fromStdString(joint.name), slider);
+      joint_sliders_.push_back({j, slider});
+      QObject::connect(slider, &QSlider::valueChanged, [this, j](int v) {
+        if (!syncing_) MoveJoint(j, v);
+      });
+    }
+    scroll->setWidget(w);
+    scroll->setWidgetResizable(true);
+    SyncJoints();
+    return scroll;
+  }
+
+  void MoveJoint(int j, int slider_value) {
+    const robot::RobotModel& robot = *scene_->robot();
+    const robot::Joint& joint = robot.joint(j);
+    robot::RobotState state = *scene_->robot_state();
+    Eigen::VectorXd q = state.q;
+    const auto [lower, upper] = SliderRange(joint);
+    q[joint.q_index] = lower + (upper - lower) * slider_value / 1000.0;
+    const auto fk = kinematics::ForwardKinematics(robot, q, &state);
+    if (!fk.ok) {
+      window_.statusBar()->showMessage(QString::fromStdString(joint.name + ": " + fk.message));
+      return;
+    }
+    scene_->SetRobotState(state);
+    window_.statusBar()->showMessage(
+        QString::fromStdString(joint.name) + " = " +
+        (joint.type == robot::JointType::kPrismatic ? Fixed(q[joint.q_index] * 1000, 1) + " mm"
+                                                   : Fixed(q[joint.q_index] * 180 / kPi, 1) + "°"));
+    UpdateScope();
+    Render();
+  }
+
+  void SyncJoints() {
+    const robot::RobotState* state = scene_->robot_state();
+    if (!state || !position_) return;
+    syncing_ = true;
+    for (const auto& [j, slider] : joint_sliders_) {
+      const robot::Joint& joint = scene_->robot()->joint(j);
+      const auto [lower, upper] = SliderRange(joint);
+      const double v = upper > lower ? (state->q[joint.q_index] - lower) / (upper - lower) : 0.5;
+      slider->setValue(static_cast<int>(std::lround(1000 * std::clamp(v, 0.0, 1.0))));
+    }
+    const Eigen::Vector3d p = state->X_WB.translation();
+    position_->setText(Fixed(p.x(), 4) + ", " + Fixed(p.y(), 4) + ", " + Fixed(p.z(), 4));
+    const Eigen::Vector3d e = EulerXyzDeg(state->X_WB.linear());
+    rotation_->setText(Fixed(e.x(), 3) + ", " + Fixed(e.y(), 3) + ", " + Fixed(e.z(), 3));
+    syncing_ = false;
+  }
+
+  QWidget* BuildViewTab() {
+    auto* w = new QWidget;
+    auto* form = new QFormLayout(w);
+    auto* layout = new QComboBox;
+    layout->addItems({"side by side", "external only", "camera only"});
+    form->addRow("layout", layout);
+    QObject::connect(layout, QOverload<int>::of(&QComboBox::currentIndexChanged), [this](int i) {
+      Layout(i);
+      Render();
+    });
+    camera_ = new QComboBox;
+    camera_->addItem("endoscope (the plan's scope)");
+    if (const robot::RobotModel* robot = scene_->robot()) {
+      for (const auto& f : robot->frames()) camera_->addItem(QString::fromStdString(f.name));
+    }
+    form->addRow("camera on", camera_);
+    QObject::connect(camera_, QOverload<int>::of(&QComboBox::currentIndexChanged), [this](int) {
+      UpdateScope();
+      Render();
+    });
+    auto* light = new QSlider(Qt::Horizontal);
+    light->setRange(0, 300);
+    light->setValue(100);
+    form->addRow("scope light", light);
+    QObject::connect(light, &QSlider::valueChanged, [this](int v) {
+      light_ = v / 100.0;
+      UpdateScope();
+      Render();
+    });
+    auto* reset = new QPushButton("Frame the scene");
+    form->addRow(reset);
+    QObject::connect(reset, &QPushButton::clicked, [this] {
+      Scene::Apply(scene_->ExternalCamera(Aspect(external_)), external_);
+      Render();
+    });
+    return w;
+  }
+
+  double Aspect(vtkRenderer* r) const {
+    double vp[4];
+    r->GetViewport(vp);
+    const int* size = render_window_->GetSize();
+    const double w = (vp[2] - vp[0]) * std::max(size[0], 1), h = (vp[3] - vp[1]) * std::max(size[1], 1);
+    return h > 0 ? w / h : 1.0;
+  }
+
+  /// 0 side by side, 1 external only, 2 camera only; without a camera, external only.
+  void Layout(int mode) {
+    layout_ = mode;
+    const int shown = scope_available_ ? mode : 1;
+    external_->SetDraw(shown != 2);
+    scope_->SetDraw(shown != 1);
+    external_->SetViewport(0, 0, shown == 0 ? 0.5 : 1, 1);
+    scope_->SetViewport(shown == 0 ? 0.5 : 0, 0, 1, 1);
+  }
+
+  /// The camera pane follows its frame (the plan's scope, or the frame chosen).
+  void UpdateScope() {
+    scope_available_ = false;
+    Layout(layout_);
+    if (!scene_->robot()) return;
+    try {
+      ViewSpec spec;
+      const planners::StoredPlan* plan = plan_ ? &plan_->plans[plan_index_] : nullptr;
+      if (camera_ && camera_->currentIndex() > 0) {
+        spec.kind = ViewSpec::Kind::kFrame;
+        spec.camera.frame = camera_->currentText().toStdString();
+      } else {
+        spec.kind = ViewSpec::Kind::kEndoscope;
+        if (!plan || plan->views.empty()) return;
+      }
+      FrameCamera used;
+      const CameraPose pose = ViewCamera(*scene_, spec, 1.0, plan, &used);
+      used.light_intensity = light_;
+      Scene::Apply(pose, scope_, &used);
+      scope_available_ = true;
+      Layout(layout_);
+    } catch (const Error& e) {
+      Fail(e.what());
+    }
+  }
+
+  std::unique_ptr<Scene> scene_;
+  WorkstationOptions options_;
+  std::unique_ptr<planners::PlanFile> plan_;
+  std::size_t plan_index_ = 0;
+  QMainWindow window_;
+  QVTKOpenGLNativeWidget* vtk_widget_ = nullptr;
+  vtkSmartPointer<vtkGenericOpenGLRenderWindow> render_window_;
+  vtkNew<vtkRenderer> external_, scope_;
+  QListWidget* plans_ = nullptr;
+  QTextBrowser* details_ = nullptr;
+  QLineEdit* position_ = nullptr;
+  QLineEdit* rotation_ = nullptr;
+  QComboBox* camera_ = nullptr;
+  std::vector<std::pair<int, QSlider*>> joint_sliders_;
+  bool syncing_ = false, filling_ = false;
+  int layout_ = 0;
+  bool scope_available_ = false;
+  double light_ = 1.0;
+  int code_ = 0;
+};
+
+}  // namespace
+
+vtkInteractorStyle* NewThesisCameraStyle() { return ThesisCameraStyle::New(); }
+
+int RunWorkstation(std::unique_ptr<Scene> scene, const planners::PlanFile* plan,
+                   const WorkstationOptions& options) {
+  const char* display = std::getenv("DISPLAY");
+  TROCAR_THROW_UNLESS(display && *display,
+                      "the workstation window needs an X display (DISPLAY is not set); for "
+                      "pictures without one: trocar view ... --screenshot FILE.png under xvfb-run");
+  QSurfaceFormat::setDefaultFormat(QVTKOpenGLNativeWidget::defaultFormat());
+  static int argc = 1;
+  static char name[] = "trocar";
+  static char* argv[] = {name, nullptr};
+  QApplication app(argc, argv);
+  Workstation station(std::move(scene), plan, options);
+  return station.Run(app);
+}
+
+}  // namespace trocar::viz

@@ -1,0 +1,39 @@
+#pragma once
+/// @file
+/// The surgeon's workstation window (Qt 5 with VTK's QVTKOpenGLNativeWidget, as the thesis'
+/// simulator and 3D Slicer): a sidebar with the ranked plans (score breakdown, verdict,
+/// verification), the patient structures (visibility, opacity), the robot (cart pose by typed
+/// values, every active joint by a slider) and the views (scope light, layout, a camera riding on
+/// any robot frame); the external view and the endoscope view side by side.
+/// Mouse (thesis §2.10): left rotate, right pan, middle or wheel zoom.
+
+#include <memory>
+#include <string>
+
+#include "port_placement/plan_file.hpp"
+#include "scene.hpp"
+
+class vtkInteractorStyle;
+
+namespace trocar::viz {
+
+struct WorkstationOptions {
+  std::string case_dir, plan_path;
+  int plan_index = 0;  ///< 0-based
+  /// Render, save an image of the whole window (sidebar and views) to this PNG, and close:
+  /// the window as a user sees it, for tests and documentation.
+  std::string grab_path;
+  int width = 1400, height = 820;
+};
+
+/// Opens the window and runs until it is closed. Errors while it runs (a plan that does not fit
+/// the robot, a joint the robot refuses) are shown in the window and on stderr; the window stays.
+/// @return the exit code (0). @throws trocar::Error when no display can be opened.
+int RunWorkstation(std::unique_ptr<Scene> scene, const planners::PlanFile* plan,
+                   const WorkstationOptions& options);
+
+/// The thesis' mouse mapping (§2.10) over VTK's trackball camera: left button rotates, right
+/// pans, middle or wheel zooms.
+vtkInteractorStyle* NewThesisCameraStyle();
+
+}  // namespace trocar::viz
