@@ -15,9 +15,11 @@
 #include <vtkConeSource.h>
 #include <vtkCubeSource.h>
 #include <vtkCylinderSource.h>
+#include <vtkImageData.h>
 #include <vtkLight.h>
 #include <vtkMatrix4x4.h>
 #include <vtkNew.h>
+#include <vtkPNGReader.h>
 #include <vtkPNGWriter.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
@@ -32,9 +34,11 @@
 #include <vtkTransform.h>
 #include <vtkTransformPolyDataFilter.h>
 #include <vtkTubeFilter.h>
+#include <vtkUnsignedCharArray.h>
 #include <vtkWindowToImageFilter.h>
 
 #include "common/error.hpp"
+#include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
 
 namespace trocar::viz {
@@ -741,16 +745,14 @@ CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
   return scene.OnFrame(camera);
 }
 
-void Screenshot(const Scene& scene, const std::vector<std::pair<ViewSpec, CameraPose>>& views,
-                int width, int height, const std::string& path) {
+Image Render(const Scene& scene, const Views& views, int width, int height) {
   TROCAR_THROW_UNLESS(width >= 16 && height >= 16 && width <= 8192 && height <= 8192,
-                      "screenshot size " << width << "x" << height
-                                         << ": expected 16..8192 pixels a side");
-  TROCAR_THROW_UNLESS(!views.empty(), "a screenshot needs at least one view");
+                      "image size " << width << "x" << height << ": expected 16..8192 pixels a side");
+  TROCAR_THROW_UNLESS(!views.empty(), "a picture needs at least one view");
   const char* display = std::getenv("DISPLAY");
   TROCAR_THROW_UNLESS(display && *display,
-                      "rendering " << path << " needs an X display (DISPLAY is not set): "
-                                   << "run under xvfb-run -a -s \"-screen 0 1280x1024x24\"");
+                      "rendering needs an X display (DISPLAY is not set): run under "
+                      "xvfb-run -a -s \"-screen 0 1280x1024x24\"");
   vtkNew<vtkRenderWindow> window;
   window->SetOffScreenRendering(1);
   window->SetSize(width, height);
@@ -770,23 +772,82 @@ void Screenshot(const Scene& scene, const std::vector<std::pair<ViewSpec, Camera
   grab->SetInputBufferTypeToRGB();
   grab->ReadFrontBufferOff();
   grab->Update();
-  const std::string tmp = path + ".tmp" + std::to_string(::getpid());
-  vtkNew<vtkPNGWriter> writer;
-  writer->SetFileName(tmp.c_str());
-  writer->SetInputConnection(grab->GetOutputPort());
-  writer->Write();
-  std::error_code ec;
-  if (writer->GetErrorCode() != 0 || !std::filesystem::exists(tmp, ec)) {
-    std::filesystem::remove(tmp, ec);
-    TROCAR_THROW(path << ": cannot write the screenshot (" << tmp << " not written)");
+  vtkImageData* data = grab->GetOutput();
+  int dims[3];
+  data->GetDimensions(dims);
+  TROCAR_THROW_UNLESS(dims[0] == width && dims[1] == height && data->GetNumberOfScalarComponents() == 3,
+                      "the renderer returned a " << dims[0] << "x" << dims[1] << " image, not "
+                                                 << width << "x" << height);
+  Image image;
+  image.width = width;
+  image.height = height;
+  image.rgb.resize(static_cast<std::size_t>(3) * width * height);
+  const auto* pixels = static_cast<const unsigned char*>(data->GetScalarPointer());
+  for (int y = 0; y < height; ++y) {  // VTK's rows run bottom to top
+    std::copy_n(pixels + static_cast<std::size_t>(3) * width * (height - 1 - y), 3 * width,
+                image.rgb.begin() + static_cast<std::ptrdiff_t>(3) * width * y);
   }
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) {
-    std::filesystem::remove(tmp);
-    TROCAR_THROW(path << ": cannot write the screenshot (" << ec.message() << ")");
-  }
-  // Each renderer gives the scene's actors back so that they can join another window.
+  // The renderers give the scene's actors' graphics resources back, so that they can be drawn
+  // in another window.
   window->Finalize();
+  return image;
+}
+
+void WritePng(const Image& image, const std::string& path) {
+  TROCAR_THROW_UNLESS(image.width > 0 && image.height > 0 &&
+                          image.rgb.size() == static_cast<std::size_t>(3) * image.width * image.height,
+                      path << ": not an image to write (" << image.width << "x" << image.height << ")");
+  vtkNew<vtkImageData> data;
+  data->SetDimensions(image.width, image.height, 1);
+  data->AllocateScalars(VTK_UNSIGNED_CHAR, 3);
+  auto* pixels = static_cast<unsigned char*>(data->GetScalarPointer());
+  for (int y = 0; y < image.height; ++y) {
+    std::copy_n(image.rgb.begin() + static_cast<std::ptrdiff_t>(3) * image.width * y, 3 * image.width,
+                pixels + static_cast<std::size_t>(3) * image.width * (image.height - 1 - y));
+  }
+  vtkNew<vtkPNGWriter> writer;
+  writer->WriteToMemoryOn();
+  writer->SetInputData(data);
+  writer->Write();
+  vtkUnsignedCharArray* bytes = writer->GetResult();
+  TROCAR_THROW_UNLESS(writer->GetErrorCode() == 0 && bytes && bytes->GetNumberOfTuples() > 0,
+                      path << ": the PNG could not be encoded");
+  WriteFileAtomically(path, std::string(reinterpret_cast<const char*>(bytes->GetPointer(0)),
+                                        static_cast<std::size_t>(bytes->GetNumberOfTuples())));
+}
+
+Image ReadPng(const std::string& path) {
+  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": no such image");
+  vtkNew<vtkPNGReader> reader;
+  TROCAR_THROW_UNLESS(reader->CanReadFile(path.c_str()), path << ": not a PNG");
+  reader->SetFileName(path.c_str());
+  reader->Update();
+  vtkImageData* data = reader->GetOutput();
+  int dims[3];
+  data->GetDimensions(dims);
+  const int channels = data->GetNumberOfScalarComponents();
+  TROCAR_THROW_UNLESS(reader->GetErrorCode() == 0 && dims[0] > 0 && dims[1] > 0 &&
+                          data->GetScalarType() == VTK_UNSIGNED_CHAR && channels >= 1 && channels <= 4,
+                      path << ": not an 8-bit PNG");
+  Image image;
+  image.width = dims[0];
+  image.height = dims[1];
+  image.rgb.resize(static_cast<std::size_t>(3) * dims[0] * dims[1]);
+  const auto* pixels = static_cast<const unsigned char*>(data->GetScalarPointer());
+  for (int y = 0; y < dims[1]; ++y) {
+    for (int x = 0; x < dims[0]; ++x) {
+      const unsigned char* p = pixels + static_cast<std::size_t>(channels) * ((dims[1] - 1 - y) * static_cast<std::size_t>(dims[0]) + x);
+      for (int c = 0; c < 3; ++c) {
+        image.rgb[3 * (static_cast<std::size_t>(y) * dims[0] + x) + c] = channels >= 3 ? p[c] : p[0];
+      }
+    }
+  }
+  return image;
+}
+
+void Screenshot(const Scene& scene, const Views& views, int width, int height,
+                const std::string& path) {
+  WritePng(Render(scene, views, width, height), path);
 }
 
 }  // namespace trocar::viz

@@ -22,6 +22,7 @@
 
 #include <Eigen/Geometry>
 
+#include "common/plot.hpp"
 #include "patient/patient_model.hpp"
 #include "port_placement/plan_file.hpp"
 #include "robot/robot_model.hpp"
@@ -141,11 +142,24 @@ struct ViewSpec {
   static ViewSpec Parse(const std::string& text);
 };
 
-/// Renders `views` side by side (one renderer each, equal widths) into a PNG of
-/// `width` × `height` pixels, written atomically. Needs an X display (Xvfb when headless).
-/// @throws trocar::Error naming the path when it cannot be written, and when no display is open.
-void Screenshot(const Scene& scene, const std::vector<std::pair<ViewSpec, CameraPose>>& views,
-                int width, int height, const std::string& path);
+/// Views with their cameras, drawn side by side (one renderer each, equal widths).
+using Views = std::vector<std::pair<ViewSpec, CameraPose>>;
+
+/// Renders `views` into an image of `width` × `height` pixels (rows top to bottom). Needs an X
+/// display (Xvfb when headless). @throws trocar::Error when no display is open or the size is
+/// out of 16..8192.
+Image Render(const Scene& scene, const Views& views, int width, int height);
+
+/// An image as PNG (VTK's writer), written atomically. @throws trocar::Error naming the path.
+void WritePng(const Image& image, const std::string& path);
+
+/// Reads a PNG (any PNG VTK reads: 8-bit grey, RGB or RGBA, as RGB).
+/// @throws trocar::Error naming the path when it is missing or not a PNG.
+Image ReadPng(const std::string& path);
+
+/// Render + WritePng.
+void Screenshot(const Scene& scene, const Views& views, int width, int height,
+                const std::string& path);
 
 /// The camera a view spec gives in `scene` at `aspect`. An endoscope view takes the first view
 /// of the shown plan (`views` of the plan file); without one, the frame of an arm whose role is

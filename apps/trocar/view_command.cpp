@@ -52,7 +52,7 @@ int RunView(const ViewOptions& o) {
   }
   const planners::StoredPlan* plan =
       loaded.plan ? &loaded.plan->plans[o.inputs.plan_index - 1] : nullptr;
-  std::vector<std::pair<viz::ViewSpec, viz::CameraPose>> views;
+  viz::Views views;
   const double aspect = static_cast<double>(width) / names.size() / height;
   for (const std::string& name : names) {
     viz::ViewSpec spec = viz::ViewSpec::Parse(name);

@@ -1,0 +1,323 @@
+// The workstation's scene, rendered under Xvfb (ctest runs this executable through xvfb-run):
+// what is drawn is checked pixel by pixel in the flat style, where a pixel's colour names its
+// group, against the patient model, the robot's forward kinematics and the cameras' geometry.
+#include <array>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+#include "common/file_util.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include "patient/patient_model.hpp"
+#include "robot/load_robot.hpp"
+#include "scene.hpp"
+#include "test_util.hpp"
+
+namespace trocar::viz {
+namespace {
+
+using test::SourcePath;
+
+std::shared_ptr<const patient::PatientModel> Phantom() {
+  static auto patient = patient::ImportCase(SourcePath("patients/phantom-default")).model;
+  return patient;
+}
+
+std::shared_ptr<const robot::RobotModel> LoadShared(const std::string& file) {
+  return std::make_shared<const robot::RobotModel>(robot::LoadRobot(SourcePath(file)));
+}
+
+std::array<std::uint8_t, 3> Rgb8(const Eigen::Vector3d& c) {
+  return {static_cast<std::uint8_t>(std::lround(255 * c.x())),
+          static_cast<std::uint8_t>(std::lround(255 * c.y())),
+          static_cast<std::uint8_t>(std::lround(255 * c.z()))};
+}
+
+bool Near(const std::array<std::uint8_t, 3>& a, const std::array<std::uint8_t, 3>& b, int tolerance = 2) {
+  for (int i = 0; i < 3; ++i)
+    if (std::abs(int(a[i]) - int(b[i])) > tolerance) return false;
+  return true;
+}
+
+/// Pixels of exactly (within 2 of 255) a group's flat colour.
+long CountColour(const Image& image, const Eigen::Vector3d& colour) {
+  const auto want = Rgb8(colour);
+  long n = 0;
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) n += Near(image.Pixel(x, y), want);
+  return n;
+}
+
+/// A flat style whose groups have colours far apart, everything opaque.
+SceneStyle FlatStyle() {
+  SceneStyle s = SceneStyle::Default();
+  s.flat = true;
+  s.opacities.clear();
+  s.background = {0, 0, 0};
+  s.colours["skin"] = {1.0, 0.6, 0.4};
+  s.colours["ribs"] = {1.0, 1.0, 1.0};
+  s.colours["heart"] = {1.0, 0.0, 0.0};
+  s.colours["robot"] = {0.0, 0.0, 1.0};
+  s.colours["table"] = {0.0, 1.0, 0.0};
+  s.colours["floor"] = {0.4, 0.4, 0.4};
+  s.colours["target"] = {1.0, 1.0, 0.0};
+  s.colours["cones"] = {0.0, 1.0, 1.0};
+  s.colours["candidates"] = {0.5, 0.0, 0.5};
+  return s;
+}
+
+/// The cart beside the table, its arms at their neutral joints (a pose of a plan on this case).
+Eigen::Isometry3d CartBesideTheTable() {
+  Eigen::Isometry3d X_WB = Eigen::Isometry3d::Identity();
+  X_WB.linear() = Eigen::AngleAxisd(-74.7 * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  X_WB.translation() = Eigen::Vector3d(-0.28, 0.91, 0);
+  return X_WB;
+}
+
+/// Where a point lands in a view (pixels, y down) by a pinhole camera with a vertical view angle,
+/// as VTK's; false when it is behind the camera.
+bool Project(const CameraPose& c, int width, int height, const Eigen::Vector3d& p_W, Eigen::Vector2d* px) {
+  const Eigen::Vector3d f = (c.focal_point - c.position).normalized();
+  const Eigen::Vector3d r = f.cross(c.view_up).normalized();
+  const Eigen::Vector3d u = r.cross(f);
+  const Eigen::Vector3d d = p_W - c.position;
+  const double z = d.dot(f);
+  if (z <= 1e-6) return false;
+  const double t = std::tan(c.view_angle_deg / 2 * M_PI / 180);
+  const double aspect = static_cast<double>(width) / height;
+  const double nx = d.dot(r) / (z * t * aspect), ny = d.dot(u) / (z * t);
+  *px = Eigen::Vector2d((nx + 1) / 2 * width, (1 - ny) / 2 * height);
+  return true;
+}
+
+TEST(Scene, AFlatPictureOfTheBundledCaseShowsThePatientTheTableAndTheRobot) {
+  auto cart = LoadShared("robots/davinci-classic/cart.yaml");
+  Scene scene(Phantom(), cart, FlatStyle());
+  robot::RobotState state = *scene.robot_state();
+  state.X_WB = CartBesideTheTable();
+  kinematics::ForwardKinematics(*cart, &state);
+  scene.SetRobotState(state);
+  const int w = 640, h = 400;
+  const Views views = {{ViewSpec{}, scene.ExternalCamera(double(w) / h)}};
+  const Image all = Render(scene, views, w, h);
+  const SceneStyle& s = scene.style();
+  const long total = long(w) * h;
+  EXPECT_GT(CountColour(all, s.Colour("skin")), total / 200);
+  EXPECT_GT(CountColour(all, s.Colour("robot")), total / 50);
+  EXPECT_GT(CountColour(all, s.Colour("table")), total / 50);
+  EXPECT_GT(CountColour(all, s.Colour("floor")), total / 20);
+  // Under the skin: the heart and the ribs; hidden groups leave no pixel.
+  scene.SetVisible("skin", false);
+  scene.SetVisible("robot", false);
+  const Image inside = Render(scene, views, w, h);
+  EXPECT_EQ(CountColour(inside, s.Colour("skin")), 0);
+  EXPECT_EQ(CountColour(inside, s.Colour("robot")), 0);
+  EXPECT_GT(CountColour(inside, s.Colour("heart")), 20);
+  EXPECT_GT(CountColour(inside, s.Colour("ribs")), 100);
+  EXPECT_GT(CountColour(inside, s.Colour("target")), 5);
+  // The same scene renders the same picture.
+  const Image again = Render(scene, views, w, h);
+  EXPECT_EQ(inside.rgb, again.rgb);
+}
+
+TEST(Scene, TheRobotIsDrawnWhereItsForwardKinematicsPutsItOverSeededConfigurations) {
+  auto psm = LoadShared("robots/davinci-classic/psm.yaml");
+  SceneStyle style = FlatStyle();
+  Scene scene(Phantom(), psm, style);
+  for (const std::string& g : scene.groups())
+    if (g != "robot") scene.SetVisible(g, false);
+  std::mt19937 rng(7);
+  const int w = 480, h = 480;
+  for (int trial = 0; trial < 6; ++trial) {
+    robot::RobotState state = *scene.robot_state();
+    state.X_WB = Eigen::Isometry3d::Identity();
+    state.X_WB.translation() = Eigen::Vector3d(0, 0, 1.2);
+    const Eigen::VectorXd q = test::RandomConfiguration(*psm, &rng);
+    ASSERT_TRUE(kinematics::ForwardKinematics(*psm, q, &state).ok);
+    scene.SetRobotState(state);
+    CameraPose camera;
+    camera.focal_point = Eigen::Vector3d(0, 0, 1.2);
+    camera.position = camera.focal_point + Eigen::Vector3d(1.2, -1.6, 0.9);
+    camera.view_angle_deg = 40;
+    const Image image = Render(scene, {{ViewSpec{}, camera}}, w, h);
+    const auto blue = Rgb8(style.Colour("robot"));
+    // Every shape's centre lands on a robot pixel; with the robot drawn at another configuration,
+    // most would not.
+    int hits = 0, points = 0;
+    for (int l = 0; l < psm->num_links(); ++l) {
+      for (const auto& g : psm->link(l).collisions) {
+        if (g.size.x() < 0.01) continue;  // the shaft and jaws: a pixel or two wide
+        Eigen::Vector2d px;
+        if (!Project(camera, w, h, state.X_WL[l] * g.X_LG.translation(), &px)) continue;
+        const int x = int(px.x()), y = int(px.y());
+        if (x < 1 || y < 1 || x >= w - 1 || y >= h - 1) continue;
+        ++points;
+        bool hit = false;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) hit = hit || Near(image.Pixel(x + dx, y + dy), blue);
+        hits += hit;
+      }
+    }
+    ASSERT_GE(points, 4) << "trial " << trial;
+    EXPECT_EQ(hits, points) << "trial " << trial << ": shape centres off the drawn robot";
+  }
+}
+
+TEST(Scene, AScopeCameraOnTheEcmSeesTheTargetItIsAimedAtAndNothingOfItWhenTurnedAway) {
+  auto ecm = LoadShared("robots/davinci-classic/ecm.yaml");
+  auto patient = Phantom();
+  ASSERT_FALSE(patient->targets.empty());
+  const patient::Target& lad = patient->targets.front();
+  // The middle of the target, seen from along its approach normal.
+  const std::size_t middle = lad.points.size() / 2;
+  const Eigen::Vector3d p_W = patient->X_WP * lad.points[middle];
+  const Eigen::Vector3d n_W = patient->X_WP.linear() * lad.normals[middle];
+  SceneStyle style = FlatStyle();
+  Scene scene(patient, ecm, style);
+  scene.SetVisible("cones", false);
+  scene.SetVisible("skin", false);  // the tip is put outside the chest wall, 6 cm out
+  // The scope's tip 6 cm from the target, its shaft (the tool frame's z) aimed at it.
+  robot::RobotState state = *scene.robot_state();
+  const Eigen::Isometry3d X_BT = kinematics::FramePose(state, ecm->tool_frame());  // base at identity
+  Eigen::Isometry3d X_WT = Eigen::Isometry3d::Identity();
+  const Eigen::Vector3d axis = -n_W.normalized();
+  X_WT.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
+  X_WT.translation() = p_W - 0.06 * axis;
+  state.X_WB = X_WT * X_BT.inverse();
+  kinematics::ForwardKinematics(*ecm, &state);
+  scene.SetRobotState(state);
+  FrameCamera scope;
+  scope.frame = ecm->tool_frame().name;
+  const CameraPose pose = scene.OnFrame(scope);
+  EXPECT_LT((pose.position - X_WT.translation()).norm(), 1e-9);
+  EXPECT_LT(((pose.focal_point - pose.position).normalized() - axis).norm(), 1e-9);
+  ViewSpec spec;
+  spec.kind = ViewSpec::Kind::kFrame;
+  spec.camera = scope;
+  const int w = 320, h = 320;
+  const Image seen = Render(scene, {{spec, pose}}, w, h);
+  if (const char* dump = std::getenv("TROCAR_TEST_DUMP")) WritePng(seen, std::string(dump) + "/scope.png");
+  const long target = CountColour(seen, style.Colour("target:" + lad.name));
+  EXPECT_GT(target, 30) << "the target in front of the scope is not drawn";
+  // The target's pixels lie around the image centre, where the scope is aimed.
+  double mx = 0, my = 0;
+  const auto yellow = Rgb8(style.Colour("target:" + lad.name));
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      if (Near(seen.Pixel(x, y), yellow)) mx += x, my += y;
+  mx /= std::max<long>(target, 1), my /= std::max<long>(target, 1);
+  EXPECT_LT(std::hypot(mx - w / 2.0, my - h / 2.0), w / 3.0);
+  scope.axis_F = -Eigen::Vector3d::UnitZ();
+  spec.camera = scope;
+  const Image away = Render(scene, {{spec, scene.OnFrame(scope)}}, w, h);
+  EXPECT_EQ(CountColour(away, style.Colour("target:" + lad.name)), 0);
+}
+
+TEST(Scene, TheScopeLightsItsViewByItsIntensity) {
+  auto ecm = LoadShared("robots/davinci-classic/ecm.yaml");
+  Scene scene(Phantom(), ecm);  // shaded
+  robot::RobotState state = *scene.robot_state();
+  state.X_WB.translation() = Phantom()->X_WP * ((Phantom()->body_min_P + Phantom()->body_max_P) / 2);
+  kinematics::ForwardKinematics(*ecm, &state);
+  scene.SetRobotState(state);
+  ViewSpec spec;
+  spec.kind = ViewSpec::Kind::kFrame;
+  spec.camera.frame = ecm->tool_frame().name;
+  auto brightness = [&](double intensity) {
+    spec.camera.light_intensity = intensity;
+    const Image image = Render(scene, {{spec, scene.OnFrame(spec.camera)}}, 200, 200);
+    double sum = 0;
+    for (std::uint8_t v : image.rgb) sum += v;
+    return sum / image.rgb.size();
+  };
+  const double dim = brightness(0.2), bright = brightness(1.5);
+  EXPECT_GT(bright, dim * 1.5) << dim << " vs " << bright;
+}
+
+TEST(Scene, BasePosesTypedAsEulerAnglesQuaternionsOrMatricesAgree) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> angle(-170, 170);
+  for (int i = 0; i < 200; ++i) {
+    const Eigen::Vector3d e(angle(rng), angle(rng) / 2, angle(rng));
+    std::ostringstream euler;
+    euler.precision(17);
+    euler << e.x() << ", " << e.y() << ", " << e.z();
+    const Eigen::Isometry3d a = ParseBasePose("0.1, -0.2, 0.3", euler.str());
+    const Eigen::Quaterniond q(a.linear());
+    std::ostringstream quat, matrix;
+    quat.precision(17);
+    matrix.precision(17);
+    quat << q.w() << " " << q.x() << " " << q.y() << " " << q.z();
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) matrix << a.linear()(r, c) << (r + c < 4 ? "," : "");
+    EXPECT_LT((ParseBasePose("0.1 -0.2 0.3", quat.str()).linear() - a.linear()).norm(), 1e-9);
+    EXPECT_LT((ParseBasePose("0.1,-0.2,0.3", matrix.str()).linear() - a.linear()).norm(), 1e-9);
+    EXPECT_LT((EulerXyzDeg(a.linear()) - e).norm(), 1e-7) << e.transpose();
+    EXPECT_LT((a.translation() - Eigen::Vector3d(0.1, -0.2, 0.3)).norm(), 1e-12);
+  }
+  EXPECT_THROW(ParseBasePose("0 0", "0 0 0"), Error);
+  EXPECT_THROW(ParseBasePose("0 0 0", "1 0 0 0 2 0 0 0 1"), Error);  // not orthonormal
+  EXPECT_THROW(ParseBasePose("0 0 0", "-1 0 0 0 1 0 0 0 1"), Error);  // a reflection
+  EXPECT_THROW(ParseBasePose("0 0 0", "0 0 0 0"), Error);
+  EXPECT_THROW(ParseBasePose("0 0 0", "1 2"), Error);
+  EXPECT_THROW(ParseBasePose("0 0 x", "0 0 0"), Error);
+  EXPECT_THROW(ParseBasePose("0 0 nan", "0 0 0"), Error);
+}
+
+TEST(Scene, StylesAreParsedWithTheirErrorsNamed) {
+  SceneStyle s = SceneStyle::Default();
+  s.ParseColour("heart=255,0,128");
+  EXPECT_LT((s.Colour("heart") - Eigen::Vector3d(1, 0, 128 / 255.0)).norm(), 1e-12);
+  s.ParseColour("background=0.5,0.5,0.5");
+  EXPECT_EQ(s.background, Eigen::Vector3d(0.5, 0.5, 0.5));
+  s.ParseOpacity("skin=0.2");
+  EXPECT_EQ(s.Opacity("skin"), 0.2);
+  EXPECT_EQ(s.Colour("target:LAD"), s.Colour("target"));
+  for (const char* bad : {"heart", "heart=1,2", "heart=a,b,c", "heart=-1,0,0", "=1,1,1", "heart=1,1,300"}) {
+    try {
+      s.ParseColour(bad);
+      ADD_FAILURE() << bad << " accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(bad), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_THROW(s.ParseOpacity("skin=1.5"), Error);
+  EXPECT_THROW(s.ParseOpacity("skin"), Error);
+  EXPECT_THROW(ViewSpec::Parse("sideways"), Error);
+  EXPECT_EQ(ViewSpec::Parse("frame:ecm_tool").camera.frame, "ecm_tool");
+}
+
+TEST(Scene, APictureIsWrittenWholeOrNotAtAll) {
+  const std::string dir = std::filesystem::temp_directory_path() / ("trocar_viz_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const std::string path = dir + "/view.png";
+  WriteFileAtomically(path, "previous");
+  Image bad;
+  bad.width = 10;
+  bad.height = 10;  // no pixels
+  EXPECT_THROW(WritePng(bad, path), Error);
+  EXPECT_EQ(ReadTextFile(path), "previous");
+  Image image;
+  image.width = 4;
+  image.height = 3;
+  image.rgb.assign(36, 200);
+  image.rgb[0] = 7;
+  WritePng(image, path);
+  const Image back = ReadPng(path);
+  ASSERT_EQ(back.width, 4);
+  ASSERT_EQ(back.height, 3);
+  EXPECT_EQ(back.rgb, image.rgb);
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    EXPECT_EQ(entry.path().filename(), "view.png") << "a temporary file was left";
+  }
+  EXPECT_THROW(WritePng(image, dir + "/no/such/folder/view.png"), Error);
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace trocar::viz

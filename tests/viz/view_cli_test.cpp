@@ -1,0 +1,229 @@
+// trocar view on a real plan of the bundled case: screenshots, replay of verified motions, the
+// window, and bad input. The plan is made once for the suite by `trocar plan` (small budget).
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <fcntl.h>
+#include <sys/file.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "common/file_util.hpp"
+#include "port_placement/plan_file.hpp"
+#include "robot/load_robot.hpp"
+#include "scene.hpp"
+#include "test_util.hpp"
+#include "view_inputs.hpp"
+
+namespace trocar::viz {
+namespace {
+
+using test::SourcePath;
+
+struct CommandRun {
+  int exit_code;
+  std::string output;
+};
+
+CommandRun Shell(const std::string& command) {
+  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
+  if (pipe == nullptr) return {-1, "popen failed"};
+  std::string output;
+  std::array<char, 4096> buffer;
+  size_t n;
+  while ((n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0) output.append(buffer.data(), n);
+  const int status = pclose(pipe);
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, output};
+}
+
+CommandRun Trocar(const std::string& arguments) {
+  return Shell("cd " + SourcePath("") + " && " + std::string(TROCAR_BINARY) + " " + arguments);
+}
+
+class ViewCli : public ::testing::Test {
+ protected:
+  /// The plan is made once for every test process (ctest runs each test alone, two at a time):
+  /// under a lock, into the build tree, again whenever the trocar binary changed.
+  static void SetUpTestSuite() {
+    dir_ = (std::filesystem::temp_directory_path() / ("trocar_view_" + std::to_string(::getpid()))).string();
+    std::filesystem::create_directories(dir_);
+    std::filesystem::create_directories(TROCAR_TEST_WORK_DIR);
+    const int lock = ::open((std::string(TROCAR_TEST_WORK_DIR) + "/plan.lock").c_str(), O_CREAT | O_RDWR, 0644);
+    ASSERT_GE(lock, 0);
+    ASSERT_EQ(::flock(lock, LOCK_EX), 0);
+    const auto stamp_of_binary = std::to_string(
+        std::filesystem::last_write_time(TROCAR_BINARY).time_since_epoch().count());
+    const std::string stamp = std::string(TROCAR_TEST_WORK_DIR) + "/plan.stamp";
+    if (!IsRegularFile(Plan()) || !IsRegularFile(stamp) || ReadTextFile(stamp) != stamp_of_binary) {
+      const CommandRun plan = Trocar("plan " + SourcePath("patients/phantom-default") + " --robot " +
+                                     SourcePath("robots/davinci-classic/cart.yaml") +
+                                     " --arms psm1 psm2 --evaluations 300 --starts 2 --motion-time 0.5 --out " +
+                                     std::string(TROCAR_TEST_WORK_DIR) + "/plan");
+      EXPECT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
+      if (plan.exit_code == 0 || plan.exit_code == 4) WriteFileAtomically(stamp, stamp_of_binary);
+    }
+    ::flock(lock, LOCK_UN);
+    ::close(lock);
+  }
+  static void TearDownTestSuite() { std::filesystem::remove_all(dir_); }
+  static std::string Plan() { return std::string(TROCAR_TEST_WORK_DIR) + "/plan/plan.json"; }
+  static std::string Out(const std::string& name) { return dir_ + "/" + name; }
+  static std::string dir_;
+};
+std::string ViewCli::dir_;
+
+/// The flat colours the CLI is given, so that a pixel names its group.
+const char* kFlat = " --flat --colour robot=0,0,255 --colour table=0,255,0 --colour skin=255,128,0 "
+                    "--colour background=0,0,0 --opacity skin=1 ";
+
+long CountRgb(const Image& image, int r, int g, int b) {
+  long n = 0;
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) {
+      const auto p = image.Pixel(x, y);
+      n += std::abs(p[0] - r) <= 2 && std::abs(p[1] - g) <= 2 && std::abs(p[2] - b) <= 2;
+    }
+  return n;
+}
+
+TEST_F(ViewCli, AScreenshotShowsThePatientAndTheRobotAtThePlansPose) {
+  const std::string png = Out("nominal.png");
+  const CommandRun run = Trocar("view patients/phantom-default " + Plan() + kFlat +
+                                "--view external --size 640x400 --screenshot " + png);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const Image image = ReadPng(png);
+  ASSERT_EQ(image.width, 640);
+  ASSERT_EQ(image.height, 400);
+  EXPECT_GT(CountRgb(image, 0, 0, 255), 640 * 400 / 50) << "robot";
+  EXPECT_GT(CountRgb(image, 0, 255, 0), 640 * 400 / 50) << "table";
+  EXPECT_GT(CountRgb(image, 255, 128, 0), 640 * 400 / 200) << "skin";
+}
+
+TEST_F(ViewCli, ReplayDrawsTheArmAtTheMotionsWaypoints) {
+  const planners::PlanFile file = planners::ReadPlanFile(Plan());
+  const planners::StoredMotion* motion = nullptr;
+  for (const auto& m : file.plans[0].motions)
+    if (m.solved && m.waypoints.size() >= 2 && !motion) motion = &m;
+  ASSERT_NE(motion, nullptr) << "the suite's plan has no solved motion to replay";
+  const std::string id = motion->arm + ":" + std::to_string(motion->sample);
+  auto shot = [&](const std::string& extra, const std::string& name) {
+    const CommandRun run = Trocar("view patients/phantom-default " + Plan() + kFlat +
+                                  "--view external --size 480x320 " + extra + " --screenshot " + Out(name));
+    EXPECT_EQ(run.exit_code, 0) << run.output;
+    return ReadPng(Out(name));
+  };
+  const Image nominal = shot("", "n.png");
+  const Image first = shot("--motion " + id + ":0", "first.png");
+  const Image last = shot("--motion " + id, "last.png");
+  // The first waypoint is the nominal pose; the last (at the target) is elsewhere.
+  EXPECT_EQ(first.rgb, nominal.rgb);
+  EXPECT_NE(last.rgb, nominal.rgb);
+
+  // In process: at the last waypoint, every link shape a few pixels wide is drawn where forward
+  // kinematics of the waypoint's joint values puts it.
+  ViewInputs in;
+  in.case_dir = file.case_dir;
+  in.plan = Plan();
+  in.motion = id;
+  in.flat = true;
+  LoadedView view = LoadView(in);
+  for (const std::string& g : view.scene->groups())
+    if (g != "robot") view.scene->SetVisible(g, false);
+  view.scene->SetColour("robot", {0, 0, 1});
+  const robot::RobotState& state = *view.scene->robot_state();
+  const int arm_link = view.robot->FindLink(motion->arm + "_insertion_link");
+  ASSERT_GE(arm_link, 0);
+  const Eigen::Vector3d p_W = state.X_WL[arm_link] * view.robot->link(arm_link).collisions[0].X_LG.translation();
+  CameraPose camera;
+  camera.focal_point = p_W;
+  camera.position = p_W + Eigen::Vector3d(0.3, -0.5, 0.4);
+  camera.view_angle_deg = 30;
+  const Image image = Render(*view.scene, {{ViewSpec{}, camera}}, 200, 200);
+  EXPECT_EQ(image.Pixel(100, 100), (std::array<std::uint8_t, 3>{0, 0, 255}))
+      << "the instrument carriage at the motion's last waypoint is not where its joints put it";
+}
+
+TEST_F(ViewCli, TheEndoscopeViewIsDrawnFromThePlansScopeFrame) {
+  // A plan names its scope's camera frame (here, for the test, psm1's tool); the endoscope view
+  // renders from that frame, as a camera put on it by name does.
+  const std::string png = Out("scope.png");
+  nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Plan()));
+  doc["plans"][0]["views"] = nlohmann::json::array({{{"arm", "ecm"}, {"frame", "psm1_tool"}, {"axis_F", {0, 0, 1}}}});
+  const std::string edited = Out("scope_plan.json");
+  WriteFileAtomically(edited, doc.dump());
+  const CommandRun run = Trocar("view patients/phantom-default " + edited + kFlat +
+                                "--view endoscope --size 300x300 --screenshot " + png);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const Image scope = ReadPng(png);
+  const CommandRun run2 = Trocar("view patients/phantom-default " + edited + kFlat +
+                                 "--view frame:psm1_tool --size 300x300 --screenshot " + png + "2");
+  ASSERT_EQ(run2.exit_code, 0) << run2.output;
+  EXPECT_EQ(scope.rgb, ReadPng(png + "2").rgb);
+}
+
+TEST_F(ViewCli, TheWindowShowsTheSidebarAndTheScene) {
+  const std::string png = Out("window.png");
+  const CommandRun run = Trocar("view patients/phantom-default " + Plan() + kFlat + "--grab " + png);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const Image image = ReadPng(png);
+  ASSERT_GE(image.width, 800);
+  // The scene (right of the sidebar) shows the robot in its flat colour; the sidebar is not.
+  long robot_right = 0, robot_left = 0;
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) {
+      const auto p = image.Pixel(x, y);
+      if (p[0] <= 2 && p[1] <= 2 && p[2] >= 253) (x < 300 ? robot_left : robot_right)++;
+    }
+  EXPECT_GT(robot_right, 2000);
+  EXPECT_EQ(robot_left, 0);
+}
+
+TEST_F(ViewCli, BadInputIsNamedAndNoPictureIsWritten) {
+  const std::string png = Out("bad.png");
+  WriteFileAtomically(png, "previous");
+  auto expect_error = [&](const std::string& arguments, const std::string& named) {
+    const CommandRun run = Trocar(arguments + " --screenshot " + png);
+    EXPECT_EQ(run.exit_code, 1) << arguments << "\n" << run.output;
+    EXPECT_NE(run.output.find(named), std::string::npos) << arguments << "\n" << run.output;
+    EXPECT_EQ(ReadTextFile(png), "previous") << arguments;
+  };
+  const std::string text = ReadTextFile(Plan());
+  const std::string truncated = Out("truncated.json");
+  WriteFileAtomically(truncated, text.substr(0, text.size() / 2));
+  expect_error("view patients/phantom-default " + truncated, "truncated.json: not a plan");
+  nlohmann::json doc = nlohmann::json::parse(text);
+  doc["plans"][0]["cart"]["X_WB"] = "here";
+  WriteFileAtomically(Out("badpose.json"), doc.dump());
+  expect_error("view patients/phantom-default " + Out("badpose.json"), "plans[0].cart.X_WB");
+  doc = nlohmann::json::parse(text);
+  doc["inputs"]["patient_model_hash"] = "fnv1a64:0000000000000000";
+  WriteFileAtomically(Out("otherpatient.json"), doc.dump());
+  expect_error("view patients/phantom-default " + Out("otherpatient.json"), "another patient model");
+  doc = nlohmann::json::parse(text);
+  doc["plans"][0]["q_nominal"]["no_such_joint"] = 0.1;
+  WriteFileAtomically(Out("badjoint.json"), doc.dump());
+  expect_error("view patients/phantom-default " + Out("badjoint.json"), "no_such_joint");
+  expect_error("view patients/phantom-default " + Plan() + " --plan 99", "--plan 99");
+  expect_error("view patients/phantom-default " + Plan() + " --motion psm9:0", "psm9");
+  expect_error("view patients/phantom-default " + Plan() + " --colour heart=1,2", "heart=1,2");
+  expect_error("view patients/phantom-default " + Plan() + " --view sideways", "sideways");
+  expect_error("view patients/phantom-default " + Out("missing.json"), "missing.json");
+  // A folder that does not exist: named, nothing half-written.
+  const CommandRun run = Trocar("view patients/phantom-default --screenshot " + Out("no/such/dir/x.png"));
+  EXPECT_EQ(run.exit_code, 1) << run.output;
+  EXPECT_NE(run.output.find("x.png"), std::string::npos) << run.output;
+  // Without a display: a message, not a crash.
+  const CommandRun headless =
+      Shell("cd " + SourcePath("") + " && env -u DISPLAY " + TROCAR_BINARY +
+          " view patients/phantom-default --screenshot " + png);
+  EXPECT_EQ(headless.exit_code, 1) << headless.output;
+  EXPECT_NE(headless.output.find("X display"), std::string::npos) << headless.output;
+  EXPECT_EQ(ReadTextFile(png), "previous");
+}
+
+}  // namespace
+}  // namespace trocar::viz
