@@ -220,7 +220,7 @@ SceneStyle SceneStyle::Default() {
       {"candidates", {0.20, 0.75, 0.35}}, {"ports", {0.15, 0.95, 0.25}},
       {"pivots", {0.95, 0.30, 0.95}},  {"table", {0.45, 0.50, 0.58}},
       {"floor", {0.28, 0.29, 0.31}},   {"robot", {0.78, 0.80, 0.86}},
-      {"collision", {1.00, 0.30, 0.05}},
+      {"collision", {1.00, 0.10, 0.05}},  {"near_miss", {1.00, 0.65, 0.00}},
   };
   s.opacities = {{"skin", 0.35}, {"cones", 0.55}};
   return s;
@@ -315,7 +315,7 @@ struct Scene::Impl {
     vtkSmartPointer<vtkActor> actor;
   };
   std::vector<LinkActor> links;
-  std::vector<int> highlighted;
+  std::vector<int> highlighted, near;
 
   Group& GetGroup(const std::string& name) {
     for (Group& g : groups)
@@ -355,9 +355,11 @@ struct Scene::Impl {
       Eigen::Vector3d colour = style.Colour(g.name);
       if (is_robot) {
         for (const LinkActor& la : links) {
-          if (la.actor == actor &&
-              std::find(highlighted.begin(), highlighted.end(), la.link) != highlighted.end()) {
+          if (la.actor != actor) continue;
+          if (std::find(highlighted.begin(), highlighted.end(), la.link) != highlighted.end()) {
             colour = style.Colour("collision");
+          } else if (std::find(near.begin(), near.end(), la.link) != near.end()) {
+            colour = style.Colour("near_miss");
           }
         }
       }
@@ -551,8 +553,9 @@ void Scene::SetRobotState(const robot::RobotState& state) {
 
 const robot::RobotState* Scene::robot_state() const { return impl_->state.get(); }
 
-void Scene::HighlightLinks(const std::vector<int>& links) {
-  impl_->highlighted = links;
+void Scene::HighlightLinks(const std::vector<int>& colliding, const std::vector<int>& near) {
+  impl_->highlighted = colliding;
+  impl_->near = near;
   if (auto* g = impl_->FindGroup("robot")) impl_->ApplyStyle(*g);
 }
 

@@ -98,8 +98,9 @@ class Scene {
   void SetRobotState(const robot::RobotState& state);
   const robot::RobotState* robot_state() const;
 
-  /// Highlights robot links (by index) in the "collision" colour, the others back to theirs.
-  void HighlightLinks(const std::vector<int>& links);
+  /// Highlights robot links (by index): `colliding` in the "collision" colour, `near` (near
+  /// misses) in the "near_miss" colour; the others back to theirs.
+  void HighlightLinks(const std::vector<int>& colliding, const std::vector<int>& near = {});
 
   /// The external camera: the patient, table and robot framed from the foot end, above the
   /// patient's right side, image `aspect` = width / height.

@@ -1,5 +1,6 @@
 #include "view_inputs.hpp"
 
+#include <cmath>
 #include <sstream>
 
 #include "common/error.hpp"
@@ -91,8 +92,27 @@ LoadedView LoadView(const ViewInputs& in) {
       planners::SetWaypoint(*out.robot, m, waypoint, &state);
       out.scene->SetRobotState(state);
     }
+    out.collisions = std::make_unique<planners::PlanCollisions>(*out.patient, out.robot, *out.plan, k);
+    out.pose = out.collisions->Check(*out.scene->robot_state());
+    out.scene->HighlightLinks(out.pose.colliding_links, out.pose.near_links);
   }
   return out;
+}
+
+std::string Describe(const planners::PoseCollisions& pose) {
+  std::ostringstream s;
+  if (pose.collision) {
+    s << "in collision: ";
+    for (std::size_t i = 0; i < pose.pairs.size() && i < 4; ++i) s << (i ? ", " : "") << pose.pairs[i];
+    if (pose.pairs.size() > 4) s << " and " << pose.pairs.size() - 4 << " more";
+  } else if (std::isfinite(pose.clearance)) {
+    s.setf(std::ios::fixed);
+    s.precision(1);
+    s << "collision-free, clearance " << pose.clearance * 1000 << " mm (" << pose.clearance_pair << ")";
+  } else {
+    s << "collision-free";
+  }
+  return s.str();
 }
 
 }  // namespace trocar::viz

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "motion/plan_collisions.hpp"
 #include "port_placement/plan_file.hpp"
 #include "scene.hpp"
 
@@ -29,7 +30,13 @@ struct LoadedView {
   std::shared_ptr<const robot::RobotModel> robot;
   std::unique_ptr<planners::PlanFile> plan;  ///< null without a plan file
   std::unique_ptr<Scene> scene;
+  /// With a plan: its collision rules, and the shown pose's collisions (highlighted in the scene).
+  std::unique_ptr<planners::PlanCollisions> collisions;
+  planners::PoseCollisions pose;
 };
+
+/// The pose's collisions in words: "in collision: a - b, ..." or "clearance 12.3 mm (a - b)".
+std::string Describe(const planners::PoseCollisions& pose);
 
 /// @throws trocar::Error naming the file and what does not match: a missing or malformed case,
 /// plan or robot; a plan made for another patient model or robot file; a plan index out of

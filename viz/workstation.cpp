@@ -42,6 +42,8 @@
 #include "common/error.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "port_placement/plan_io.hpp"
+#include "replay.hpp"
+#include "view_inputs.hpp"
 
 namespace trocar::viz {
 namespace {
@@ -117,9 +119,9 @@ QString PlanHtml(const planners::PlanFile& file, const planners::StoredPlan& p) 
 
 class Workstation {
  public:
-  Workstation(std::unique_ptr<Scene> scene, const planners::PlanFile* plan,
-              const WorkstationOptions& options)
-      : scene_(std::move(scene)), options_(options) {
+  Workstation(std::unique_ptr<Scene> scene, std::shared_ptr<const robot::RobotModel> robot,
+              const planners::PlanFile* plan, const WorkstationOptions& options)
+      : scene_(std::move(scene)), robot_(robot), options_(options) {
     if (plan) plan_ = std::make_unique<planners::PlanFile>(*plan);
     window_.setWindowTitle(QString::fromStdString("trocar — " + scene_->patient().name));
     window_.resize(options.width, options.height);
@@ -129,6 +131,7 @@ class Workstation {
     tabs->addTab(BuildPlansTab(), "Plans");
     tabs->addTab(BuildStructuresTab(), "Structures");
     tabs->addTab(BuildRobotTab(), "Robot");
+    tabs->addTab(BuildReplayTab(), "Replay");
     tabs->addTab(BuildViewTab(), "View");
     splitter->addWidget(tabs);
     vtk_widget_ = new QVTKOpenGLNativeWidget;
@@ -155,7 +158,7 @@ class Workstation {
     UpdateScope();
     const double aspect = (scope_available_ ? 0.5 : 1.0) * options.width / options.height;
     Scene::Apply(scene_->ExternalCamera(aspect), external_);
-    window_.statusBar()->showMessage(QString::number(scene_->triangle_count()) + " triangles");
+    if (!plan_) window_.statusBar()->showMessage(QString::number(scene_->triangle_count()) + " triangles");
   }
 
   int Run(QApplication& app) {
@@ -223,6 +226,9 @@ class Workstation {
     try {
       scene_->ShowPlan(*plan_, k);
       plan_index_ = k;
+      collisions_ = std::make_unique<planners::PlanCollisions>(scene_->patient(), robot_, *plan_, k);
+      FillMotions();
+      ShowCollisions();
       details_->setHtml(PlanHtml(*plan_, plan_->plans[k]));
       if (plans_->currentRow() != static_cast<int>(k)) plans_->setCurrentRow(static_cast<int>(k));
       SyncJoints();
@@ -231,6 +237,109 @@ class Workstation {
     } catch (const Error& e) {
       Fail(e.what());
     }
+  }
+
+  /// The pose's collisions highlighted, and said in the replay tab and the status bar.
+  void ShowCollisions() {
+    if (!collisions_ || !scene_->robot_state()) return;
+    const planners::PoseCollisions pose = collisions_->Check(*scene_->robot_state());
+    scene_->HighlightLinks(pose.colliding_links, pose.near_links);
+    const QString text = QString::fromStdString(Describe(pose));
+    if (pose_label_) pose_label_->setText(text);
+    window_.statusBar()->showMessage(text);
+  }
+
+  QWidget* BuildReplayTab() {
+    auto* w = new QWidget;
+    auto* layout = new QVBoxLayout(w);
+    motions_ = new QComboBox;
+    layout->addWidget(new QLabel("Verified motions of the plan"));
+    layout->addWidget(motions_);
+    auto* play = new QPushButton("Play");
+    frame_slider_ = new QSlider(Qt::Horizontal);
+    auto* row = new QHBoxLayout;
+    row->addWidget(play);
+    row->addWidget(frame_slider_, 1);
+    layout->addLayout(row);
+    pose_label_ = new QLabel;
+    pose_label_->setWordWrap(true);
+    layout->addWidget(pose_label_);
+    layout->addStretch(1);
+    timer_ = new QTimer(w);
+    timer_->setInterval(33);
+    QObject::connect(motions_, QOverload<int>::of(&QComboBox::currentIndexChanged), [this](int i) {
+      if (!filling_) LoadMotion(i);
+    });
+    QObject::connect(frame_slider_, &QSlider::valueChanged, [this](int f) { ShowFrame(f); });
+    QObject::connect(play, &QPushButton::clicked, [this, play] {
+      if (timer_->isActive()) {
+        timer_->stop();
+        play->setText("Play");
+      } else if (!frames_.empty()) {
+        if (frame_slider_->value() >= frame_slider_->maximum()) frame_slider_->setValue(0);
+        timer_->start();
+        play->setText("Pause");
+      }
+    });
+    QObject::connect(timer_, &QTimer::timeout, [this, play] {
+      if (frame_slider_->value() >= frame_slider_->maximum()) {
+        timer_->stop();
+        play->setText("Play");
+        return;
+      }
+      frame_slider_->setValue(frame_slider_->value() + 1);
+    });
+    return w;
+  }
+
+  void FillMotions() {
+    if (!motions_) return;
+    filling_ = true;
+    motions_->clear();
+    motion_index_.clear();
+    frames_.clear();
+    const auto& motions = plan_->plans[plan_index_].motions;
+    for (std::size_t i = 0; i < motions.size(); ++i) {
+      const auto& m = motions[i];
+      if (m.waypoints.empty()) continue;
+      const std::string target =
+          m.sample < static_cast<int>(plan_->samples.size()) ? plan_->samples[m.sample].target : "?";
+      motions_->addItem(QString::fromStdString(m.arm + " to sample " + std::to_string(m.sample) +
+                                               " (" + target + ")"));
+      motion_index_.push_back(i);
+    }
+    if (motion_index_.empty()) motions_->addItem("none solved");
+    filling_ = false;
+    frame_slider_->setRange(0, 0);
+  }
+
+  void LoadMotion(int i) {
+    if (i < 0 || i >= static_cast<int>(motion_index_.size())) return;
+    try {
+      const auto& plan = plan_->plans[plan_index_];
+      const robot::RobotState start =
+          planners::NominalState(*scene_->robot(), plan, plan_->path + ": plan " + std::to_string(plan_index_ + 1));
+      frames_ = ReplayMotion(*scene_->robot(), start, plan.motions[motion_index_[i]], collisions_.get());
+      frame_slider_->setRange(0, static_cast<int>(frames_.size()) - 1);
+      frame_slider_->setValue(0);
+      ShowFrame(0);
+    } catch (const Error& e) {
+      Fail(e.what());
+    }
+  }
+
+  void ShowFrame(int f) {
+    if (f < 0 || f >= static_cast<int>(frames_.size())) return;
+    const ReplayFrame& frame = frames_[f];
+    scene_->SetRobotState(frame.state);
+    scene_->HighlightLinks(frame.collisions.colliding_links, frame.collisions.near_links);
+    const QString text = "frame " + QString::number(f + 1) + " of " + QString::number(frames_.size()) +
+                         ": " + QString::fromStdString(Describe(frame.collisions));
+    pose_label_->setText(text);
+    window_.statusBar()->showMessage(text);
+    SyncJoints();
+    UpdateScope();
+    Render();
   }
 
   void OpenPlan(const std::string& path) {
@@ -301,6 +410,7 @@ class Workstation {
         state.X_WB = ParseBasePose(position_->text().toStdString(), rotation_->text().toStdString());
         kinematics::ForwardKinematics(*scene_->robot(), &state);
         scene_->SetRobotState(state);
+        ShowCollisions();
         UpdateScope();
         Render();
       } catch (const Error& e) {
@@ -338,10 +448,12 @@ class Workstation {
       return;
     }
     scene_->SetRobotState(state);
+    ShowCollisions();
     window_.statusBar()->showMessage(
         QString::fromStdString(joint.name) + " = " +
         (joint.type == robot::JointType::kPrismatic ? Fixed(q[joint.q_index] * 1000, 1) + " mm"
-                                                   : Fixed(q[joint.q_index] * 180 / kPi, 1) + "°"));
+                                                   : Fixed(q[joint.q_index] * 180 / kPi, 1) + "°") +
+        ": " + (pose_label_ ? pose_label_->text() : QString()));
     UpdateScope();
     Render();
   }
@@ -446,7 +558,15 @@ class Workstation {
   }
 
   std::unique_ptr<Scene> scene_;
+  std::shared_ptr<const robot::RobotModel> robot_;
   WorkstationOptions options_;
+  std::unique_ptr<planners::PlanCollisions> collisions_;
+  QComboBox* motions_ = nullptr;
+  QSlider* frame_slider_ = nullptr;
+  QLabel* pose_label_ = nullptr;
+  QTimer* timer_ = nullptr;
+  std::vector<std::size_t> motion_index_;
+  std::vector<ReplayFrame> frames_;
   std::unique_ptr<planners::PlanFile> plan_;
   std::size_t plan_index_ = 0;
   QMainWindow window_;
@@ -470,8 +590,8 @@ class Workstation {
 
 vtkInteractorStyle* NewThesisCameraStyle() { return ThesisCameraStyle::New(); }
 
-int RunWorkstation(std::unique_ptr<Scene> scene, const planners::PlanFile* plan,
-                   const WorkstationOptions& options) {
+int RunWorkstation(std::unique_ptr<Scene> scene, std::shared_ptr<const robot::RobotModel> robot,
+                   const planners::PlanFile* plan, const WorkstationOptions& options) {
   const char* display = std::getenv("DISPLAY");
   TROCAR_THROW_UNLESS(display && *display,
                       "the workstation window needs an X display (DISPLAY is not set); for "
@@ -481,7 +601,7 @@ int RunWorkstation(std::unique_ptr<Scene> scene, const planners::PlanFile* plan,
   static char name[] = "trocar";
   static char* argv[] = {name, nullptr};
   QApplication app(argc, argv);
-  Workstation station(std::move(scene), plan, options);
+  Workstation station(std::move(scene), std::move(robot), plan, options);
   return station.Run(app);
 }
 

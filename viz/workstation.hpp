@@ -29,8 +29,8 @@ struct WorkstationOptions {
 /// Opens the window and runs until it is closed. Errors while it runs (a plan that does not fit
 /// the robot, a joint the robot refuses) are shown in the window and on stderr; the window stays.
 /// @return the exit code (0). @throws trocar::Error when no display can be opened.
-int RunWorkstation(std::unique_ptr<Scene> scene, const planners::PlanFile* plan,
-                   const WorkstationOptions& options);
+int RunWorkstation(std::unique_ptr<Scene> scene, std::shared_ptr<const robot::RobotModel> robot,
+                   const planners::PlanFile* plan, const WorkstationOptions& options);
 
 /// The thesis' mouse mapping (§2.10) over VTK's trackball camera: left button rotates, right
 /// pans, middle or wheel zooms.

@@ -39,7 +39,7 @@ int RunView(const ViewOptions& o) {
     wo.plan_path = o.inputs.plan;
     wo.plan_index = o.inputs.plan_index - 1;
     wo.grab_path = o.grab;
-    return viz::RunWorkstation(std::move(loaded.scene), loaded.plan.get(), wo);
+    return viz::RunWorkstation(std::move(loaded.scene), loaded.robot, loaded.plan.get(), wo);
   }
   const auto [width, height] = ParseSize(o.size);
   std::vector<std::string> names = o.views;
@@ -67,6 +67,7 @@ int RunView(const ViewOptions& o) {
   std::cout << "wrote " << o.screenshot << " (" << width << "x" << height << ", "
             << names.size() << " view" << (names.size() > 1 ? "s" : "") << ", "
             << loaded.scene->triangle_count() << " triangles)\n";
+  if (loaded.collisions) std::cout << "robot pose: " << viz::Describe(loaded.pose) << "\n";
   return 0;
 }
 

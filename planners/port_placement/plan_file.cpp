@@ -200,6 +200,7 @@ PlanFile ReadPlanFile(const std::string& path) {
     arm.role = arms[i]["role"].String();
     arm.tool_frame = arms[i]["tool_frame"].String();
     arm.rcm_frame = arms[i]["rcm_frame"].String();
+    arm.shaft_link = arms[i]["shaft_link"].String();
     arm.joints = arms[i]["joints"].Strings();
     file.arms.push_back(arm);
   }

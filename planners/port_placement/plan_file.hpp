@@ -71,7 +71,7 @@ struct StoredSample {
 };
 
 struct StoredArm {
-  std::string name, role, tool_frame, rcm_frame;
+  std::string name, role, tool_frame, rcm_frame, shaft_link;
   std::vector<std::string> joints;
 };
 

@@ -134,6 +134,7 @@ TEST_F(ViewCli, ReplayDrawsTheArmAtTheMotionsWaypoints) {
   for (const std::string& g : view.scene->groups())
     if (g != "robot") view.scene->SetVisible(g, false);
   view.scene->SetColour("robot", {0, 0, 1});
+  view.scene->HighlightLinks({}, {});  // near misses are drawn in their own colour
   const robot::RobotState& state = *view.scene->robot_state();
   const int arm_link = view.robot->FindLink(motion->arm + "_insertion_link");
   ASSERT_GE(arm_link, 0);
@@ -163,6 +164,22 @@ TEST_F(ViewCli, TheEndoscopeViewIsDrawnFromThePlansScopeFrame) {
                                  "--view frame:psm1_tool --size 300x300 --screenshot " + png + "2");
   ASSERT_EQ(run2.exit_code, 0) << run2.output;
   EXPECT_EQ(scope.rgb, ReadPng(png + "2").rgb);
+}
+
+TEST_F(ViewCli, CollisionsOfTheShownPoseAreSaidAndDrawnInTheCollisionColour) {
+  const std::string flat = std::string(kFlat) + "--colour collision=255,0,255 --view external --size 480x320 ";
+  const CommandRun free = Trocar("view patients/phantom-default " + Plan() + flat + "--screenshot " + Out("free.png"));
+  ASSERT_EQ(free.exit_code, 0) << free.output;
+  EXPECT_NE(free.output.find("robot pose: collision-free, clearance"), std::string::npos) << free.output;
+  EXPECT_EQ(CountRgb(ReadPng(Out("free.png")), 255, 0, 255), 0);
+  // psm1's instrument pushed 20 cm in from its nominal pose: through the chest into the heart.
+  nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Plan()));
+  doc["plans"][0]["q_nominal"]["psm1_outer_insertion"] = 0.2;
+  WriteFileAtomically(Out("deep.json"), doc.dump());
+  const CommandRun deep = Trocar("view patients/phantom-default " + Out("deep.json") + flat + "--screenshot " + Out("deep.png"));
+  ASSERT_EQ(deep.exit_code, 0) << deep.output;
+  EXPECT_NE(deep.output.find("robot pose: in collision: psm1_"), std::string::npos) << deep.output;
+  EXPECT_GT(CountRgb(ReadPng(Out("deep.png")), 255, 0, 255), 20);
 }
 
 TEST_F(ViewCli, TheWindowShowsTheSidebarAndTheScene) {

@@ -1,0 +1,92 @@
+#include "motion/plan_collisions.hpp"
+
+#include <algorithm>
+
+#include "collision/triangle_bvh.hpp"
+#include "common/error.hpp"
+
+namespace trocar::planners {
+
+PlanCollisions::PlanCollisions(const patient::PatientModel& patient,
+                               std::shared_ptr<const robot::RobotModel> robot, const PlanFile& file,
+                               std::size_t plan_index) {
+  TROCAR_THROW_UNLESS(plan_index < file.plans.size(),
+                      file.path << ": has " << file.plans.size() << " plans, not " << plan_index + 1);
+  const StoredPlan& plan = file.plans[plan_index];
+  collision::WorldOptions options;
+  for (const StoredArm& arm : file.arms) {
+    if (arm.rcm_frame.empty()) {
+      TROCAR_THROW_UNLESS(!arm.shaft_link.empty(), file.path << ": arm " << arm.name
+                                                             << " has neither an RCM frame nor a shaft link");
+      options.shaft_ports.push_back(arm.shaft_link);
+    }
+  }
+  world_ = collision::CollisionWorld::Build(&patient, std::move(robot), options);
+  checker_ = std::make_unique<collision::CollisionChecker>(world_);
+  // Each arm's port: RCM ports by frame, shaft ports after them in arm order.
+  int shaft = 0;
+  for (const auto& port : world_->ports()) shaft += port.frame.empty() ? 0 : 1;
+  std::unique_ptr<collision::TriangleBvh> skin;
+  if (const patient::Structure* s = patient.Find("skin"); s && !s->mesh.triangles.empty())
+    skin = std::make_unique<collision::TriangleBvh>(s->mesh);
+  const Eigen::Isometry3d X_PW = patient.X_WP.inverse();
+  for (std::size_t a = 0; a < file.arms.size(); ++a) {
+    const std::string& rcm = file.arms[a].rcm_frame;
+    int index = rcm.empty() ? shaft++ : -1;
+    for (std::size_t p = 0; p < world_->ports().size() && !rcm.empty(); ++p)
+      if (world_->ports()[p].frame == rcm) index = static_cast<int>(p);
+    TROCAR_THROW_UNLESS(index >= 0, file.path << ": arm " << file.arms[a].name << ": RCM frame '"
+                                              << rcm << "' is not a port of the robot");
+    port_of_arm_.push_back(index);
+    double depth = 0.0;
+    const Eigen::Vector3d pivot_P = X_PW * plan.ports[a].rcm_W;
+    if (skin) {
+      const auto c = skin->Closest(pivot_P, pivot_P);
+      if (c.found()) depth = c.distance;
+    }
+    allowance_.push_back(depth + world_->options().port_radius);
+  }
+  pivots_.reserve(plan.ports.size());
+  for (const StoredPort& port : plan.ports) pivots_.push_back(port.rcm_W);
+}
+
+PlanCollisions::~PlanCollisions() = default;
+
+PoseCollisions PlanCollisions::Check(const robot::RobotState& state, double near_miss) {
+  checker_->SetRobotState(state);
+  for (std::size_t a = 0; a < port_of_arm_.size(); ++a)
+    checker_->SetPortPosition(port_of_arm_[a], pivots_[a], allowance_[a]);
+  PoseCollisions out;
+  const auto& bodies = world_->bodies();
+  auto add_link = [&](std::vector<int>* links, int body) {
+    const int link = bodies[body].link;
+    if (bodies[body].kind == collision::Body::Kind::kRobot && link >= 0 &&
+        std::find(links->begin(), links->end(), link) == links->end())
+      links->push_back(link);
+  };
+  const collision::CollisionReport report = checker_->Check();
+  out.collision = report.collision;
+  for (const auto& c : report.contacts) {
+    out.pairs.push_back(bodies[c.a].name + " - " + bodies[c.b].name);
+    add_link(&out.colliding_links, c.a);
+    add_link(&out.colliding_links, c.b);
+  }
+  out.near_links = out.colliding_links;
+  const std::vector<collision::Clearance> by_class = checker_->ClearanceByClass();
+  out.clearance = std::numeric_limits<double>::infinity();
+  for (const auto& c : by_class) {
+    if (!c.valid()) continue;
+    if (c.distance < out.clearance) {
+      out.clearance = c.distance;
+      out.clearance_pair = bodies[c.a].name + " - " + bodies[c.b].name;
+    }
+    if (c.distance < near_miss) {
+      add_link(&out.near_links, c.a);
+      add_link(&out.near_links, c.b);
+    }
+  }
+  if (out.collision) out.clearance = 0.0;
+  return out;
+}
+
+}  // namespace trocar::planners

@@ -1,0 +1,51 @@
+#pragma once
+/// @file
+/// Collisions and clearance of the robot of a stored plan (plan_file.hpp), by the plan's rules
+/// (docs/plan-format.md, "Ports"): each instrument may touch the skin within its port's
+/// allowance around its pivot (the pivot's depth under the skin plus the world's port radius);
+/// every other contact is a collision. For whatever shows or replays a plan's poses.
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "collision/collision_world.hpp"
+#include "patient/patient_model.hpp"
+#include "port_placement/plan_file.hpp"
+
+namespace trocar::planners {
+
+struct PoseCollisions {
+  bool collision = false;
+  std::vector<std::string> pairs;   ///< "psm2_yaw_link - table", per colliding pair
+  std::vector<int> colliding_links; ///< robot links in a colliding pair
+  /// Smallest distance between the robot and anything else (instruments at their ports
+  /// excepted), with the pair: 0 in contact.
+  double clearance = 0.0;
+  std::string clearance_pair;
+  /// Robot links within `near_miss` of something they may not touch (the colliding ones too).
+  std::vector<int> near_links;
+};
+
+class PlanCollisions {
+ public:
+  /// @throws trocar::Error when the plan's arms are not the robot's.
+  PlanCollisions(const patient::PatientModel& patient, std::shared_ptr<const robot::RobotModel> robot,
+                 const PlanFile& file, std::size_t plan_index);
+  ~PlanCollisions();
+
+  /// The robot at `state` (forward kinematics done). `near_miss` (m): how close counts as a near
+  /// miss.
+  PoseCollisions Check(const robot::RobotState& state, double near_miss = 0.005);
+
+  const collision::CollisionWorld& world() const { return *world_; }
+
+ private:
+  std::shared_ptr<const collision::CollisionWorld> world_;
+  std::unique_ptr<collision::CollisionChecker> checker_;
+  std::vector<int> port_of_arm_;
+  std::vector<double> allowance_;
+  std::vector<Eigen::Vector3d> pivots_;
+};
+
+}  // namespace trocar::planners
