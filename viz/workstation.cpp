@@ -114,6 +114,14 @@ QString PlanHtml(const planners::PlanFile& file, const planners::StoredPlan& p) 
   for (const auto& r : file.reasons) h += "<li>" + QString::fromStdString(r).toHtmlEscaped() + "</li>";
   h += "</ul>";
   if (!p.message.empty()) h += "<p><i>" + QString::fromStdString(p.message).toHtmlEscaped() + "</i></p>";
+  h += "<h4>Sign-off</h4>";
+  if (p.signoffs.empty()) h += "<p>not signed off</p>";
+  for (auto it = p.signoffs.rbegin(); it != p.signoffs.rend(); ++it) {
+    h += "<p><b>" + QString::fromStdString(it->decision) + "</b> by " +
+         QString::fromStdString(it->surgeon).toHtmlEscaped() + " at " + QString::fromStdString(it->time) +
+         (it->session.empty() ? QString() : ", session " + QString::fromStdString(it->session).toHtmlEscaped()) +
+         (it->note.empty() ? QString() : ": " + QString::fromStdString(it->note).toHtmlEscaped()) + "</p>";
+  }
   return h;
 }
 
@@ -204,6 +212,20 @@ class Workstation {
     layout->addWidget(new QLabel("Ranked plans"));
     layout->addWidget(plans_, 1);
     layout->addWidget(details_, 2);
+    auto* sign = new QFormLayout;
+    surgeon_ = new QLineEdit(QString::fromLocal8Bit(qgetenv("USER")));
+    note_ = new QLineEdit;
+    sign->addRow("surgeon", surgeon_);
+    sign->addRow("note", note_);
+    layout->addLayout(sign);
+    auto* buttons = new QHBoxLayout;
+    auto* approve = new QPushButton("Approve");
+    auto* reject = new QPushButton("Reject");
+    buttons->addWidget(approve);
+    buttons->addWidget(reject);
+    layout->addLayout(buttons);
+    QObject::connect(approve, &QPushButton::clicked, [this] { Sign("approved"); });
+    QObject::connect(reject, &QPushButton::clicked, [this] { Sign("rejected"); });
     FillPlans();
     QObject::connect(plans_, &QListWidget::currentRowChanged, [this](int row) {
       if (row >= 0 && !filling_) SelectPlan(static_cast<std::size_t>(row));
@@ -234,6 +256,24 @@ class Workstation {
       SyncJoints();
       UpdateScope();
       Render();
+    } catch (const Error& e) {
+      Fail(e.what());
+    }
+  }
+
+  /// Signs the shown plan off in its file (atomically), then shows the file as written.
+  void Sign(const std::string& decision) {
+    if (!plan_) return Fail("no plan to sign off: open a plan first");
+    try {
+      planners::SignOff s;
+      s.decision = decision;
+      s.surgeon = surgeon_->text().trimmed().toStdString();
+      s.note = note_->text().toStdString();
+      s = planners::SignOffPlan(plan_->path, plan_index_, s);
+      plan_->plans[plan_index_].signoffs.push_back(s);
+      details_->setHtml(PlanHtml(*plan_, plan_->plans[plan_index_]));
+      window_.statusBar()->showMessage(QString::fromStdString("plan " + std::to_string(plan_index_ + 1) + " " +
+                                                              decision + " in " + plan_->path));
     } catch (const Error& e) {
       Fail(e.what());
     }
@@ -575,6 +615,8 @@ class Workstation {
   vtkNew<vtkRenderer> external_, scope_;
   QListWidget* plans_ = nullptr;
   QTextBrowser* details_ = nullptr;
+  QLineEdit* surgeon_ = nullptr;
+  QLineEdit* note_ = nullptr;
   QLineEdit* position_ = nullptr;
   QLineEdit* rotation_ = nullptr;
   QComboBox* camera_ = nullptr;

@@ -38,6 +38,9 @@ void AddVerifyCommand(CLI::App* app);
 /// `trocar view CASE [PLAN.json]`: the workstation window, or --screenshot FILE.png.
 void AddViewCommand(CLI::App* app);
 
+/// `trocar signoff PLAN.json --plan K --approve|--reject --surgeon NAME [--note T] [--session F]`.
+void AddSignOffCommand(CLI::App* app);
+
 /// Re-checks every claim of a plan file (trocar check --plan); prints what fails.
 /// @return 0 when every claim holds, 3 otherwise. @throws trocar::Error for a malformed file.
 int CheckPlanFile(const std::string& path, std::ostream& out);

@@ -1,6 +1,7 @@
 #include "port_placement/plan_file.hpp"
 
 #include <cmath>
+#include <ctime>
 #include <filesystem>
 
 #include <nlohmann/json.hpp>
@@ -160,7 +161,31 @@ StoredPlan ReadPlan(const Field& p) {
       plan.motions.push_back(std::move(motion));
     }
   }
+  if (p.Has("signoffs")) {
+    const Field list = p["signoffs"];
+    for (std::size_t i = 0; i < list.Size(); ++i) {
+      SignOff s;
+      s.decision = list[i]["decision"].String();
+      s.surgeon = list[i]["surgeon"].String();
+      s.note = list[i]["note"].String();
+      s.time = list[i]["time"].String();
+      if (list[i].Has("session")) {
+        s.session = list[i]["session"].String();
+        s.session_hash = list[i]["session_hash"].String();
+      }
+      plan.signoffs.push_back(s);
+    }
+  }
   return plan;
+}
+
+std::string UtcNow() {
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&now, &tm);
+  char buffer[32];
+  std::strftime(buffer, sizeof(buffer), "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buffer;
 }
 
 }  // namespace
@@ -231,6 +256,38 @@ PlanFile ReadPlanFile(const std::string& path) {
                              << " ports for " << file.arms.size() << " arms");
   }
   return file;
+}
+
+SignOff SignOffPlan(const std::string& path, std::size_t index, SignOff signoff) {
+  TROCAR_THROW_UNLESS(signoff.decision == "approved" || signoff.decision == "rejected",
+                      path << ": sign-off decision '" << signoff.decision
+                           << "': expected approved or rejected");
+  TROCAR_THROW_UNLESS(!signoff.surgeon.empty(), path << ": a sign-off names its surgeon");
+  TROCAR_THROW_UNLESS(signoff.note.size() <= 10000,
+                      path << ": sign-off note of " << signoff.note.size()
+                           << " characters: at most 10,000");
+  // The whole file is read and checked first: a sign-off is only added to a plan this trocar reads.
+  const PlanFile file = ReadPlanFile(path);
+  TROCAR_THROW_UNLESS(index < file.plans.size(), path << ": plan " << index + 1 << ": the file holds "
+                                                      << file.plans.size() << " plans");
+  if (!signoff.session.empty()) {
+    TROCAR_THROW_UNLESS(IsRegularFile(signoff.session),
+                        path << ": sign-off session " << signoff.session << " does not exist");
+    signoff.session_hash = HashFile(signoff.session);
+  }
+  signoff.time = UtcNow();
+  json doc = json::parse(ReadTextFile(path));
+  json entry = {{"decision", signoff.decision}, {"surgeon", signoff.surgeon},
+                {"note", signoff.note}, {"time", signoff.time}};
+  if (!signoff.session.empty()) {
+    entry["session"] = signoff.session;
+    entry["session_hash"] = signoff.session_hash;
+  }
+  json& plan = doc.at("plans").at(index);
+  if (!plan.contains("signoffs")) plan["signoffs"] = json::array();
+  plan["signoffs"].push_back(entry);
+  WriteFileAtomically(path, doc.dump(1) + "\n");
+  return signoff;
 }
 
 robot::RobotState NominalState(const robot::RobotModel& robot, const StoredPlan& plan,

@@ -46,6 +46,17 @@ struct StoredMotion {
   std::vector<Eigen::VectorXd> waypoints;   ///< joint values; the first is the nominal pose
 };
 
+/// A surgeon's decision on a plan (trocar signoff, or the workstation's Approve / Reject).
+struct SignOff {
+  std::string decision;  ///< "approved" or "rejected"
+  std::string surgeon;
+  std::string note;
+  std::string time;      ///< UTC, ISO 8601 (set when written)
+  /// The teleoperation session the surgeon verified the plan with (trocar teleop --record):
+  /// its path and content hash; empty when none.
+  std::string session, session_hash;
+};
+
 struct StoredPlan {
   int rank = 0;
   std::string status;  ///< "placed", "in collision", "unreachable"
@@ -62,6 +73,7 @@ struct StoredPlan {
   bool verified_suitable = false;
   std::vector<std::string> verification_reasons;
   std::vector<StoredMotion> motions;
+  std::vector<SignOff> signoffs;  ///< oldest first; the last is the plan's current decision
 };
 
 struct StoredSample {
@@ -95,6 +107,14 @@ struct PlanFile {
 /// in the document) and what was expected: missing, not JSON, another format or version, a field
 /// of the wrong type or size, a non-finite number.
 PlanFile ReadPlanFile(const std::string& path);
+
+/// Adds `signoff` (its time set now) to plan `index` (0-based) of the plan file at `path`, which
+/// is rewritten atomically (temporary name, then rename): a crash leaves the previous file whole.
+/// Everything else in the file is kept. @return the sign-off as written.
+/// @throws trocar::Error naming the file when it is not a readable plan, the index is out of
+/// range, the decision is not "approved" or "rejected", the surgeon is empty, the note is over
+/// 10,000 characters, or the session file cannot be read.
+SignOff SignOffPlan(const std::string& path, std::size_t index, SignOff signoff);
 
 /// The robot at a stored plan's nominal pose: cart at X_WB, setup joints held, active joints at
 /// q_nominal (others at the model's neutral values), forward kinematics done.

@@ -1,9 +1,12 @@
 // trocar view on a real plan of the bundled case: screenshots, replay of verified motions, the
 // window, and bad input. The plan is made once for the suite by `trocar plan` (small budget).
 #include <array>
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <random>
+#include <csignal>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -197,6 +200,84 @@ TEST_F(ViewCli, TheWindowShowsTheSidebarAndTheScene) {
     }
   EXPECT_GT(robot_right, 2000);
   EXPECT_EQ(robot_left, 0);
+}
+
+TEST_F(ViewCli, ASignOffIsAddedToItsPlanAndEverythingElseInTheFileIsKept) {
+  const std::string path = Out("signed.json");
+  WriteFileAtomically(path, ReadTextFile(Plan()));
+  const nlohmann::json before = nlohmann::json::parse(ReadTextFile(path));
+  const std::string session = Out("session.csv");
+  WriteFileAtomically(session, "t,x\n0,1\n");
+  CommandRun run = Trocar("signoff " + path + " --plan 2 --approve --surgeon 'Dr Ada' --note 'ports fine' --session " + session);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  run = Trocar("signoff " + path + " --plan 2 --reject --surgeon 'Dr Bea' --note 'LIMA too far'");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const planners::PlanFile file = planners::ReadPlanFile(path);
+  ASSERT_EQ(file.plans[1].signoffs.size(), 2u);
+  EXPECT_EQ(file.plans[1].signoffs[0].decision, "approved");
+  EXPECT_EQ(file.plans[1].signoffs[0].surgeon, "Dr Ada");
+  EXPECT_EQ(file.plans[1].signoffs[0].session, session);
+  EXPECT_EQ(file.plans[1].signoffs[0].session_hash.rfind("fnv1a64:", 0), 0u);
+  EXPECT_EQ(file.plans[1].signoffs[1].decision, "rejected");
+  EXPECT_EQ(file.plans[1].signoffs[1].note, "LIMA too far");
+  EXPECT_EQ(file.plans[1].signoffs[1].time.size(), 20u);  // 2026-11-25T17:46:36Z
+  EXPECT_TRUE(file.plans[0].signoffs.empty());
+  nlohmann::json after = nlohmann::json::parse(ReadTextFile(path));
+  after["plans"][1].erase("signoffs");
+  EXPECT_EQ(after, before);
+  // Refused, the file untouched.
+  const std::string kept = ReadTextFile(path);
+  for (const char* bad : {"--plan 9 --approve --surgeon x", "--approve --reject --surgeon x",
+                          "--surgeon x", "--approve --surgeon x --session /no/such.csv"}) {
+    run = Trocar("signoff " + path + " " + bad);
+    EXPECT_NE(run.exit_code, 0) << bad;
+    EXPECT_EQ(ReadTextFile(path), kept) << bad;
+  }
+}
+
+TEST_F(ViewCli, ASignOffKilledAtAnyMomentLeavesTheOldFileOrTheNewOneWhole) {
+  // A large plan file (padded), so that a kill often lands while it is being written.
+  nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Plan()));
+  doc["padding"] = std::string(4 << 20, 'x');
+  const std::string path = Out("killed.json");
+  WriteFileAtomically(path, doc.dump());
+  auto start = [&]() {
+    const pid_t child = ::fork();
+    if (child == 0) {
+      ::execl(TROCAR_BINARY, TROCAR_BINARY, "signoff", path.c_str(), "--approve", "--surgeon", "s",
+              "--note", std::string(5000, 'n').c_str(), static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    return child;
+  };
+  // One sign-off to the end, timed; then sign-offs killed between a third of that time and a
+  // little past it.
+  const auto t0 = std::chrono::steady_clock::now();
+  const pid_t first = start();
+  ASSERT_GT(first, 0);
+  int status = 0;
+  ::waitpid(first, &status, 0);
+  ASSERT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+  const double whole_us = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+  std::size_t signed_off = planners::ReadPlanFile(path).plans[0].signoffs.size();
+  ASSERT_EQ(signed_off, 1u);
+  std::mt19937 rng(11);
+  int completed = 0;
+  for (int trial = 0; trial < 16; ++trial) {
+    const pid_t child = start();
+    ASSERT_GT(child, 0);
+    ::usleep(static_cast<useconds_t>(std::uniform_real_distribution<double>(0.3, 1.1)(rng) * whole_us));
+    ::kill(child, SIGKILL);
+    ::waitpid(child, &status, 0);
+    completed += WIFEXITED(status) && WEXITSTATUS(status) == 0;
+    // Whatever the moment: a whole plan file, with the sign-offs it had or one more.
+    const planners::PlanFile file = planners::ReadPlanFile(path);
+    const std::size_t n = file.plans[0].signoffs.size();
+    EXPECT_TRUE(n == signed_off || n == signed_off + 1) << n << " after " << signed_off;
+    signed_off = n;
+    EXPECT_EQ(nlohmann::json::parse(ReadTextFile(path))["padding"].get<std::string>().size(), 4u << 20);
+  }
+  EXPECT_LT(completed, 16) << "no sign-off was interrupted: the test proves nothing";
 }
 
 TEST_F(ViewCli, BadInputIsNamedAndNoPictureIsWritten) {
