@@ -412,6 +412,10 @@ struct Scene::Impl {
     table->SetZLength(m.table.thickness);
     table->SetCenter(0, 0, m.table.height - m.table.thickness / 2);
     Add("table", Output(table));
+    BuildFloor();
+  }
+
+  void BuildFloor() {
     vtkNew<vtkCubeSource> floor;
     floor->SetXLength(5.0);
     floor->SetYLength(5.0);
@@ -423,6 +427,7 @@ struct Scene::Impl {
   /// Cones from the model's targets: at most 8 per target, evenly along it.
   void ShowModelCones() {
     std::vector<Eigen::Vector3d> points, normals;
+    if (!patient) return;
     for (const patient::Target& t : patient->targets) {
       const std::size_t n = std::min(t.points.size(), t.normals.size());
       const std::size_t step = std::max<std::size_t>(1, (n + 7) / 8);
@@ -484,17 +489,20 @@ struct Scene::Impl {
 Scene::Scene(std::shared_ptr<const patient::PatientModel> patient,
              std::shared_ptr<const robot::RobotModel> robot, SceneStyle style)
     : impl_(std::make_unique<Impl>()) {
-  TROCAR_THROW_UNLESS(patient != nullptr, "a scene needs a patient model");
   impl_->patient = std::move(patient);
   impl_->robot = std::move(robot);
   impl_->style = std::move(style);
-  impl_->BuildPatient();
+  if (impl_->patient) {
+    impl_->BuildPatient();
+  } else {
+    impl_->BuildFloor();
+  }
   if (impl_->robot) impl_->BuildRobot();
 }
 
 Scene::~Scene() = default;
 
-const patient::PatientModel& Scene::patient() const { return *impl_->patient; }
+const patient::PatientModel* Scene::patient() const { return impl_->patient.get(); }
 const robot::RobotModel* Scene::robot() const { return impl_->robot.get(); }
 const SceneStyle& Scene::style() const { return impl_->style; }
 

@@ -71,7 +71,7 @@ struct FrameCamera {
 
 class Scene {
  public:
-  /// `robot` may be null (a patient alone). @throws trocar::Error for a robot mesh VTK cannot
+  /// `robot` may be null (a patient alone), and `patient` too (a robot on the floor). @throws trocar::Error for a robot mesh VTK cannot
   /// take (it names the link).
   Scene(std::shared_ptr<const patient::PatientModel> patient,
         std::shared_ptr<const robot::RobotModel> robot, SceneStyle style = SceneStyle::Default());
@@ -79,7 +79,7 @@ class Scene {
   Scene(const Scene&) = delete;
   Scene& operator=(const Scene&) = delete;
 
-  const patient::PatientModel& patient() const;
+  const patient::PatientModel* patient() const;
   const robot::RobotModel* robot() const;
   const SceneStyle& style() const;
 

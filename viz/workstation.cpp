@@ -131,7 +131,7 @@ class Workstation {
               const planners::PlanFile* plan, const WorkstationOptions& options)
       : scene_(std::move(scene)), robot_(robot), options_(options) {
     if (plan) plan_ = std::make_unique<planners::PlanFile>(*plan);
-    window_.setWindowTitle(QString::fromStdString("trocar — " + scene_->patient().name));
+    window_.setWindowTitle(QString::fromStdString("trocar — " + (scene_->patient() ? scene_->patient()->name : std::string("robot"))));
     window_.resize(options.width, options.height);
     auto* splitter = new QSplitter;
     auto* tabs = new QTabWidget;
@@ -248,7 +248,7 @@ class Workstation {
     try {
       scene_->ShowPlan(*plan_, k);
       plan_index_ = k;
-      collisions_ = std::make_unique<planners::PlanCollisions>(scene_->patient(), robot_, *plan_, k);
+      collisions_ = std::make_unique<planners::PlanCollisions>(*scene_->patient(), robot_, *plan_, k);
       FillMotions();
       ShowCollisions();
       details_->setHtml(PlanHtml(*plan_, plan_->plans[k]));
@@ -386,7 +386,7 @@ class Workstation {
     try {
       auto file = std::make_unique<planners::PlanFile>(planners::ReadPlanFile(path));
       TROCAR_THROW_UNLESS(!file->plans.empty(), path << ": holds no plans");
-      TROCAR_THROW_UNLESS(planners::HashPatientModel(scene_->patient()) == file->model_hash,
+      TROCAR_THROW_UNLESS(scene_->patient() && planners::HashPatientModel(*scene_->patient()) == file->model_hash,
                           path << ": was made for another patient model than the one shown");
       TROCAR_THROW_UNLESS(scene_->robot() && planners::HashFile(file->robot_file) == file->robot_hash,
                           path << ": its robot " << file->robot_file

@@ -1,6 +1,9 @@
 // trocar teleop: a headless teleoperation session on a simulated clock.
 #include <filesystem>
+#include <atomic>
+#include <exception>
 #include <iomanip>
+#include <thread>
 #include <iostream>
 #include <memory>
 #include <sstream>
@@ -16,6 +19,8 @@
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/start_configuration.hpp"
 #include "robot/load_robot.hpp"
+#include "scene.hpp"
+#include "teleop_view.hpp"
 
 namespace trocar::apps {
 namespace {
@@ -36,12 +41,16 @@ struct TeleopCommandOptions {
   std::vector<double> camera_rpy;
   double max_jump = 0.05;
   bool realtime = false;
+  bool view = false;
+  double fps = 60.0;
+  std::string grab;
 };
 
 int RunTeleop(const TeleopCommandOptions& o) {
   robot::LoadOptions load;
-  load.load_meshes = false;
-  const robot::RobotModel model = robot::LoadRobot(o.robot, load);
+  load.load_meshes = o.view;  // the window draws the robot's meshes
+  const auto shared_model = std::make_shared<const robot::RobotModel>(robot::LoadRobot(o.robot, load));
+  const robot::RobotModel& model = *shared_model;
   // The robot's home, or one chosen away from limits and singularities; --q0 overrides both.
   kinematics::StartConfiguration start = kinematics::ChooseStart(model);
   Eigen::VectorXd q0 = start.q;
@@ -82,7 +91,13 @@ int RunTeleop(const TeleopCommandOptions& o) {
   std::unique_ptr<control::DeviceInput> input;
   std::optional<double> step_time;
   const bool is_file = o.input.size() > 4 && o.input.substr(o.input.size() - 4) == ".csv";
-  if (is_file) {
+  viz::KeyboardInput* keyboard = nullptr;
+  if (o.input == "keyboard") {
+    TROCAR_THROW_UNLESS(o.view, "--input keyboard needs --view (the window takes the keys)");
+    auto k = std::make_unique<viz::KeyboardInput>();
+    keyboard = k.get();
+    input = std::move(k);
+  } else if (is_file) {
     input = std::make_unique<control::CsvReplayInput>(o.input);
   } else {
     control::ScriptedMotion motion;
@@ -125,9 +140,40 @@ int RunTeleop(const TeleopCommandOptions& o) {
     std::filesystem::remove(probe, ec);
   }
   control::RunnerStats timing;
-  session.realtime = o.realtime;
+  session.realtime = o.realtime || o.view;  // a person watches: the clock is the wall's
   session.runner_stats = &timing;
-  const control::Recorder recorder = control::RunTeleopSession(&loop, input.get(), session);
+  control::Recorder recorder;
+  viz::TeleopViewStats view_stats;
+  if (o.view) {
+    // The control thread runs the session; this thread renders what it publishes, never
+    // waiting on it.
+    viz::Scene scene(nullptr, shared_model);
+    control::TripleBuffer<control::SessionSnapshot> snapshots;
+    session.snapshots = &snapshots;
+    std::atomic<bool> done{false};
+    std::exception_ptr failure;
+    std::thread control_thread([&] {
+      try {
+        recorder = control::RunTeleopSession(&loop, input.get(), session);
+      } catch (...) {
+        failure = std::current_exception();
+      }
+      done = true;
+    });
+    viz::TeleopViewOptions vo;
+    vo.fps = o.fps;
+    vo.grab_path = o.grab;
+    try {
+      view_stats = viz::RunTeleopView(&scene, &snapshots, [&] { return done.load(); }, vo, keyboard);
+    } catch (...) {
+      control_thread.join();
+      throw;
+    }
+    control_thread.join();
+    if (failure) std::rethrow_exception(failure);
+  } else {
+    recorder = control::RunTeleopSession(&loop, input.get(), session);
+  }
   const control::TrackingSummary s = recorder.Summarize(step_time);
 
   std::cout << std::setprecision(4);
@@ -138,7 +184,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
                                                  : ", position only (fewer than 6 joints)")
                               : "")
             << ", filter " << o.filter << ", "
-            << o.duration << " s at " << o.rate << " Hz" << (o.realtime ? " (real time)" : "")
+            << o.duration << " s at " << o.rate << " Hz" << (o.realtime || o.view ? " (real time)" : "")
             << "\n";
   std::cout << "  start: " << FormatVector(q0, 4) << ", " << start.basis << "\n" << tuned_note;
   std::cout << "  position error:    RMS " << s.rms_position_error * 1e3 << " mm, max "
@@ -163,7 +209,12 @@ int RunTeleop(const TeleopCommandOptions& o) {
     std::cout << "  record thinned to every " << recorder.stride() << "th step ("
               << recorder.rows().size() << " rows; TROCAR_MAX_RECORDED_SAMPLES bounds it)\n";
   }
-  if (o.realtime) {
+  if (o.view) {
+    std::cout << "  view: " << view_stats.frames << " frames in " << view_stats.seconds << " s ("
+              << view_stats.frames / std::max(view_stats.seconds, 1e-9) << " fps), "
+              << view_stats.snapshots << " new control steps shown\n";
+  }
+  if (o.realtime || o.view) {
     std::cout << "  real time: " << timing.steps << " steps, mean period "
               << timing.mean_period * 1e3 << " ms, period error p99 "
               << timing.p99_period_error * 1e6 << " us, max " << timing.max_period_error * 1e6
@@ -259,6 +310,12 @@ void AddTeleopCommand(CLI::App* app) {
       ->expected(3);
   cmd->add_flag("--realtime", o->realtime,
                 "run in real time in a fixed-rate control thread (measured step times)");
+  cmd->add_flag("--view", o->view,
+                "show the robot in a window while the control thread runs (real time; the window "
+                "renders at --fps and never blocks the control loop); --input keyboard: arrows, "
+                "Page Up/Down, Q/E, Space (clutch)");
+  cmd->add_option("--fps", o->fps, "render rate of --view")->capture_default_str();
+  cmd->add_option("--grab", o->grab, "with --view: save an image of the window when the session ends");
   cmd->add_option("--max-jump", o->max_jump, "device jump (m) beyond which a sample is dropped")
       ->capture_default_str();
   cmd->callback([o]() {

@@ -280,6 +280,36 @@ TEST_F(ViewCli, ASignOffKilledAtAnyMomentLeavesTheOldFileOrTheNewOneWhole) {
   EXPECT_LT(completed, 16) << "no sign-off was interrupted: the test proves nothing";
 }
 
+TEST(TeleopView, TheWindowShowsTheRobotTheControlThreadMovesWhileItRuns) {
+  const std::string png = (std::filesystem::temp_directory_path() /
+                           ("trocar_teleop_" + std::to_string(::getpid()) + ".png")).string();
+  const CommandRun run = Trocar("teleop --robot robots/davinci-classic/psm.yaml --view --duration 1.5 "
+                                "--input circle --fps 30 --grab " + png);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  // The renderer saw the control thread's steps as they came: several distinct ones, far fewer
+  // than the control steps (it reads the newest, never each one).
+  const auto at = run.output.find("new control steps shown");
+  ASSERT_NE(at, std::string::npos) << run.output;
+  const auto frames = run.output.find("view: ");
+  const long shown = std::stol(run.output.substr(run.output.rfind(", ", at) + 2));
+  EXPECT_GE(shown, 5) << run.output.substr(frames);
+  EXPECT_LT(shown, 1000) << run.output.substr(frames);
+  EXPECT_NE(run.output.find("real time: "), std::string::npos);
+  const Image image = ReadPng(png);
+  long grey = 0;  // the robot's default colour, shaded: bluish greys brighter than the floor
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) {
+      const auto p = image.Pixel(x, y);
+      grey += p[2] > 120 && p[2] >= p[0] && std::abs(int(p[0]) - int(p[1])) < 20;
+    }
+  EXPECT_GT(grey, 2000);
+  std::filesystem::remove(png);
+  // A keyboard needs the window.
+  const CommandRun keys = Trocar("teleop --robot robots/davinci-classic/psm.yaml --input keyboard --duration 1");
+  EXPECT_EQ(keys.exit_code, 1) << keys.output;
+  EXPECT_NE(keys.output.find("--view"), std::string::npos) << keys.output;
+}
+
 TEST_F(ViewCli, BadInputIsNamedAndNoPictureIsWritten) {
   const std::string png = Out("bad.png");
   WriteFileAtomically(png, "previous");
