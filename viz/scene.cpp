@@ -26,6 +26,7 @@
 #include <vtkPolyDataMapper.h>
 #include <vtkPolyDataNormals.h>
 #include <vtkPolyLine.h>
+#include <vtkQuadricDecimation.h>
 #include <vtkProperty.h>
 #include <vtkRenderWindow.h>
 #include <vtkRenderer.h>
@@ -93,7 +94,7 @@ vtkSmartPointer<vtkPolyData> CylinderZ(double radius, double length, bool caps) 
   vtkNew<vtkCylinderSource> cylinder;
   cylinder->SetRadius(radius);
   cylinder->SetHeight(length);
-  cylinder->SetResolution(20);
+  cylinder->SetResolution(16);
   cylinder->SetCapping(caps);
   vtkNew<vtkTransform> turn;
   turn->RotateX(90);
@@ -132,8 +133,8 @@ vtkSmartPointer<vtkPolyData> ShapePolyData(const robot::Geometry& g) {
     case Shape::kCapsule: {
       vtkNew<vtkAppendPolyData> append;
       append->AddInputData(CylinderZ(g.size.x(), g.size.y(), false));
-      append->AddInputData(Sphere(Eigen::Vector3d(0, 0, g.size.y() / 2), g.size.x()));
-      append->AddInputData(Sphere(Eigen::Vector3d(0, 0, -g.size.y() / 2), g.size.x()));
+      append->AddInputData(Sphere(Eigen::Vector3d(0, 0, g.size.y() / 2), g.size.x(), 12));
+      append->AddInputData(Sphere(Eigen::Vector3d(0, 0, -g.size.y() / 2), g.size.x(), 12));
       return Output(append);
     }
   }
@@ -387,7 +388,28 @@ struct Scene::Impl {
 
   void BuildPatient() {
     const patient::PatientModel& m = *patient;
-    for (const patient::Structure& s : m.structures) Add(s.name, ToPolyData(s.mesh), m.X_WP);
+    // Display decimation: the surfaces together within the style's triangle budget, each
+    // reduced by the same share (the model itself is untouched; collisions use it whole).
+    long total = 0;
+    for (const patient::Structure& s : m.structures) total += static_cast<long>(s.mesh.triangles.size());
+    const double keep = style.patient_triangles > 0 && total > style.patient_triangles
+                            ? static_cast<double>(style.patient_triangles) / total
+                            : 1.0;
+    for (const patient::Structure& s : m.structures) {
+      vtkSmartPointer<vtkPolyData> poly = ToPolyData(s.mesh);
+      if (keep < 1.0 && poly->GetNumberOfPolys() > 200) {
+        vtkNew<vtkQuadricDecimation> decimate;
+        decimate->SetInputData(poly);
+        decimate->SetTargetReduction(1.0 - keep);
+        decimate->VolumePreservationOn();
+        decimate->Update();
+        vtkNew<vtkPolyDataNormals> normals;
+        normals->SetInputConnection(decimate->GetOutputPort());
+        normals->SetFeatureAngle(60);
+        poly = Output(normals);
+      }
+      Add(s.name, poly, m.X_WP);
+    }
     for (const patient::Target& t : m.targets) {
       Add("target:" + t.name, Tube(ToWorld(t.points, m.X_WP), 0.0015));
     }

@@ -41,6 +41,9 @@ struct SceneStyle {
   Eigen::Vector3d background{0.10, 0.11, 0.14};
   /// Unlit, exact colours (no shading): a pixel's colour names its group.
   bool flat = false;
+  /// The patient's surfaces are decimated for display to this many triangles in all (0: never):
+  /// the default scene draws at 10 fps or more in software rendering (bench/view_bench).
+  long patient_triangles = 50000;
 
   static SceneStyle Default();
   Eigen::Vector3d Colour(const std::string& group) const;
