@@ -17,6 +17,7 @@
 #include <QLineEdit>
 #include <QListWidget>
 #include <QMainWindow>
+#include <QMenu>
 #include <QMenuBar>
 #include <QMessageBox>
 #include <QPushButton>
@@ -30,6 +31,7 @@
 #include <QTimer>
 #include <QVBoxLayout>
 #include <QVTKOpenGLNativeWidget.h>
+#include <vtkCamera.h>
 #include <vtkGenericOpenGLRenderWindow.h>
 #include <vtkInteractorStyleTrackballCamera.h>
 #include <vtkNew.h>
@@ -43,6 +45,7 @@
 #include "kinematics/forward_kinematics.hpp"
 #include "port_placement/plan_io.hpp"
 #include "replay.hpp"
+#include "scene_file.hpp"
 #include "view_inputs.hpp"
 
 namespace trocar::viz {
@@ -157,7 +160,18 @@ class Workstation {
     splitter->addWidget(vtk_widget_);
     splitter->setStretchFactor(1, 1);
     window_.setCentralWidget(splitter);
-    auto* open = window_.menuBar()->addMenu("&File")->addAction("&Open plan…");
+    QMenu* file_menu = window_.menuBar()->addMenu("&File");
+    auto* open = file_menu->addAction("&Open plan…");
+    auto* save_scene = file_menu->addAction("&Save scene…");
+    auto* load_scene = file_menu->addAction("&Load scene…");
+    QObject::connect(save_scene, &QAction::triggered, [this] {
+      const QString path = QFileDialog::getSaveFileName(&window_, "Save scene", "", "Scenes (*.json)");
+      if (!path.isEmpty()) SaveScene(path.toStdString());
+    });
+    QObject::connect(load_scene, &QAction::triggered, [this] {
+      const QString path = QFileDialog::getOpenFileName(&window_, "Load scene", "", "Scenes (*.json)");
+      if (!path.isEmpty()) LoadSceneFile(path.toStdString());
+    });
     QObject::connect(open, &QAction::triggered, [this] {
       const QString path = QFileDialog::getOpenFileName(&window_, "Open plan", "", "Plans (*.json)");
       if (!path.isEmpty()) OpenPlan(path.toStdString());
@@ -165,7 +179,7 @@ class Workstation {
     if (plan_) SelectPlan(std::min<std::size_t>(options.plan_index, plan_->plans.size() - 1));
     UpdateScope();
     const double aspect = (scope_available_ ? 0.5 : 1.0) * options.width / options.height;
-    Scene::Apply(scene_->ExternalCamera(aspect), external_);
+    Scene::Apply(options.camera ? *options.camera : scene_->ExternalCamera(aspect), external_);
     if (!plan_) window_.statusBar()->showMessage(QString::number(scene_->triangle_count()) + " triangles");
   }
 
@@ -380,6 +394,58 @@ class Workstation {
     SyncJoints();
     UpdateScope();
     Render();
+  }
+
+  CameraPose ExternalPose() const {
+    CameraPose pose;
+    vtkCamera* c = external_->GetActiveCamera();
+    c->GetPosition(pose.position.data());
+    c->GetFocalPoint(pose.focal_point.data());
+    c->GetViewUp(pose.view_up.data());
+    pose.view_angle_deg = c->GetViewAngle();
+    return pose;
+  }
+
+  void SaveScene(const std::string& path) {
+    try {
+      ViewInputs in = options_.inputs;
+      in.plan = plan_ ? plan_->path : "";
+      in.plan_index = static_cast<int>(plan_index_) + 1;
+      const CameraPose camera = ExternalPose();
+      WriteSceneFile(path, CaptureScene(in, *scene_, &camera));
+      window_.statusBar()->showMessage(QString::fromStdString("scene saved to " + path));
+    } catch (const Error& e) {
+      Fail(e.what());
+    }
+  }
+
+  /// A scene of the case shown: its plan, robot pose, style and camera; another case's is
+  /// refused (open it with trocar view --scene).
+  void LoadSceneFile(const std::string& path) {
+    try {
+      const SceneFile file = ReadSceneFile(path);
+      namespace fs = std::filesystem;
+      std::error_code ec;
+      TROCAR_THROW_UNLESS(fs::equivalent(file.inputs.case_dir, options_.inputs.case_dir, ec),
+                          path << ": is a scene of " << file.inputs.case_dir
+                               << ", not of the case shown: open it with trocar view --scene " << path);
+      if (!file.inputs.plan.empty() && (!plan_ || !fs::equivalent(file.inputs.plan, plan_->path, ec))) {
+        OpenPlan(file.inputs.plan);
+      }
+      if (plan_ && file.inputs.plan_index >= 1 &&
+          file.inputs.plan_index <= static_cast<int>(plan_->plans.size())) {
+        SelectPlan(static_cast<std::size_t>(file.inputs.plan_index - 1));
+      }
+      ApplyScene(file, scene_.get());
+      if (file.has_camera) Scene::Apply(file.camera, external_);
+      ShowCollisions();
+      SyncJoints();
+      UpdateScope();
+      Render();
+      window_.statusBar()->showMessage(QString::fromStdString("scene loaded from " + path));
+    } catch (const Error& e) {
+      Fail(e.what());
+    }
   }
 
   void OpenPlan(const std::string& path) {

@@ -8,18 +8,21 @@
 /// Mouse (thesis §2.10): left rotate, right pan, middle or wheel zoom.
 
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "port_placement/plan_file.hpp"
 #include "scene.hpp"
+#include "view_inputs.hpp"
 
 class vtkInteractorStyle;
 
 namespace trocar::viz {
 
 struct WorkstationOptions {
-  std::string case_dir, plan_path;
+  ViewInputs inputs;   ///< what the view was opened from (saved in scene files)
   int plan_index = 0;  ///< 0-based
+  std::optional<CameraPose> camera;  ///< the external view's camera (default: framed)
   /// Render, save an image of the whole window (sidebar and views) to this PNG, and close:
   /// the window as a user sees it, for tests and documentation.
   std::string grab_path;

@@ -2,10 +2,12 @@
 #include <iostream>
 #include <sstream>
 #include <memory>
+#include <optional>
 
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
 #include "scene.hpp"
+#include "scene_file.hpp"
 #include "view_inputs.hpp"
 #include "workstation.hpp"
 
@@ -16,6 +18,7 @@ struct ViewOptions {
   viz::ViewInputs inputs;
   std::string screenshot;
   std::string grab;
+  std::string scene, save_scene;
   std::vector<std::string> views;
   std::string size = "1280x720";
   double light = 1.0;
@@ -32,12 +35,29 @@ std::pair<int, int> ParseSize(const std::string& text) {
 }
 
 int RunView(const ViewOptions& o) {
-  viz::LoadedView loaded = viz::LoadView(o.inputs);
+  viz::ViewInputs inputs = o.inputs;
+  std::optional<viz::CameraPose> saved_camera;
+  viz::LoadedView loaded;
+  if (!o.scene.empty()) {
+    TROCAR_THROW_UNLESS(o.inputs.case_dir.empty() && o.inputs.plan.empty(),
+                        "--scene " << o.scene << ": the scene file names its case and plan; give no CASE or PLAN");
+    const viz::SceneFile file = viz::ReadSceneFile(o.scene);
+    inputs = file.inputs;
+    if (file.has_camera) saved_camera = file.camera;
+    try {
+      loaded = viz::LoadScene(file);
+    } catch (const Error& e) {
+      TROCAR_THROW(o.scene << ": " << e.what());
+    }
+  } else {
+    TROCAR_THROW_UNLESS(!o.inputs.case_dir.empty(), "view: give a CASE folder (or --scene FILE)");
+    loaded = viz::LoadView(o.inputs);
+  }
   if (o.screenshot.empty()) {
     viz::WorkstationOptions wo;
-    wo.case_dir = o.inputs.case_dir;
-    wo.plan_path = o.inputs.plan;
-    wo.plan_index = o.inputs.plan_index - 1;
+    wo.inputs = inputs;
+    wo.plan_index = inputs.plan_index - 1;
+    if (saved_camera) wo.camera = *saved_camera;
     wo.grab_path = o.grab;
     return viz::RunWorkstation(std::move(loaded.scene), loaded.robot, loaded.plan.get(), wo);
   }
@@ -46,22 +66,30 @@ int RunView(const ViewOptions& o) {
   if (names.empty()) {
     names.push_back("external");
     if (loaded.plan && !loaded.plan->plans.empty() &&
-        !loaded.plan->plans[o.inputs.plan_index - 1].views.empty()) {
+        !loaded.plan->plans[inputs.plan_index - 1].views.empty()) {
       names.push_back("endoscope");
     }
   }
   const planners::StoredPlan* plan =
-      loaded.plan ? &loaded.plan->plans[o.inputs.plan_index - 1] : nullptr;
+      loaded.plan ? &loaded.plan->plans[inputs.plan_index - 1] : nullptr;
   viz::Views views;
   const double aspect = static_cast<double>(width) / names.size() / height;
   for (const std::string& name : names) {
     viz::ViewSpec spec = viz::ViewSpec::Parse(name);
     spec.camera.light_intensity = o.light;
     viz::FrameCamera used;
-    const viz::CameraPose pose = viz::ViewCamera(*loaded.scene, spec, aspect, plan, &used);
+    viz::CameraPose pose = viz::ViewCamera(*loaded.scene, spec, aspect, plan, &used);
+    if (spec.kind == viz::ViewSpec::Kind::kExternal && saved_camera) pose = *saved_camera;
     spec.camera = used;
     spec.camera.light_intensity = o.light;
     views.emplace_back(spec, pose);
+  }
+  if (!o.save_scene.empty()) {
+    const viz::CameraPose* external = nullptr;
+    for (const auto& [spec, pose] : views)
+      if (spec.kind == viz::ViewSpec::Kind::kExternal && !external) external = &pose;
+    viz::WriteSceneFile(o.save_scene, viz::CaptureScene(inputs, *loaded.scene, external));
+    std::cout << "wrote " << o.save_scene << "\n";
   }
   viz::Screenshot(*loaded.scene, views, width, height, o.screenshot);
   std::cout << "wrote " << o.screenshot << " (" << width << "x" << height << ", "
@@ -74,7 +102,7 @@ int RunView(const ViewOptions& o) {
 }  // namespace
 
 void AddViewInputOptions(CLI::App* cmd, viz::ViewInputs* in) {
-  cmd->add_option("case", in->case_dir, "patient case folder (patient.yaml)")->required();
+  cmd->add_option("case", in->case_dir, "patient case folder (patient.yaml); not with --scene");
   cmd->add_option("plan_file", in->plan, "a plan.json of this case (trocar plan --out DIR)");
   cmd->add_option("--plan", in->plan_index, "which ranked plan to show (1: the best)")
       ->check(CLI::Range(1, 1000000))
@@ -105,6 +133,9 @@ void AddViewCommand(CLI::App* app) {
   cmd->add_option("--grab", o->grab,
                   "open the window, render it, save an image of the whole window (sidebar and "
                   "views) to this PNG, and close");
+  cmd->add_option("--scene", o->scene, "open a scene file (trocar-scene JSON: case, plan, robot pose, camera, colours)");
+  cmd->add_option("--save-scene", o->save_scene,
+                  "with --screenshot: also save what it shows as a scene file (the window saves from File)");
   cmd->add_option("--view", o->views,
                   "external, endoscope (the plan's scope camera) or frame:<robot frame>; repeat "
                   "for side by side (default: external, and endoscope when the plan has one)");

@@ -20,6 +20,7 @@
 #include "robot/load_robot.hpp"
 #include "scene.hpp"
 #include "test_util.hpp"
+#include "scene_file.hpp"
 #include "view_inputs.hpp"
 
 namespace trocar::viz {
@@ -308,6 +309,60 @@ TEST(TeleopView, TheWindowShowsTheRobotTheControlThreadMovesWhileItRuns) {
   const CommandRun keys = Trocar("teleop --robot robots/davinci-classic/psm.yaml --input keyboard --duration 1");
   EXPECT_EQ(keys.exit_code, 1) << keys.output;
   EXPECT_NE(keys.output.find("--view"), std::string::npos) << keys.output;
+}
+
+TEST_F(ViewCli, ASceneSavedAndLoadedRendersTheSamePicture) {
+  const planners::PlanFile file = planners::ReadPlanFile(Plan());
+  std::string motion;
+  for (const auto& m : file.plans[0].motions)
+    if (m.solved && motion.empty()) motion = " --motion " + m.arm + ":" + std::to_string(m.sample);
+  ASSERT_FALSE(motion.empty());
+  const std::string common = " --view external --size 400x300 --screenshot ";
+  CommandRun run = Trocar("view patients/phantom-default " + Plan() + motion +
+                          " --colour heart=0,0,255 --opacity skin=0.1 --hide table --colour background=40,0,0" +
+                          common + Out("saved.png") + " --save-scene " + Out("scene.json"));
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  // From another folder: the scene file's paths do not depend on where it is opened.
+  run = Shell("cd / && " + std::string(TROCAR_BINARY) + " view --scene " + Out("scene.json") + common + Out("loaded.png"));
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const Image saved = ReadPng(Out("saved.png"));
+  EXPECT_EQ(saved.rgb, ReadPng(Out("loaded.png")).rgb);
+  // What the scene holds mattered: the plan's default picture differs.
+  run = Trocar("view patients/phantom-default " + Plan() + common + Out("default.png"));
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(saved.rgb, ReadPng(Out("default.png")).rgb);
+  // A scene file round-trips through its reader.
+  const SceneFile scene = ReadSceneFile(Out("scene.json"));
+  WriteSceneFile(Out("again.json"), scene);
+  EXPECT_EQ(ReadTextFile(Out("again.json")), ReadTextFile(Out("scene.json")));
+  EXPECT_FALSE(scene.style.Visible("table"));
+  EXPECT_EQ(scene.style.Opacity("skin"), 0.1);
+  // Bad scene files are named, field by field.
+  nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Out("scene.json")));
+  auto refuse = [&](const nlohmann::json& d, const std::string& named) {
+    WriteFileAtomically(Out("bad_scene.json"), d.dump());
+    const CommandRun r = Trocar("view --scene " + Out("bad_scene.json") + common + Out("bad_scene.png"));
+    EXPECT_EQ(r.exit_code, 1) << named << "\n" << r.output;
+    EXPECT_NE(r.output.find(named), std::string::npos) << r.output;
+    EXPECT_FALSE(std::filesystem::exists(Out("bad_scene.png")));
+  };
+  nlohmann::json bad = doc;
+  bad["camera"]["view_angle_deg"] = 400;
+  refuse(bad, "camera");
+  bad = doc;
+  bad["style"]["colours"]["heart"] = {2, 0, 0};
+  refuse(bad, "style.colours.heart");
+  bad = doc;
+  bad["q"]["no_such_joint"] = 0;
+  refuse(bad, "no_such_joint");
+  bad = doc;
+  bad["format"] = "something";
+  refuse(bad, "not a trocar scene");
+  bad = doc;
+  bad["plan_index"] = 0;
+  refuse(bad, "plan_index");
+  run = Trocar("view patients/phantom-default --scene " + Out("scene.json") + common + Out("bad_scene.png"));
+  EXPECT_EQ(run.exit_code, 1) << run.output;
 }
 
 TEST_F(ViewCli, BadInputIsNamedAndNoPictureIsWritten) {
