@@ -616,7 +616,15 @@ CameraPose Scene::ExternalCamera(double aspect) const {
   }
   pose.focal_point = centre;
   const double radius = std::max(0.2, (hi - lo).norm() / 2);
-  const Eigen::Vector3d direction = Eigen::Vector3d(-0.55, -0.75, 0.75).normalized();
+  // From the side of the patient away from the cart (so that the arms are seen over the
+  // patient, not from behind the cart), toward the foot end, from above.
+  Eigen::Vector3d horizontal(-0.55, -0.75, 0);
+  if (impl_->robot && impl_->state) {
+    Eigen::Vector3d away = centre - impl_->state->X_WB.translation();
+    away.z() = 0;
+    if (away.norm() > 0.05) horizontal = away.normalized() + Eigen::Vector3d(-0.45, 0, 0);
+  }
+  const Eigen::Vector3d direction = (horizontal.normalized() + Eigen::Vector3d(0, 0, 1.0)).normalized();
   const double half = pose.view_angle_deg / 2 * kPi / 180;
   const double half_h = std::atan(std::tan(half) * std::max(aspect, 1e-3));
   const double fit = std::min(half, half_h);
@@ -827,9 +835,19 @@ Image Render(const Scene& scene, const Views& views, int width, int height) {
 }
 
 void WritePng(const Image& image, const std::string& path) {
+  std::string bytes;
+  try {
+    bytes = EncodePngBytes(image);
+  } catch (const Error& e) {
+    TROCAR_THROW(path << ": " << e.what());
+  }
+  WriteFileAtomically(path, bytes);
+}
+
+std::string EncodePngBytes(const Image& image) {
   TROCAR_THROW_UNLESS(image.width > 0 && image.height > 0 &&
                           image.rgb.size() == static_cast<std::size_t>(3) * image.width * image.height,
-                      path << ": not an image to write (" << image.width << "x" << image.height << ")");
+                      "not an image to write (" << image.width << "x" << image.height << ")");
   vtkNew<vtkImageData> data;
   data->SetDimensions(image.width, image.height, 1);
   data->AllocateScalars(VTK_UNSIGNED_CHAR, 3);
@@ -844,9 +862,9 @@ void WritePng(const Image& image, const std::string& path) {
   writer->Write();
   vtkUnsignedCharArray* bytes = writer->GetResult();
   TROCAR_THROW_UNLESS(writer->GetErrorCode() == 0 && bytes && bytes->GetNumberOfTuples() > 0,
-                      path << ": the PNG could not be encoded");
-  WriteFileAtomically(path, std::string(reinterpret_cast<const char*>(bytes->GetPointer(0)),
-                                        static_cast<std::size_t>(bytes->GetNumberOfTuples())));
+                      "the PNG could not be encoded");
+  return std::string(reinterpret_cast<const char*>(bytes->GetPointer(0)),
+                     static_cast<std::size_t>(bytes->GetNumberOfTuples()));
 }
 
 Image ReadPng(const std::string& path) {

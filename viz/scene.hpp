@@ -154,6 +154,9 @@ using Views = std::vector<std::pair<ViewSpec, CameraPose>>;
 /// out of 16..8192.
 Image Render(const Scene& scene, const Views& views, int width, int height);
 
+/// An image as PNG bytes (VTK's writer). @throws trocar::Error for an empty image.
+std::string EncodePngBytes(const Image& image);
+
 /// An image as PNG (VTK's writer), written atomically. @throws trocar::Error naming the path.
 void WritePng(const Image& image, const std::string& path);
 

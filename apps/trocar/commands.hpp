@@ -37,6 +37,8 @@ void AddVerifyCommand(CLI::App* app);
 
 /// `trocar view CASE [PLAN.json]`: the workstation window, or --screenshot FILE.png.
 void AddViewCommand(CLI::App* app);
+/// `trocar report PLAN.json --out DIR`: a self-contained HTML report.
+void AddReportCommand(CLI::App* app);
 
 /// `trocar signoff PLAN.json --plan K --approve|--reject --surgeon NAME [--note T] [--session F]`.
 void AddSignOffCommand(CLI::App* app);

@@ -19,6 +19,7 @@ int main(int argc, char** argv) {
   trocar::apps::AddVerifyCommand(&app);
   trocar::apps::AddBenchCommand(&app);
   trocar::apps::AddViewCommand(&app);
+  trocar::apps::AddReportCommand(&app);
   trocar::apps::AddSignOffCommand(&app);
   try {
     app.parse(argc, argv);

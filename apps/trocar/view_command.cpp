@@ -7,6 +7,7 @@
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
 #include "scene.hpp"
+#include "report.hpp"
 #include "scene_file.hpp"
 #include "view_inputs.hpp"
 #include "workstation.hpp"
@@ -119,6 +120,26 @@ void AddViewInputOptions(CLI::App* cmd, viz::ViewInputs* in) {
   cmd->add_option("--opacity", in->opacities, "GROUP=opacity (0..1)");
   cmd->add_option("--hide", in->hidden, "a group not to draw");
   cmd->add_flag("--flat", in->flat, "unlit exact colours (a pixel's colour names its group)");
+}
+
+void AddReportCommand(CLI::App* app) {
+  auto in = std::make_shared<viz::ViewInputs>();
+  auto dir = std::make_shared<std::string>();
+  auto options = std::make_shared<viz::ReportOptions>();
+  CLI::App* cmd = app->add_subcommand(
+      "report", "One self-contained HTML report of a plan file: per ranked plan its external and "
+                "endoscope views, score breakdown, ports, verified motions, sign-offs and verdict "
+                "(renders: needs an X display, e.g. scripts/with-xvfb)");
+  cmd->add_option("plan_file", in->plan, "the plan.json")->required();
+  cmd->add_option("--out", *dir, "folder for report.html")->required();
+  cmd->add_option("--case", in->case_dir, "the patient case (default: the plan's)");
+  cmd->add_option("--plans", options->max_plans, "how many of the best plans")->capture_default_str();
+  cmd->add_option("--colour", in->colours, "GROUP=r,g,b, as trocar view");
+  cmd->add_option("--hide", in->hidden, "a group not to draw");
+  cmd->add_flag("--flat", in->flat, "unlit exact colours");
+  cmd->callback([in, dir, options]() {
+    std::cout << "wrote " << viz::WriteReport(*in, *dir, *options) << "\n";
+  });
 }
 
 void AddViewCommand(CLI::App* app) {

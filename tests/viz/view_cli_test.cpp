@@ -365,6 +365,39 @@ TEST_F(ViewCli, ASceneSavedAndLoadedRendersTheSamePicture) {
   EXPECT_EQ(run.exit_code, 1) << run.output;
 }
 
+TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
+  const std::string dir = Out("report");
+  nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Plan()));
+  const std::string plan = Out("report_plan.json");
+  WriteFileAtomically(plan, doc.dump());
+  CommandRun run = Trocar("signoff " + plan + " --approve --surgeon 'Dr <Ada>' --note 'fine & ready'");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  run = Trocar("report " + plan + " --out " + dir + " --plans 2 --flat --colour robot=0,0,255");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const std::string html = ReadTextFile(dir + "/report.html");
+  // Self-contained: every picture is embedded, nothing is fetched.
+  std::size_t images = 0;
+  for (std::size_t at = html.find("src=\""); at != std::string::npos; at = html.find("src=\"", at + 1)) {
+    EXPECT_EQ(html.compare(at + 5, 22, "data:image/png;base64,"), 0) << html.substr(at, 60);
+    ++images;
+  }
+  EXPECT_GE(images, 2u);
+  EXPECT_EQ(html.find("href="), std::string::npos);
+  EXPECT_NE(html.find("Dr &lt;Ada&gt;"), std::string::npos) << "the sign-off, escaped";
+  EXPECT_NE(html.find("fine &amp; ready"), std::string::npos);
+  // A real browser shows the pictures (the robot in its flat blue) and the tables (their headers'
+  // colour).
+  const std::string shot = Out("report.png");
+  run = Shell("chromium --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
+              "--disable-background-networking --disable-component-update --disable-sync "
+              "--hide-scrollbars --user-data-dir=" + Out("chromium") + " --window-size=1280,2400 "
+              "--screenshot=" + shot + " file://" + dir + "/report.html");
+  ASSERT_TRUE(std::filesystem::exists(shot)) << "chromium (Debian package, scripts/install-deps): " << run.output;
+  const Image page = ReadPng(shot);
+  EXPECT_GT(CountRgb(page, 0, 0, 255), 2000) << "the plans' pictures";
+  EXPECT_GT(CountRgb(page, 31, 119, 180), 2000) << "the tables";
+}
+
 TEST_F(ViewCli, BadInputIsNamedAndNoPictureIsWritten) {
   const std::string png = Out("bad.png");
   WriteFileAtomically(png, "previous");
