@@ -133,7 +133,7 @@ int main(int argc, char** argv) {
     csv += "exhaustive_final_score," + std::to_string(exhaustive_score) + "\n";
 
     const std::string png = out_dir + "/port_placement_convergence.png";
-    WritePlotPng(png, {panel}, 1200, 360);
+    WritePlot(png, {panel}, 1200, 360);
     const std::string table = out_dir + "/port_placement.csv";
     {
       std::FILE* f = std::fopen((table + ".tmp").c_str(), "w");

@@ -93,7 +93,7 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
     h << "<div class=\"plan\"><h2>Plan " << p.rank << ": " << Escape(p.status) << ", score "
       << Num(p.score, 3) << "</h2>\n<div class=\"pictures\">";
     Views external = {{ViewSpec{}, view.scene->ExternalCamera(double(options.width) / options.height)}};
-    h << ImgTag(EncodePngBytes(Render(*view.scene, external, options.width, options.height)),
+    h << ImgTag(EncodePng(Render(*view.scene, external, options.width, options.height)),
                 "plan " + std::to_string(p.rank) + ": external view");
     if (!p.views.empty()) {
       ViewSpec scope;
@@ -101,7 +101,7 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
       FrameCamera used;
       const CameraPose camera = ViewCamera(*view.scene, scope, double(options.width) / options.height, &p, &used);
       scope.camera = used;
-      h << ImgTag(EncodePngBytes(Render(*view.scene, {{scope, camera}}, options.width, options.height)),
+      h << ImgTag(EncodePng(Render(*view.scene, {{scope, camera}}, options.width, options.height)),
                   "plan " + std::to_string(p.rank) + ": endoscope view");
     }
     h << "</div>\n<p>nominal pose: " << Escape(Describe(pose)) << "</p>\n";

@@ -19,8 +19,6 @@
 #include <vtkLight.h>
 #include <vtkMatrix4x4.h>
 #include <vtkNew.h>
-#include <vtkPNGReader.h>
-#include <vtkPNGWriter.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
 #include <vtkPolyDataMapper.h>
@@ -35,7 +33,6 @@
 #include <vtkTransform.h>
 #include <vtkTransformPolyDataFilter.h>
 #include <vtkTubeFilter.h>
-#include <vtkUnsignedCharArray.h>
 #include <vtkWindowToImageFilter.h>
 
 #include "common/error.hpp"
@@ -831,68 +828,6 @@ Image Render(const Scene& scene, const Views& views, int width, int height) {
   // The renderers give the scene's actors' graphics resources back, so that they can be drawn
   // in another window.
   window->Finalize();
-  return image;
-}
-
-void WritePng(const Image& image, const std::string& path) {
-  std::string bytes;
-  try {
-    bytes = EncodePngBytes(image);
-  } catch (const Error& e) {
-    TROCAR_THROW(path << ": " << e.what());
-  }
-  WriteFileAtomically(path, bytes);
-}
-
-std::string EncodePngBytes(const Image& image) {
-  TROCAR_THROW_UNLESS(image.width > 0 && image.height > 0 &&
-                          image.rgb.size() == static_cast<std::size_t>(3) * image.width * image.height,
-                      "not an image to write (" << image.width << "x" << image.height << ")");
-  vtkNew<vtkImageData> data;
-  data->SetDimensions(image.width, image.height, 1);
-  data->AllocateScalars(VTK_UNSIGNED_CHAR, 3);
-  auto* pixels = static_cast<unsigned char*>(data->GetScalarPointer());
-  for (int y = 0; y < image.height; ++y) {
-    std::copy_n(image.rgb.begin() + static_cast<std::ptrdiff_t>(3) * image.width * y, 3 * image.width,
-                pixels + static_cast<std::size_t>(3) * image.width * (image.height - 1 - y));
-  }
-  vtkNew<vtkPNGWriter> writer;
-  writer->WriteToMemoryOn();
-  writer->SetInputData(data);
-  writer->Write();
-  vtkUnsignedCharArray* bytes = writer->GetResult();
-  TROCAR_THROW_UNLESS(writer->GetErrorCode() == 0 && bytes && bytes->GetNumberOfTuples() > 0,
-                      "the PNG could not be encoded");
-  return std::string(reinterpret_cast<const char*>(bytes->GetPointer(0)),
-                     static_cast<std::size_t>(bytes->GetNumberOfTuples()));
-}
-
-Image ReadPng(const std::string& path) {
-  TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": no such image");
-  vtkNew<vtkPNGReader> reader;
-  TROCAR_THROW_UNLESS(reader->CanReadFile(path.c_str()), path << ": not a PNG");
-  reader->SetFileName(path.c_str());
-  reader->Update();
-  vtkImageData* data = reader->GetOutput();
-  int dims[3];
-  data->GetDimensions(dims);
-  const int channels = data->GetNumberOfScalarComponents();
-  TROCAR_THROW_UNLESS(reader->GetErrorCode() == 0 && dims[0] > 0 && dims[1] > 0 &&
-                          data->GetScalarType() == VTK_UNSIGNED_CHAR && channels >= 1 && channels <= 4,
-                      path << ": not an 8-bit PNG");
-  Image image;
-  image.width = dims[0];
-  image.height = dims[1];
-  image.rgb.resize(static_cast<std::size_t>(3) * dims[0] * dims[1]);
-  const auto* pixels = static_cast<const unsigned char*>(data->GetScalarPointer());
-  for (int y = 0; y < dims[1]; ++y) {
-    for (int x = 0; x < dims[0]; ++x) {
-      const unsigned char* p = pixels + static_cast<std::size_t>(channels) * ((dims[1] - 1 - y) * static_cast<std::size_t>(dims[0]) + x);
-      for (int c = 0; c < 3; ++c) {
-        image.rgb[3 * (static_cast<std::size_t>(y) * dims[0] + x) + c] = channels >= 3 ? p[c] : p[0];
-      }
-    }
-  }
   return image;
 }
 

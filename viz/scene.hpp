@@ -22,7 +22,7 @@
 
 #include <Eigen/Geometry>
 
-#include "common/plot.hpp"
+#include "common/image.hpp"
 #include "patient/patient_model.hpp"
 #include "port_placement/plan_file.hpp"
 #include "robot/robot_model.hpp"
@@ -153,16 +153,6 @@ using Views = std::vector<std::pair<ViewSpec, CameraPose>>;
 /// display (Xvfb when headless). @throws trocar::Error when no display is open or the size is
 /// out of 16..8192.
 Image Render(const Scene& scene, const Views& views, int width, int height);
-
-/// An image as PNG bytes (VTK's writer). @throws trocar::Error for an empty image.
-std::string EncodePngBytes(const Image& image);
-
-/// An image as PNG (VTK's writer), written atomically. @throws trocar::Error naming the path.
-void WritePng(const Image& image, const std::string& path);
-
-/// Reads a PNG (any PNG VTK reads: 8-bit grey, RGB or RGBA, as RGB).
-/// @throws trocar::Error naming the path when it is missing or not a PNG.
-Image ReadPng(const std::string& path);
 
 /// Render + WritePng.
 void Screenshot(const Scene& scene, const Views& views, int width, int height,

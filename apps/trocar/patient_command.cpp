@@ -7,7 +7,7 @@
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
-#include "common/plot.hpp"
+#include "common/image.hpp"
 #include "patient/patient_model.hpp"
 #include "patient/phantom.hpp"
 
@@ -31,7 +31,7 @@ void WritePreview(const patient::Phantom& ph, const std::string& path) {
   image.width = axial.width + 10 + coronal.width;
   image.height = std::max(axial.height, coronal.height);
   image.rgb.assign(3 * static_cast<std::size_t>(image.width) * image.height, 0);
-  auto blit = [&](const patient::SliceImage& s, int x0) {
+  auto blit = [&](const Image& s, int x0) {
     for (int r = 0; r < s.height; ++r) {
       std::copy_n(&s.rgb[3 * static_cast<std::size_t>(r) * s.width], 3 * s.width,
                   &image.rgb[3 * (static_cast<std::size_t>(r) * image.width + x0)]);
@@ -39,7 +39,7 @@ void WritePreview(const patient::Phantom& ph, const std::string& path) {
   };
   blit(axial, 0);
   blit(coronal, axial.width + 10);
-  WriteFileAtomically(path, EncodePng(image));
+  WritePng(image, path);
 }
 
 void RunPhantom(const PhantomOptions& o) {

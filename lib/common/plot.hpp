@@ -1,12 +1,15 @@
 #pragma once
 /// @file
-/// Line plots written as PNG, with no graphics library: for the recorder's tracking figures (like
-/// the thesis' figures 5.4–5.15) and anything else the core needs to show a person.
+/// Line plots by PLplot (its cairo drivers: real fonts, no display): PNG, SVG or PDF, for the
+/// recorder's tracking figures (like the thesis' figures 5.4–5.15), trocar bench's summaries and
+/// anything else the core needs to show a person.
 
 #include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
+
+#include "common/image.hpp"
 
 namespace trocar {
 
@@ -23,28 +26,12 @@ struct PlotPanel {
   std::vector<PlotSeries> series;
 };
 
-/// An RGB image in memory.
-struct Image {
-  int width = 0, height = 0;
-  std::vector<std::uint8_t> rgb;  ///< row-major, 3 bytes a pixel
-  std::array<std::uint8_t, 3> Pixel(int x, int y) const {
-    const std::size_t i = 3 * (static_cast<std::size_t>(y) * width + x);
-    return {rgb[i], rgb[i + 1], rgb[i + 2]};
-  }
-};
-
-/// Draws the panels stacked vertically. Non-finite points break a line instead of being drawn.
-Image RenderPlot(const std::vector<PlotPanel>& panels, int width = 960, int panel_height = 280);
-
-/// PNG bytes of an image (8-bit RGB, zlib-compressed).
-std::string EncodePng(const Image& image);
-
-/// Decodes PNGs written by EncodePng (8-bit RGB, filter 0), for tests and tools.
-/// @throws trocar::Error for anything else.
-Image DecodePng(const std::string& bytes);
-
-/// RenderPlot + EncodePng, written atomically. @throws trocar::Error naming the path.
-void WritePlotPng(const std::string& path, const std::vector<PlotPanel>& panels,
-                  int width = 960, int panel_height = 280);
+/// Writes the panels stacked vertically, `width` × `panel_height` pixels each (a PDF or SVG at the
+/// same size in points), by the path's extension: .png, .svg or .pdf; atomically. Non-finite
+/// points break a line instead of being drawn; each series is labelled in its colour.
+/// @throws trocar::Error naming the path for another extension, no panels, a size out of
+/// 64..8192, or a file that cannot be written.
+void WritePlot(const std::string& path, const std::vector<PlotPanel>& panels, int width = 960,
+               int panel_height = 280);
 
 }  // namespace trocar

@@ -131,8 +131,8 @@ std::vector<std::string> Recorder::WritePlots(const std::string& folder,
   errors[0].x_label = errors[1].x_label = "time (s)";
   const std::string tracking_path = JoinPath(folder, "tracking.png");
   const std::string errors_path = JoinPath(folder, "errors.png");
-  WritePlotPng(tracking_path, tracking);
-  WritePlotPng(errors_path, errors);
+  WritePlot(tracking_path, tracking);
+  WritePlot(errors_path, errors);
   return {tracking_path, errors_path};
 }
 

@@ -8,6 +8,8 @@
 #include <utility>
 #include <vector>
 
+#include "common/image.hpp"
+
 #include <Eigen/Geometry>
 
 namespace trocar::patient {
@@ -54,11 +56,7 @@ void CheckVolumeGeometry(const Volume& volume, const std::string& what);
 /// A grey-level picture of one slice: axis 2 (axial, k fixed), 1 (coronal, j fixed) or 0
 /// (sagittal, i fixed), windowed to [level − width/2, level + width/2], one pixel per voxel
 /// (stretched to the voxel aspect), anterior up in axial slices, superior up otherwise.
-struct SliceImage {
-  int width = 0, height = 0;
-  std::vector<unsigned char> rgb;
-};
-SliceImage RenderSlice(const Volume& volume, int axis, int index, double level, double width);
+Image RenderSlice(const Volume& volume, int axis, int index, double level, double width);
 
 /// Reads a CT volume by its extension: .nrrd/.nhdr (raw or gzip, attached or detached data),
 /// .nii/.nii.gz (NIfTI-1, sform or qform), .mha/.mhd (MetaImage, raw or zlib); a folder or a

@@ -626,7 +626,7 @@ void CheckVolumeGeometry(const Volume& v, const std::string& what) {
                            << " mm is more than 100 m from the scanner's origin");
 }
 
-SliceImage RenderSlice(const Volume& v, int axis, int index, double level, double width) {
+Image RenderSlice(const Volume& v, int axis, int index, double level, double width) {
   TROCAR_THROW_UNLESS(axis >= 0 && axis <= 2 && index >= 0 && index < v.size[axis],
                       "slice " << index << " on axis " << axis << " is outside the volume");
   // Image axes: u (columns), w (rows, drawn downward from the top).
@@ -634,7 +634,7 @@ SliceImage RenderSlice(const Volume& v, int axis, int index, double level, doubl
   const int w_axis = axis == 2 ? 1 : 2;
   const Eigen::Vector3d spacing = v.spacing();
   const double pixel = spacing.minCoeff();
-  SliceImage image;
+  Image image;
   image.width = static_cast<int>(std::lround(v.size[u_axis] * spacing[u_axis] / pixel));
   image.height = static_cast<int>(std::lround(v.size[w_axis] * spacing[w_axis] / pixel));
   image.rgb.resize(3 * static_cast<std::size_t>(image.width) * image.height);

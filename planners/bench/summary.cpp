@@ -173,7 +173,7 @@ std::string BenchSummary(const std::string& db_path, const std::string& plots_di
           c = '_';
       }
       const std::string file = JoinPath(plots_dir, (safe.empty() ? "experiment" : safe) + ".png");
-      WritePlotPng(file, panels);
+      WritePlot(file, panels);
       out << "  plot: " << file << "\n";
     }
   }
