@@ -16,6 +16,9 @@ void AddRobotCommand(CLI::App* app);
 /// `trocar teleop --robot R --input sinusoid|circle|step|roll|FILE.csv ...`.
 void AddTeleopCommand(CLI::App* app);
 
+/// `trocar device --connect ADDRESS:PORT --input circle ...`: an OpenIGTLink device.
+void AddDeviceCommand(CLI::App* app);
+
 /// `trocar tune --robot R --controller jt [--save]`: gain auto-tuning.
 void AddTuneCommand(CLI::App* app);
 

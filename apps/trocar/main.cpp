@@ -12,6 +12,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   trocar::apps::AddRobotCommand(&app);
   trocar::apps::AddTeleopCommand(&app);
+  trocar::apps::AddDeviceCommand(&app);
   trocar::apps::AddTuneCommand(&app);
   trocar::apps::AddPatientCommands(&app);
   trocar::apps::AddCheckCommand(&app);

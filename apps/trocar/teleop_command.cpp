@@ -1,6 +1,8 @@
 // trocar teleop: a headless teleoperation session on a simulated clock.
 #include <filesystem>
+#include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <exception>
 #include <iomanip>
 #include <thread>
@@ -19,6 +21,7 @@
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/start_configuration.hpp"
 #include "robot/load_robot.hpp"
+#include "control/igtl_device.hpp"
 #include "scene.hpp"
 #include "teleop_view.hpp"
 
@@ -44,6 +47,10 @@ struct TeleopCommandOptions {
   bool view = false;
   double fps = 60.0;
   std::string grab;
+  std::string listen;   ///< [ADDRESS:]PORT: drive the robot from an OpenIGTLink device
+  std::string device;   ///< its name ("": the first that connects)
+  double wait = 30.0;   ///< s for the first device
+  double units = 0.001; ///< metres per device unit
 };
 
 int RunTeleop(const TeleopCommandOptions& o) {
@@ -92,7 +99,31 @@ int RunTeleop(const TeleopCommandOptions& o) {
   std::optional<double> step_time;
   const bool is_file = o.input.size() > 4 && o.input.substr(o.input.size() - 4) == ".csv";
   viz::KeyboardInput* keyboard = nullptr;
-  if (o.input == "keyboard") {
+  std::unique_ptr<control::IgtlDeviceServer> server;
+  control::NetworkDeviceInput* network = nullptr;
+  if (!o.listen.empty()) {
+    control::IgtlServerOptions so;
+    control::ParseListenAddress(o.listen, &so);
+    TROCAR_THROW_UNLESS(std::isfinite(o.units) && o.units > 0, "--units " << o.units << ": expected metres per device unit, > 0");
+    so.default_units = o.units;
+    server = std::make_unique<control::IgtlDeviceServer>(so);
+    std::cout << "listening on " << server->address() << ":" << server->port() << " (OpenIGTLink) for "
+              << (o.device.empty() ? "the first device" : "device " + o.device) << std::endl;
+    // The session starts with the first pose, so that its clock is the device's.
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(o.wait);
+    control::DeviceSample s;
+    std::uint64_t sequence = 0;
+    std::chrono::steady_clock::time_point arrival;
+    while (!server->Latest(o.device, &s, &sequence, &arrival)) {
+      TROCAR_THROW_UNLESS(std::chrono::steady_clock::now() < deadline,
+                          "no device sent a pose to " << server->address() << ":" << server->port()
+                                                      << " within " << o.wait << " s");
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+    auto n = std::make_unique<control::NetworkDeviceInput>(server.get(), o.device);
+    network = n.get();
+    input = std::move(n);
+  } else if (o.input == "keyboard") {
     TROCAR_THROW_UNLESS(o.view, "--input keyboard needs --view (the window takes the keys)");
     auto k = std::make_unique<viz::KeyboardInput>();
     keyboard = k.get();
@@ -140,7 +171,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
     std::filesystem::remove(probe, ec);
   }
   control::RunnerStats timing;
-  session.realtime = o.realtime || o.view;  // a person watches: the clock is the wall's
+  session.realtime = o.realtime || o.view || server;  // a person or a device: the wall's clock
   session.runner_stats = &timing;
   control::Recorder recorder;
   viz::TeleopViewStats view_stats;
@@ -184,7 +215,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
                                                  : ", position only (fewer than 6 joints)")
                               : "")
             << ", filter " << o.filter << ", "
-            << o.duration << " s at " << o.rate << " Hz" << (o.realtime || o.view ? " (real time)" : "")
+            << o.duration << " s at " << o.rate << " Hz" << (o.realtime || o.view || server ? " (real time)" : "")
             << "\n";
   std::cout << "  start: " << FormatVector(q0, 4) << ", " << start.basis << "\n" << tuned_note;
   std::cout << "  position error:    RMS " << s.rms_position_error * 1e3 << " mm, max "
@@ -214,7 +245,23 @@ int RunTeleop(const TeleopCommandOptions& o) {
               << view_stats.frames / std::max(view_stats.seconds, 1e-9) << " fps), "
               << view_stats.snapshots << " new control steps shown\n";
   }
-  if (o.realtime || o.view) {
+  if (server) {
+    for (const auto& [name, c] : server->Counters()) {
+      std::cout << "  device '" << name << "': " << c.messages << " poses, " << c.drops() << " dropped (crc "
+                << c.crc << ", malformed " << c.malformed << ", oversized " << c.oversized << ", unknown type "
+                << c.unknown_type << ", non-finite " << c.non_finite << ", truncated " << c.truncated << "), "
+                << c.connections << " connection" << (c.connections == 1 ? "" : "s") << "\n";
+    }
+    std::vector<double> latency = network->latencies();
+    if (!latency.empty()) {
+      std::sort(latency.begin(), latency.end());
+      auto at = [&](double f) { return latency[std::min(latency.size() - 1, static_cast<std::size_t>(f * latency.size()))] * 1e3; };
+      std::cout << "  latency, arrival to command: median " << at(0.5) << " ms, p99 " << at(0.99) << " ms, max "
+                << latency.back() * 1e3 << " ms over " << latency.size() << " poses; silences "
+                << network->silences() << "\n";
+    }
+  }
+  if (o.realtime || o.view || server) {
     std::cout << "  real time: " << timing.steps << " steps, mean period "
               << timing.mean_period * 1e3 << " ms, period error p99 "
               << timing.p99_period_error * 1e6 << " us, max " << timing.max_period_error * 1e6
@@ -315,12 +362,79 @@ void AddTeleopCommand(CLI::App* app) {
                 "renders at --fps and never blocks the control loop); --input keyboard: arrows, "
                 "Page Up/Down, Q/E, Space (clutch)");
   cmd->add_option("--fps", o->fps, "render rate of --view")->capture_default_str();
+  cmd->add_option("--listen", o->listen,
+                  "drive the robot from an OpenIGTLink device (TRANSFORM or POSITION): [ADDRESS:]PORT, "
+                  "localhost unless an address is given (OpenIGTLink's usual port: 18944)");
+  cmd->add_option("--device", o->device, "with --listen: the device's name (default: the first that sends)");
+  cmd->add_option("--wait", o->wait, "with --listen: seconds to wait for the first pose")->capture_default_str();
+  cmd->add_option("--units", o->units,
+                  "with --listen: metres per device unit (OpenIGTLink: mm, 0.001; the dVRK bridge: m, 1)")
+      ->capture_default_str();
   cmd->add_option("--grab", o->grab, "with --view: save an image of the window when the session ends");
   cmd->add_option("--max-jump", o->max_jump, "device jump (m) beyond which a sample is dropped")
       ->capture_default_str();
   cmd->callback([o]() {
     const int code = RunTeleop(*o);
     if (code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+void AddDeviceCommand(CLI::App* app) {
+  struct DeviceOptions {
+    std::string connect = "127.0.0.1:18944";
+    std::string name = "device";
+    std::string input = "circle";
+    double duration = 5.0, rate = 1000.0, amplitude = 0.04, units = 0.001;
+  };
+  auto o = std::make_shared<DeviceOptions>();
+  CLI::App* cmd = app->add_subcommand(
+      "device", "A network device: streams a scripted hand motion (sinusoid, circle, step, roll) or a "
+                "recorded CSV as OpenIGTLink TRANSFORM messages to a trocar (teleop --listen)");
+  cmd->add_option("--connect", o->connect, "ADDRESS:PORT of the trocar")->capture_default_str();
+  cmd->add_option("--name", o->name, "the device's name in its messages")->capture_default_str();
+  cmd->add_option("--input", o->input, "sinusoid, circle, step, roll, or a CSV (t,x,y,z,qw,qx,qy,qz)")
+      ->capture_default_str();
+  cmd->add_option("--duration", o->duration, "seconds")->capture_default_str();
+  cmd->add_option("--rate", o->rate, "messages per second")->capture_default_str();
+  cmd->add_option("--amplitude", o->amplitude, "scripted motion amplitude (m)")->capture_default_str();
+  cmd->add_option("--units", o->units, "metres per unit sent (0.001: millimetres, OpenIGTLink's)")->capture_default_str();
+  cmd->callback([o]() {
+    control::IgtlServerOptions target;
+    control::ParseListenAddress(o->connect, &target);
+    TROCAR_THROW_UNLESS(std::isfinite(o->rate) && o->rate > 0 && o->rate <= 100000, "--rate " << o->rate << ": expected 0..100000");
+    TROCAR_THROW_UNLESS(std::isfinite(o->duration) && o->duration > 0, "--duration " << o->duration << ": expected > 0");
+    TROCAR_THROW_UNLESS(o->name.size() <= 20, "--name '" << o->name << "': at most 20 characters (OpenIGTLink)");
+    std::unique_ptr<control::DeviceInput> input;
+    if (o->input.size() > 4 && o->input.substr(o->input.size() - 4) == ".csv") {
+      input = std::make_unique<control::CsvReplayInput>(o->input);
+    } else {
+      control::ScriptedMotion motion;
+      motion.kind = control::ParseScriptedMotion(o->input);
+      motion.amplitude = o->amplitude;
+      input = std::make_unique<control::ScriptedInput>(motion);
+    }
+    control::IgtlDeviceClient client(target.address, target.port);
+    const auto start = std::chrono::steady_clock::now();
+    const auto period = std::chrono::duration<double>(1.0 / o->rate);
+    long sent = 0;
+    for (long k = 0;; ++k) {
+      const auto due = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(period * k);
+      std::this_thread::sleep_until(due);
+      const double t = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      if (t > o->duration) break;
+      const control::DeviceSample s = input->Sample(t);
+      if (!client.SendPose(o->name, s.X_DH, o->units)) {
+        std::cout << "device: the trocar closed the connection after " << sent << " messages\n";
+        break;
+      }
+      ++sent;
+    }
+    std::cout << "device '" << o->name << "': sent " << sent << " TRANSFORM messages to " << o->connect << " in "
+              << std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() << " s; received";
+    const auto& got = client.Received();
+    if (got.empty()) std::cout << " nothing";
+    for (const auto& [type, n] : got) std::cout << " " << n << " " << type;
+    std::cout << "\n";
   });
 }
 

@@ -1,0 +1,284 @@
+// The OpenIGTLink device server against a client written here from the protocol description
+// (not through libopenigtlink): header, big-endian fields, CRC-64 (ECMA-182), TRANSFORM and
+// POSITION bodies; and every fault the issue lists, injected byte by byte.
+#include "control/igtl_device.hpp"
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "common/error.hpp"
+
+namespace trocar::control {
+namespace {
+
+/// CRC-64 ECMA-182 as OpenIGTLink uses it: polynomial 0x42F0E1EBA9EA3693, initial 0, not
+/// reflected, no final xor; bit by bit, from the definition.
+std::uint64_t Crc64(const std::string& data) {
+  std::uint64_t crc = 0;
+  for (unsigned char byte : data) {
+    crc ^= static_cast<std::uint64_t>(byte) << 56;
+    for (int i = 0; i < 8; ++i) crc = (crc & (1ull << 63)) ? (crc << 1) ^ 0x42F0E1EBA9EA3693ull : crc << 1;
+  }
+  return crc;
+}
+
+void Put64(std::string* s, std::uint64_t v) {
+  for (int i = 7; i >= 0; --i) s->push_back(static_cast<char>((v >> (8 * i)) & 0xff));
+}
+void PutFloat(std::string* s, float f) {
+  std::uint32_t u;
+  std::memcpy(&u, &f, 4);
+  for (int i = 3; i >= 0; --i) s->push_back(static_cast<char>((u >> (8 * i)) & 0xff));
+}
+std::string Fixed(const std::string& text, std::size_t n) {
+  std::string s = text.substr(0, n);
+  s.resize(n, '\0');
+  return s;
+}
+
+/// A whole message: 58-byte header (version 1) and the body.
+std::string Message(const std::string& type, const std::string& name, const std::string& body,
+                    std::uint64_t body_size_field = ~0ull, bool bad_crc = false) {
+  std::string m;
+  m.push_back(0);
+  m.push_back(1);  // version 1
+  m += Fixed(type, 12);
+  m += Fixed(name, 20);
+  Put64(&m, 0);  // timestamp
+  Put64(&m, body_size_field == ~0ull ? body.size() : body_size_field);
+  Put64(&m, Crc64(body) ^ (bad_crc ? 1 : 0));
+  return m + body;
+}
+
+/// TRANSFORM body: the upper 3x4 of the matrix column by column, translation in mm.
+std::string TransformBody(const Eigen::Isometry3d& X, double mm_per_unit = 1000) {
+  std::string b;
+  for (int c = 0; c < 3; ++c)
+    for (int r = 0; r < 3; ++r) PutFloat(&b, static_cast<float>(X.linear()(r, c)));
+  for (int r = 0; r < 3; ++r) PutFloat(&b, static_cast<float>(X.translation()[r] * mm_per_unit));
+  return b;
+}
+
+class RawClient {
+ public:
+  explicit RawClient(int port) {
+    fd_ = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_port = htons(static_cast<std::uint16_t>(port));
+    ::inet_pton(AF_INET, "127.0.0.1", &a.sin_addr);
+    EXPECT_EQ(::connect(fd_, reinterpret_cast<sockaddr*>(&a), sizeof(a)), 0);
+  }
+  ~RawClient() { ::close(fd_); }
+  void Send(const std::string& bytes) { ASSERT_EQ(::send(fd_, bytes.data(), bytes.size(), MSG_NOSIGNAL), ssize_t(bytes.size())); }
+
+ private:
+  int fd_;
+};
+
+/// Waits until `done` holds (the server runs in its own thread), at most 3 s.
+template <typename F>
+bool Eventually(F done) {
+  for (int i = 0; i < 300; ++i) {
+    if (done()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return done();
+}
+
+Eigen::Isometry3d RandomPose(std::mt19937* rng) {
+  std::uniform_real_distribution<double> u(-1, 1);
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = Eigen::Quaterniond(u(*rng), u(*rng), u(*rng), u(*rng)).normalized().toRotationMatrix();
+  X.translation() = Eigen::Vector3d(u(*rng), u(*rng), u(*rng)) * 0.2;
+  return X;
+}
+
+IgtlServerOptions AnyPort() {
+  IgtlServerOptions o;
+  o.port = 0;
+  return o;
+}
+
+TEST(IgtlDevice, AClientWrittenFromTheProtocolIsUnderstoodOverSeededPoses) {
+  IgtlDeviceServer server(AnyPort());
+  RawClient client(server.port());
+  std::mt19937 rng(5);
+  for (int i = 0; i < 40; ++i) {
+    const Eigen::Isometry3d X = RandomPose(&rng);
+    client.Send(Message("TRANSFORM", "hand", TransformBody(X)));
+    DeviceSample s;
+    std::uint64_t seq = 0;
+    std::chrono::steady_clock::time_point at;
+    ASSERT_TRUE(Eventually([&] { return server.Latest("hand", &s, &seq, &at) && seq == std::uint64_t(i + 1); })) << i;
+    EXPECT_LT((s.X_DH.translation() - X.translation()).norm(), 1e-6) << i;  // mm -> m, float
+    EXPECT_LT((s.X_DH.linear() - X.linear()).norm(), 1e-5) << i;
+  }
+  // POSITION: position and quaternion (x, y, z, w).
+  const Eigen::Isometry3d X = RandomPose(&rng);
+  const Eigen::Quaterniond q(X.linear());
+  std::string body;
+  for (int r = 0; r < 3; ++r) PutFloat(&body, static_cast<float>(X.translation()[r] * 1000));
+  for (double v : {q.x(), q.y(), q.z(), q.w()}) PutFloat(&body, static_cast<float>(v));
+  client.Send(Message("POSITION", "pen", body));
+  DeviceSample s;
+  std::uint64_t seq = 0;
+  std::chrono::steady_clock::time_point at;
+  ASSERT_TRUE(Eventually([&] { return server.Latest("pen", &s, &seq, &at); }));
+  EXPECT_LT((s.X_DH.translation() - X.translation()).norm(), 1e-6);
+  EXPECT_LT((s.X_DH.linear() - X.linear()).norm(), 1e-5);
+  EXPECT_EQ(server.Counters().at("hand").messages, 40);
+  EXPECT_EQ(server.Counters().at("hand").drops(), 0);
+}
+
+TEST(IgtlDevice, WhatLibopenigtlinkSendsDecodesHereWithItsCrc) {
+  // A plain listener takes what IgtlDeviceClient (libopenigtlink's encoder) sends.
+  const int listener = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  ::inet_pton(AF_INET, "127.0.0.1", &a.sin_addr);
+  ASSERT_EQ(::bind(listener, reinterpret_cast<sockaddr*>(&a), sizeof(a)), 0);
+  ASSERT_EQ(::listen(listener, 1), 0);
+  socklen_t len = sizeof(a);
+  ::getsockname(listener, reinterpret_cast<sockaddr*>(&a), &len);
+  IgtlDeviceClient client("127.0.0.1", ntohs(a.sin_port));
+  const int fd = ::accept(listener, nullptr, nullptr);
+  std::mt19937 rng(9);
+  for (int i = 0; i < 20; ++i) {
+    const Eigen::Isometry3d X = RandomPose(&rng);
+    ASSERT_TRUE(client.SendPose("stylus", X));
+    std::string got(58 + 48, '\0');
+    std::size_t n = 0;
+    while (n < got.size()) {
+      const ssize_t r = ::recv(fd, got.data() + n, got.size() - n, 0);
+      ASSERT_GT(r, 0);
+      n += static_cast<std::size_t>(r);
+    }
+    EXPECT_EQ(got.substr(2, 12), Fixed("TRANSFORM", 12));
+    EXPECT_EQ(got.substr(14, 20), Fixed("stylus", 20));
+    const std::string body = got.substr(58);
+    std::uint64_t size = 0, crc = 0;
+    for (int k = 0; k < 8; ++k) size = (size << 8) | static_cast<unsigned char>(got[42 + k]);
+    for (int k = 0; k < 8; ++k) crc = (crc << 8) | static_cast<unsigned char>(got[50 + k]);
+    EXPECT_EQ(size, 48u);
+    EXPECT_EQ(crc, Crc64(body)) << "the CRC-64 of the two implementations differ";
+    EXPECT_EQ(body, TransformBody(X)) << "the bodies differ";
+  }
+  ::close(fd);
+  ::close(listener);
+}
+
+TEST(IgtlDevice, EveryFaultIsDroppedAndCountedAndTheDeviceGoesOn) {
+  IgtlServerOptions o = AnyPort();
+  o.max_body = 1024;
+  IgtlDeviceServer server(o);
+  const Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  auto taken = [&](long n) {
+    return Eventually([&] { auto c = server.Counters(); return c.count("d") && c.at("d").messages == n; });
+  };
+  {
+    RawClient c(server.port());
+    c.Send(Message("TRANSFORM", "d", TransformBody(X)));
+    ASSERT_TRUE(taken(1));
+    c.Send(Message("TRANSFORM", "d", TransformBody(X), ~0ull, /*bad_crc=*/true));
+    c.Send(Message("IMAGE", "d", std::string(200, 'x')));                      // unknown type, skipped
+    c.Send(Message("TRANSFORM", "d", TransformBody(X).substr(0, 40)));         // wrong size for its type
+    Eigen::Isometry3d nan = X;
+    nan.translation().x() = NAN;
+    c.Send(Message("TRANSFORM", "d", TransformBody(nan)));                     // non-finite
+    c.Send(Message("TRANSFORM", "d", TransformBody(X)));                       // and a good one after them
+    ASSERT_TRUE(taken(2));
+    const auto d = server.Counters().at("d");
+    EXPECT_EQ(d.crc, 1);
+    EXPECT_EQ(d.unknown_type, 1);
+    EXPECT_EQ(d.malformed, 1);
+    EXPECT_EQ(d.non_finite, 1);
+  }
+  {
+    // A body of a terabyte, claimed: nothing allocated for it, the connection closed.
+    RawClient c(server.port());
+    std::string huge = Message("TRANSFORM", "d", "", 1ull << 40);
+    c.Send(huge);
+    ASSERT_TRUE(Eventually([&] { return server.Counters().at("d").oversized == 1; }));
+  }
+  {
+    // A message cut off by its connection closing.
+    RawClient c(server.port());
+    const std::string m = Message("TRANSFORM", "d", TransformBody(X));
+    c.Send(m.substr(0, 70));
+  }
+  ASSERT_TRUE(Eventually([&] { return server.Counters().at("d").truncated == 1; }));
+  // Garbage of every length: never a crash; a good message on a new connection is taken.
+  std::mt19937 rng(3);
+  for (int i = 0; i < 50; ++i) {
+    RawClient c(server.port());
+    std::string junk(std::uniform_int_distribution<int>(1, 300)(rng), '\0');
+    for (char& ch : junk) ch = static_cast<char>(rng());
+    c.Send(junk);
+  }
+  RawClient again(server.port());
+  again.Send(Message("TRANSFORM", "d", TransformBody(X)));
+  EXPECT_TRUE(taken(3));
+  // Connections it sent whole messages on: the first and the last (a reconnect).
+  EXPECT_EQ(server.Counters().at("d").connections, 2);
+}
+
+TEST(IgtlDevice, TwoDevicesAreKeptApartAndASilentOneHoldsThenResumes) {
+  IgtlDeviceServer server(AnyPort());
+  RawClient a(server.port()), b(server.port());
+  Eigen::Isometry3d Xa = Eigen::Isometry3d::Identity(), Xb = Eigen::Isometry3d::Identity();
+  Xa.translation() = Eigen::Vector3d(0.01, 0, 0);
+  Xb.translation() = Eigen::Vector3d(0, 0.02, 0);
+  a.Send(Message("TRANSFORM", "left", TransformBody(Xa)));
+  b.Send(Message("TRANSFORM", "right", TransformBody(Xb)));
+  NetworkDeviceInput left(&server, "left", 0.05), right(&server, "right", 0.05);
+  ASSERT_TRUE(Eventually([&] { return left.Sample(0).operator_present && right.Sample(0).operator_present; }));
+  EXPECT_LT((left.Sample(0).X_DH.translation() - Xa.translation()).norm(), 1e-6);
+  EXPECT_LT((right.Sample(0).X_DH.translation() - Xb.translation()).norm(), 1e-6);
+  // "left" goes silent: absent (the arm holds); "right" speaks on.
+  for (int i = 0; i < 10; ++i) {
+    b.Send(Message("TRANSFORM", "right", TransformBody(Xb)));
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_FALSE(left.Sample(1).operator_present);
+  EXPECT_TRUE(right.Sample(1).operator_present);
+  EXPECT_EQ(left.silences(), 1);
+  a.Send(Message("TRANSFORM", "left", TransformBody(Xa)));
+  EXPECT_TRUE(Eventually([&] { return left.Sample(2).operator_present; }));
+  EXPECT_FALSE(left.latencies().empty());
+}
+
+TEST(IgtlDevice, APortInUseAndBadAddressesAreClearErrors) {
+  IgtlDeviceServer first(AnyPort());
+  IgtlServerOptions o;
+  o.port = first.port();
+  try {
+    IgtlDeviceServer second(o);
+    ADD_FAILURE() << "a second server bound the same port";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("already in use"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(std::to_string(first.port())), std::string::npos) << e.what();
+  }
+  IgtlServerOptions p;
+  EXPECT_THROW(ParseListenAddress("host:99999", &p), Error);
+  EXPECT_THROW(ParseListenAddress("example.org:18944", &p), Error);
+  EXPECT_THROW(ParseListenAddress("abc", &p), Error);
+  ParseListenAddress("18945", &p);
+  EXPECT_EQ(p.address, "127.0.0.1");  // localhost unless told otherwise
+  EXPECT_EQ(p.port, 18945);
+  ParseListenAddress("0.0.0.0:18946", &p);
+  EXPECT_EQ(p.address, "0.0.0.0");
+}
+
+}  // namespace
+}  // namespace trocar::control
