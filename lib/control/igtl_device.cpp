@@ -39,6 +39,128 @@ std::string Field(const unsigned char* p, std::size_t n) {
   return std::string(reinterpret_cast<const char*>(p), len);
 }
 
+/// One complete message (header and body in `m`): a pose, or a drop counted.
+bool TakeMessage(const unsigned char* m, std::size_t body_size, double units, IgtlStreamParser::Pose* pose,
+                 DeviceCounters* count) {
+  const std::string type = Field(m + 2, 12);
+  const bool transform = type == "TRANSFORM", position = type == "POSITION";
+  if (!transform && !position) {
+    ++count->unknown_type;
+    return false;
+  }
+  if (m[0] != 0 || m[1] != 1 || (transform && body_size != 48) ||
+      (position && body_size != 12 && body_size != 24 && body_size != 28)) {
+    ++count->malformed;
+    return false;
+  }
+  igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
+  header->InitPack();
+  std::memcpy(header->GetPackPointer(), m, kHeaderSize);
+  header->Unpack();
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  if (transform) {
+    igtl::TransformMessage::Pointer t = igtl::TransformMessage::New();
+    t->SetMessageHeader(header);
+    t->AllocatePack();
+    std::memcpy(t->GetPackBodyPointer(), m + kHeaderSize, body_size);
+    if (!(t->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) {
+      ++count->crc;
+      return false;
+    }
+    igtl::Matrix4x4 matrix;
+    t->GetMatrix(matrix);
+    Eigen::Matrix3d R;
+    for (int r = 0; r < 3; ++r)
+      for (int k = 0; k < 3; ++k) R(r, k) = matrix[r][k];
+    const Eigen::Vector3d p(matrix[0][3], matrix[1][3], matrix[2][3]);
+    if (!R.allFinite() || !p.allFinite()) {
+      ++count->non_finite;
+      return false;
+    }
+    // A rotation within float precision: re-orthonormalised; anything else is malformed.
+    if ((R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-3 || R.determinant() < 0) {
+      ++count->malformed;
+      return false;
+    }
+    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(R, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    X.linear() = svd.matrixU() * svd.matrixV().transpose();
+    X.translation() = p * units;
+  } else {
+    igtl::PositionMessage::Pointer pm = igtl::PositionMessage::New();
+    pm->SetMessageHeader(header);
+    pm->AllocatePack();
+    std::memcpy(pm->GetPackBodyPointer(), m + kHeaderSize, body_size);
+    if (!(pm->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) {
+      ++count->crc;
+      return false;
+    }
+    float pos[3] = {0, 0, 0}, q[4] = {0, 0, 0, 1};
+    pm->GetPosition(pos);
+    if (body_size > 12) pm->GetQuaternion(q);  // x, y, z, w
+    const Eigen::Vector3d p(pos[0], pos[1], pos[2]);
+    const Eigen::Quaterniond quat(q[3], q[0], q[1], q[2]);
+    if (!p.allFinite() || !quat.coeffs().allFinite()) {
+      ++count->non_finite;
+      return false;
+    }
+    if (quat.norm() < 1e-6) {
+      ++count->malformed;
+      return false;
+    }
+    X.linear() = quat.normalized().toRotationMatrix();
+    X.translation() = p * units;
+  }
+  if (!X.matrix().allFinite()) {  // finite floats times units can overflow
+    ++count->non_finite;
+    return false;
+  }
+  pose->device = Field(m + 14, 20);
+  pose->X_DH = X;
+  return true;
+}
+
+}  // namespace
+
+IgtlStreamParser::IgtlStreamParser(std::size_t max_body, std::function<double(const std::string&)> units)
+    : max_body_(max_body), units_(std::move(units)) {}
+
+bool IgtlStreamParser::Feed(const unsigned char* data, std::size_t n, std::vector<Pose>* poses,
+                            std::map<std::string, DeviceCounters>* counters) {
+  buffer_.insert(buffer_.end(), data, data + n);
+  std::size_t at = 0;
+  bool keep = true;
+  while (buffer_.size() - at >= kHeaderSize) {
+    const unsigned char* m = buffer_.data() + at;
+    const std::uint64_t body = BigEndian64(m + 42);
+    const std::string name = Field(m + 14, 20);
+    if (body > max_body_) {
+      ++(*counters)[name].oversized;
+      keep = false;
+      at = buffer_.size();
+      break;
+    }
+    if (buffer_.size() - at < kHeaderSize + body) break;
+    last_name_ = name;
+    Pose pose;
+    if (TakeMessage(m, static_cast<std::size_t>(body), units_(name), &pose, &(*counters)[name])) {
+      ++(*counters)[name].messages;
+      poses->push_back(std::move(pose));
+    }
+    at += kHeaderSize + static_cast<std::size_t>(body);
+  }
+  buffer_.erase(buffer_.begin(), buffer_.begin() + static_cast<std::ptrdiff_t>(at));
+  return keep;
+}
+
+void IgtlStreamParser::Close(std::map<std::string, DeviceCounters>* counters) {
+  if (!buffer_.empty()) {
+    const std::string name = buffer_.size() >= 34 ? Field(buffer_.data() + 14, 20) : last_name_;
+    ++(*counters)[name].truncated;
+  }
+  buffer_.clear();
+}
+
+namespace {
 }  // namespace
 
 void ParseListenAddress(const std::string& text, IgtlServerOptions* options) {
@@ -86,129 +208,35 @@ struct IgtlDeviceServer::Impl {
   struct Connection {
     int fd = -1;
     int id = 0;
-    std::vector<unsigned char> buffer;
-    std::string last_name;
+    std::unique_ptr<IgtlStreamParser> parser;
   };
   std::vector<Connection> connections;
 
-  DeviceCounters& CountersOf(const std::string& name) { return counters[name]; }
 
-  /// One complete message (header and body in `m`). Called with the mutex held.
-  void Take(Connection& c, const unsigned char* m, std::size_t body_size) {
-    const std::string type = Field(m + 2, 12);
-    const std::string name = Field(m + 14, 20);
-    DeviceCounters& count = CountersOf(name);
-    if (c.last_name != name) {
-      c.last_name = name;
-      auto it = devices.find(name);
-      if (it == devices.end() || it->second.connection != c.id) ++count.connections;
-    }
-    const bool transform = type == "TRANSFORM", position = type == "POSITION";
-    if (!transform && !position) {
-      ++count.unknown_type;
-      return;
-    }
-    if ((transform && body_size != 48) ||
-        (position && body_size != 12 && body_size != 24 && body_size != 28)) {
-      ++count.malformed;
-      return;
-    }
-    igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
-    header->InitPack();
-    std::memcpy(header->GetPackPointer(), m, kHeaderSize);
-    header->Unpack();
-    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-    const double units = options.units.count(name) ? options.units.at(name) : options.default_units;
-    if (transform) {
-      igtl::TransformMessage::Pointer t = igtl::TransformMessage::New();
-      t->SetMessageHeader(header);
-      t->AllocatePack();
-      std::memcpy(t->GetPackBodyPointer(), m + kHeaderSize, body_size);
-      if (!(t->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) {
-        ++count.crc;
-        return;
-      }
-      igtl::Matrix4x4 matrix;
-      t->GetMatrix(matrix);
-      Eigen::Matrix3d R;
-      for (int r = 0; r < 3; ++r)
-        for (int k = 0; k < 3; ++k) R(r, k) = matrix[r][k];
-      const Eigen::Vector3d p(matrix[0][3], matrix[1][3], matrix[2][3]);
-      if (!R.allFinite() || !p.allFinite()) {
-        ++count.non_finite;
-        return;
-      }
-      // A rotation within float precision: re-orthonormalised; anything else is malformed.
-      if ((R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-3 || R.determinant() < 0) {
-        ++count.malformed;
-        return;
-      }
-      const Eigen::JacobiSVD<Eigen::Matrix3d> svd(R, Eigen::ComputeFullU | Eigen::ComputeFullV);
-      X.linear() = svd.matrixU() * svd.matrixV().transpose();
-      X.translation() = p * units;
-    } else {
-      igtl::PositionMessage::Pointer pm = igtl::PositionMessage::New();
-      pm->SetMessageHeader(header);
-      pm->AllocatePack();
-      std::memcpy(pm->GetPackBodyPointer(), m + kHeaderSize, body_size);
-      if (!(pm->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) {
-        ++count.crc;
-        return;
-      }
-      float pos[3] = {0, 0, 0}, q[4] = {0, 0, 0, 1};
-      pm->GetPosition(pos);
-      if (body_size > 12) pm->GetQuaternion(q);  // x, y, z, w
-      const Eigen::Vector3d p(pos[0], pos[1], pos[2]);
-      const Eigen::Quaterniond quat(q[3], q[0], q[1], q[2]);
-      if (!p.allFinite() || !quat.coeffs().allFinite()) {
-        ++count.non_finite;
-        return;
-      }
-      if (quat.norm() < 1e-6) {
-        ++count.malformed;
-        return;
-      }
-      X.linear() = quat.normalized().toRotationMatrix();
-      X.translation() = p * units;
-    }
-    Device& d = devices[name];
-    d.sample.X_DH = X;
-    d.sample.clutch = false;
-    d.sample.operator_present = true;
-    d.arrival = std::chrono::steady_clock::now();
-    d.connection = c.id;
-    ++d.sequence;
-    ++count.messages;
-    if (first.empty()) first = name;
-  }
-
-  /// Takes every complete message in the connection's buffer. False: close the connection.
-  bool Drain(Connection& c) {
-    std::size_t at = 0;
-    bool keep = true;
+  /// New bytes of a connection: its poses taken, its drops counted. False: close it.
+  bool Feed(Connection& c, const unsigned char* data, std::size_t n) {
+    std::vector<IgtlStreamParser::Pose> poses;
     std::lock_guard<std::mutex> lock(mutex);
-    while (c.buffer.size() - at >= kHeaderSize) {
-      const unsigned char* m = c.buffer.data() + at;
-      const std::uint64_t body = BigEndian64(m + 42);
-      if (body > options.max_body) {
-        ++CountersOf(Field(m + 14, 20)).oversized;
-        keep = false;
-        at = c.buffer.size();
-        break;
-      }
-      if (c.buffer.size() - at < kHeaderSize + body) break;
-      Take(c, m, static_cast<std::size_t>(body));
-      at += kHeaderSize + static_cast<std::size_t>(body);
+    const bool keep = c.parser->Feed(data, n, &poses, &counters);
+    const auto now = std::chrono::steady_clock::now();
+    for (auto& pose : poses) {
+      Device& d = devices[pose.device];
+      if (d.connection != c.id) ++counters[pose.device].connections;
+      d.sample.X_DH = pose.X_DH;
+      d.sample.clutch = false;
+      d.sample.operator_present = true;
+      d.arrival = now;
+      d.connection = c.id;
+      ++d.sequence;
+      if (first.empty()) first = pose.device;
     }
-    c.buffer.erase(c.buffer.begin(), c.buffer.begin() + static_cast<std::ptrdiff_t>(at));
     return keep;
   }
 
   void Close(Connection& c) {
-    if (!c.buffer.empty()) {
+    {
       std::lock_guard<std::mutex> lock(mutex);
-      const std::string name = c.buffer.size() >= 34 ? Field(c.buffer.data() + 14, 20) : c.last_name;
-      ++CountersOf(name).truncated;
+      c.parser->Close(&counters);
     }
     ::close(c.fd);
     c.fd = -1;
@@ -231,7 +259,13 @@ struct IgtlDeviceServer::Impl {
             ::fcntl(fd, F_SETFL, ::fcntl(fd, F_GETFL) | O_NONBLOCK);
             const int one = 1;
             ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
-            connections.push_back({fd, next_connection_id++, {}, {}});
+            Connection c;
+            c.fd = fd;
+            c.id = next_connection_id++;
+            c.parser = std::make_unique<IgtlStreamParser>(options.max_body, [this](const std::string& name) {
+              return options.units.count(name) ? options.units.at(name) : options.default_units;
+            });
+            connections.push_back(std::move(c));
           }
         }
       }
@@ -242,11 +276,9 @@ struct IgtlDeviceServer::Impl {
         bool open = true;
         // Read what is there, never more than one message's bound beyond a header.
         while (open) {
-          const std::size_t room = kHeaderSize + options.max_body + chunk.size() - std::min(c.buffer.size(), kHeaderSize + options.max_body);
-          const ssize_t got = ::recv(c.fd, chunk.data(), std::min(chunk.size(), room), 0);
+          const ssize_t got = ::recv(c.fd, chunk.data(), chunk.size(), 0);
           if (got > 0) {
-            c.buffer.insert(c.buffer.end(), chunk.begin(), chunk.begin() + got);
-            open = Drain(c);
+            open = Feed(c, chunk.data(), static_cast<std::size_t>(got));
             if (got < static_cast<ssize_t>(chunk.size())) break;
           } else if (got == 0) {
             open = false;

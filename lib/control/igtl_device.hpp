@@ -11,6 +11,7 @@
 /// ours (poll), so that no read ever waits on a peer.
 
 #include <chrono>
+#include <functional>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -32,6 +33,32 @@ struct DeviceCounters {
   long truncated = 0;     ///< a message cut off by its connection closing
   long connections = 0;   ///< connections it was seen on (more than 1: reconnects)
   long drops() const { return crc + malformed + oversized + unknown_type + non_finite + truncated; }
+};
+
+/// Splits one connection's byte stream into OpenIGTLink messages and takes their poses: the
+/// server's parser, on its own for tests and the fuzzer. It keeps at most one message's header
+/// and bounded body between calls.
+class IgtlStreamParser {
+ public:
+  struct Pose {
+    std::string device;
+    Eigen::Isometry3d X_DH = Eigen::Isometry3d::Identity();  ///< translation in metres
+  };
+  /// `units(device)`: metres per unit of that device's translations.
+  IgtlStreamParser(std::size_t max_body, std::function<double(const std::string&)> units);
+  /// Takes `n` more bytes. Poses are appended to `poses`, drops counted in `counters` by device.
+  /// @return false when the stream cannot go on (a body over the bound): close it.
+  bool Feed(const unsigned char* data, std::size_t n, std::vector<Pose>* poses,
+            std::map<std::string, DeviceCounters>* counters);
+  /// At the stream's end: a message left incomplete is counted as truncated.
+  void Close(std::map<std::string, DeviceCounters>* counters);
+  std::size_t buffered() const { return buffer_.size(); }
+
+ private:
+  std::size_t max_body_;
+  std::function<double(const std::string&)> units_;
+  std::vector<unsigned char> buffer_;
+  std::string last_name_;
 };
 
 struct IgtlServerOptions {
