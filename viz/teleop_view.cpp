@@ -129,11 +129,14 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
   QObject::connect(&timer, &QTimer::timeout, [&] {
     if (snapshots->Read(&snap)) {
       ++stats.snapshots;
+      std::string extra;
       if (snap.q.size() == robot.num_positions() && kinematics::ForwardKinematics(robot, snap.q, &state).ok) {
         scene->SetRobotState(state);
+        if (options.on_frame) extra = options.on_frame(state);
       }
       status->setText(QString("t = %1 s").arg(snap.t, 0, 'f', 2) +
-                      (snap.status == control::SampleStatus::kFollowing ? "" : " (holding)"));
+                      (snap.status == control::SampleStatus::kFollowing ? "" : " (holding)") +
+                      (extra.empty() ? QString() : "  ·  " + QString::fromStdString(extra)));
     }
     render_window->Render();
     ++stats.frames;

@@ -21,12 +21,16 @@ struct TeleopViewOptions {
   double fps = 60.0;          ///< render timer rate
   std::string grab_path;      ///< when set: save an image of the window when the session ends
   int width = 960, height = 640;
+  /// Called on each frame with the pose shown (after the scene has it): what to add to the status
+  /// line (e.g. the pose's collisions, highlighted by the callback).
+  std::function<std::string(const robot::RobotState&)> on_frame;
 };
 
 struct TeleopViewStats {
   long frames = 0;            ///< frames rendered
   double seconds = 0.0;       ///< wall time the window was open
   long snapshots = 0;         ///< new control steps seen by the renderer
+  long frames_in_collision = 0;  ///< set by the caller's on_frame, when it counts
 };
 
 /// Opens a window on `scene` (its robot moved by the snapshots) and renders at `options.fps`

@@ -23,6 +23,8 @@
 #include "robot/load_robot.hpp"
 #include "control/igtl_device.hpp"
 #include "scene.hpp"
+#include "view_inputs.hpp"
+#include "port_placement/plan_file.hpp"
 #include "teleop_view.hpp"
 
 namespace trocar::apps {
@@ -51,16 +53,67 @@ struct TeleopCommandOptions {
   std::string device;   ///< its name ("": the first that connects)
   double wait = 30.0;   ///< s for the first device
   double units = 0.001; ///< metres per device unit
+  std::string plan;     ///< teleoperate an arm of a plan, in its patient
+  int plan_index = 1;
+  std::string arm;      ///< which arm of the plan ("": its first instrument)
 };
 
 int RunTeleop(const TeleopCommandOptions& o) {
   robot::LoadOptions load;
   load.load_meshes = o.view;  // the window draws the robot's meshes
-  const auto shared_model = std::make_shared<const robot::RobotModel>(robot::LoadRobot(o.robot, load));
+  // An arm of a plan: the plan's robot with its tool at that arm's tool, at the plan's cart
+  // pose, setup joints and nominal pose, in the plan's patient.
+  std::unique_ptr<viz::LoadedView> plan_view;
+  std::vector<std::pair<std::string, double>> held;
+  Eigen::Isometry3d X_WB = Eigen::Isometry3d::Identity();
+  std::shared_ptr<const robot::RobotModel> shared_model;
+  std::string plan_arm;
+  if (!o.plan.empty()) {
+    TROCAR_THROW_UNLESS(o.robot.empty(), "--plan names its robot: give no --robot");
+    viz::ViewInputs in;
+    in.plan = o.plan;
+    in.plan_index = o.plan_index;
+    in.case_dir = planners::ReadPlanFile(o.plan).case_dir;
+    plan_view = std::make_unique<viz::LoadedView>(viz::LoadView(in));
+    const planners::PlanFile& file = *plan_view->plan;
+    const planners::StoredArm* arm = nullptr;
+    for (const auto& a : file.arms)
+      if ((o.arm.empty() && a.role == "instrument" && !arm) || a.name == o.arm) arm = &a;
+    TROCAR_THROW_UNLESS(arm, o.plan << ": no arm '" << o.arm << "' (arms: " << [&] {
+      std::string names;
+      for (const auto& a : file.arms) names += (names.empty() ? "" : ", ") + a.name;
+      return names;
+    }() << ")");
+    plan_arm = arm->name;
+    robot::RobotModelBuilder builder = robot::LoadRobotDescription(file.robot_file, load);
+    bool found = false;
+    for (const auto& f : builder.frames()) {
+      if (f.name == arm->tool_frame) {
+        robot::RobotModelBuilder::FrameSpec tool = f;
+        tool.name = arm->name + "_teleop_tool";  // the arm's tool frame stays a frame of its own
+        builder.SetTool(tool);
+        found = true;
+      }
+    }
+    TROCAR_THROW_UNLESS(found, o.plan << ": arm " << arm->name << "'s tool frame '" << arm->tool_frame
+                                      << "' is not a frame of " << file.robot_file);
+    shared_model = std::make_shared<const robot::RobotModel>(builder.Build());
+    const planners::StoredPlan& plan = file.plans[o.plan_index - 1];
+    held = plan.setup_joints;
+    X_WB = plan.X_WB;
+  } else {
+    TROCAR_THROW_UNLESS(!o.robot.empty(), "teleop: give --robot FILE, or --plan PLAN.json");
+    shared_model = std::make_shared<const robot::RobotModel>(robot::LoadRobot(o.robot, load));
+  }
   const robot::RobotModel& model = *shared_model;
   // The robot's home, or one chosen away from limits and singularities; --q0 overrides both.
-  kinematics::StartConfiguration start = kinematics::ChooseStart(model);
+  kinematics::StartConfiguration start = plan_view ? kinematics::StartConfiguration{} : kinematics::ChooseStart(model);
   Eigen::VectorXd q0 = start.q;
+  if (plan_view) {
+    q0 = plan_view->scene->robot_state()->q;  // the plan's nominal pose (same joints, same order)
+    start.q = q0;
+    start.basis = "the nominal pose of plan " + std::to_string(o.plan_index) + ", arm " + plan_arm;
+  }
   if (!o.q0.empty()) {
     TROCAR_THROW_UNLESS(static_cast<int>(o.q0.size()) == model.num_positions(),
                         "--q0: " << o.q0.size() << " values, robot '" << model.name()
@@ -93,7 +146,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
          << ", " << saved << "\n";
     tuned_note = note.str();
   }
-  control::ControlLoop loop(model, control::MakeController(o.controller, model, fallback), q0);
+  control::ControlLoop loop(model, control::MakeController(o.controller, model, fallback), q0, X_WB, held);
 
   std::unique_ptr<control::DeviceInput> input;
   std::optional<double> step_time;
@@ -178,7 +231,14 @@ int RunTeleop(const TeleopCommandOptions& o) {
   if (o.view) {
     // The control thread runs the session; this thread renders what it publishes, never
     // waiting on it.
-    viz::Scene scene(nullptr, shared_model);
+    std::unique_ptr<viz::Scene> alone;
+    viz::Scene* scene = nullptr;
+    if (plan_view) {
+      scene = plan_view->scene.get();
+    } else {
+      alone = std::make_unique<viz::Scene>(nullptr, shared_model);
+      scene = alone.get();
+    }
     control::TripleBuffer<control::SessionSnapshot> snapshots;
     session.snapshots = &snapshots;
     std::atomic<bool> done{false};
@@ -194,8 +254,19 @@ int RunTeleop(const TeleopCommandOptions& o) {
     viz::TeleopViewOptions vo;
     vo.fps = o.fps;
     vo.grab_path = o.grab;
+    long frames_in_collision = 0;
+    if (plan_view && plan_view->collisions) {
+      // Each frame's collisions by the plan's rules, highlighted and said.
+      vo.on_frame = [&](const robot::RobotState& state) {
+        const planners::PoseCollisions pose = plan_view->collisions->Check(state);
+        scene->HighlightLinks(pose.colliding_links, pose.near_links);
+        frames_in_collision += pose.collision;
+        return viz::Describe(pose);
+      };
+    }
     try {
-      view_stats = viz::RunTeleopView(&scene, &snapshots, [&] { return done.load(); }, vo, keyboard);
+      view_stats = viz::RunTeleopView(scene, &snapshots, [&] { return done.load(); }, vo, keyboard);
+      view_stats.frames_in_collision = frames_in_collision;
     } catch (...) {
       control_thread.join();
       throw;
@@ -243,7 +314,9 @@ int RunTeleop(const TeleopCommandOptions& o) {
   if (o.view) {
     std::cout << "  view: " << view_stats.frames << " frames in " << view_stats.seconds << " s ("
               << view_stats.frames / std::max(view_stats.seconds, 1e-9) << " fps), "
-              << view_stats.snapshots << " new control steps shown\n";
+              << view_stats.snapshots << " new control steps shown"
+              << (plan_view ? ", " + std::to_string(view_stats.frames_in_collision) + " frames in collision" : std::string())
+              << "\n";
   }
   if (server) {
     for (const auto& [name, c] : server->Counters()) {
@@ -336,7 +409,12 @@ void AddTeleopCommand(CLI::App* app) {
   auto o = std::make_shared<TeleopCommandOptions>();
   CLI::App* cmd = app->add_subcommand(
       "teleop", "Drive a simulated robot from a device input, headless, and report tracking");
-  cmd->add_option("--robot", o->robot, "robot description (.urdf or .yaml)")->required();
+  cmd->add_option("--robot", o->robot, "robot description (.urdf or .yaml); or --plan");
+  cmd->add_option("--plan", o->plan,
+                  "teleoperate an arm of a plan (trocar plan's plan.json) in its patient, from the plan's "
+                  "nominal pose, setup joints and cart pose");
+  cmd->add_option("--plan-index", o->plan_index, "which ranked plan (1: the best)")->capture_default_str();
+  cmd->add_option("--arm", o->arm, "with --plan: the arm to drive (default: the plan's first instrument)");
   cmd->add_option("--input", o->input,
                   "sinusoid (thesis 5.4.2.1), circle, step, roll, or a recorded FILE.csv "
                   "(t,x,y,z,qw,qx,qy,qz[,clutch,present])")

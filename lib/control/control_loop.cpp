@@ -6,7 +6,8 @@
 namespace trocar::control {
 
 ControlLoop::ControlLoop(const robot::RobotModel& model, std::unique_ptr<Controller> controller,
-                         const Eigen::VectorXd& q0, const Eigen::Isometry3d& X_WB)
+                         const Eigen::VectorXd& q0, const Eigen::Isometry3d& X_WB,
+                         const std::vector<std::pair<std::string, double>>& held)
     : model_(model),
       controller_(std::move(controller)),
       state_(model),
@@ -17,6 +18,10 @@ ControlLoop::ControlLoop(const robot::RobotModel& model, std::unique_ptr<Control
   workspace_.Resize(model.num_positions());
   TROCAR_THROW_UNLESS(controller_ != nullptr, "ControlLoop: no controller");
   state_.X_WB = X_WB;
+  for (const auto& [name, value] : held) {
+    const auto set = kinematics::SetHeldJoint(model_, name, value, &state_);
+    TROCAR_THROW_UNLESS(set.ok, "robot '" << model_.name() << "': held joint '" << name << "': " << set.message);
+  }
   const auto result = kinematics::ForwardKinematics(model_, q0, &state_);
   TROCAR_THROW_UNLESS(result.ok, "robot '" << model_.name()
                                            << "': start configuration: " << result.message);

@@ -5,6 +5,8 @@
 /// arm's RobotState; one ControlLoop per thread.
 
 #include <memory>
+#include <utility>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -27,9 +29,11 @@ class ControlLoop {
  public:
   /// @param model must outlive the loop. @param q0 start configuration (inside the limits).
   /// @throws trocar::Error when q0 is malformed or a closure cannot reach it.
+  /// @param held values of held (set-before-use) joints by name, e.g. a plan's setup joints.
   ControlLoop(const robot::RobotModel& model, std::unique_ptr<Controller> controller,
               const Eigen::VectorXd& q0,
-              const Eigen::Isometry3d& X_WB = Eigen::Isometry3d::Identity());
+              const Eigen::Isometry3d& X_WB = Eigen::Isometry3d::Identity(),
+              const std::vector<std::pair<std::string, double>>& held = {});
 
   /// Advances by `dt` seconds (the measured loop time) toward `target`.
   StepReport Step(const TaskTarget& target, double dt);

@@ -298,6 +298,7 @@ class RobotModelBuilder {
   void SetTool(FrameSpec tool) { tool_ = std::move(tool); }
   void SetRcm(FrameSpec rcm) { rcm_ = std::move(rcm); }
   void AddFrame(FrameSpec frame) { frames_.push_back(std::move(frame)); }
+  const std::vector<FrameSpec>& frames() const { return frames_; }
   ControllerSettings& controller() { return controller_; }
   /// Active joint values (in q order) where sessions start; checked against the limits.
   void SetHome(std::vector<double> home) { home_ = std::move(home); }

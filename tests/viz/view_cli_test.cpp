@@ -398,6 +398,28 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   EXPECT_GT(CountRgb(page, 31, 119, 180), 2000) << "the tables";
 }
 
+TEST_F(ViewCli, AnArmOfThePlanIsTeleoperatedInItsPatientWithItsCollisionsSaid) {
+  // Headless: the plan's psm1 from its nominal pose follows a small circle.
+  CommandRun run = Trocar("teleop --plan " + Plan() + " --arm psm1 --input circle --amplitude 0.005 --duration 1.5");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("the nominal pose of plan 1, arm psm1"), std::string::npos) << run.output;
+  const auto at = run.output.find("position error:    RMS ");
+  ASSERT_NE(at, std::string::npos) << run.output;
+  EXPECT_LT(std::stod(run.output.substr(at + 23)), 3.0) << run.output;  // mm, a 5 mm circle
+  // In the window: the patient, the cart and each frame's collisions by the plan's rules.
+  const std::string png = Out("teleop_plan.png");
+  run = Trocar("teleop --plan " + Plan() + " --arm psm1 --view --fps 20 --input circle --amplitude 0.005 "
+               "--duration 1.5 --grab " + png);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("frames in collision"), std::string::npos) << run.output;
+  EXPECT_GT(ReadPng(png).width, 0);
+  run = Trocar("teleop --plan " + Plan() + " --arm psm7 --duration 1");
+  EXPECT_EQ(run.exit_code, 1) << run.output;
+  EXPECT_NE(run.output.find("no arm 'psm7'"), std::string::npos) << run.output;
+  run = Trocar("teleop --plan " + Plan() + " --robot robots/davinci-classic/psm.yaml --duration 1");
+  EXPECT_EQ(run.exit_code, 1) << run.output;
+}
+
 TEST_F(ViewCli, BadInputIsNamedAndNoPictureIsWritten) {
   const std::string png = Out("bad.png");
   WriteFileAtomically(png, "previous");
