@@ -269,7 +269,9 @@ struct IgtlDeviceServer::Impl {
           }
         }
       }
-      for (std::size_t i = 0; i < connections.size(); ++i) {
+      // Only the connections this poll watched: one accepted just now is read on the next.
+      const std::size_t polled = fds.size() - 1;
+      for (std::size_t i = 0; i < polled && i < connections.size(); ++i) {
         const short events = fds[i + 1].revents;
         if (!events) continue;
         Connection& c = connections[i];
