@@ -1,7 +1,11 @@
 #pragma once
 // Helpers shared by the tests: paths, seeded random configurations, matrix comparison.
 
+#include <sys/wait.h>
+
+#include <array>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <random>
 #include <sstream>
@@ -15,6 +19,22 @@
 #include "robot/robot_model.hpp"
 
 namespace trocar::test {
+
+/// A shell command's exit code and its stdout and stderr together.
+struct CommandRun {
+  int exit_code;
+  std::string output;
+};
+
+inline CommandRun RunShell(const std::string& command) {
+  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
+  if (pipe == nullptr) return {-1, "popen failed"};
+  std::string output;
+  std::array<char, 4096> buffer;
+  for (size_t n; (n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0;) output.append(buffer.data(), n);
+  const int status = pclose(pipe);
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, output};
+}
 
 inline std::string SourcePath(const std::string& relative) {
   return std::string(TROCAR_SOURCE_DIR) + "/" + relative;

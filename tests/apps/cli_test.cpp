@@ -32,21 +32,10 @@
 namespace trocar {
 namespace {
 
-struct CommandRun {
-  int exit_code;
-  std::string output;  // stdout and stderr together
-};
+using test::CommandRun;
 
 CommandRun Trocar(const std::string& arguments) {
-  const std::string command = std::string(TROCAR_BINARY) + " " + arguments + " 2>&1";
-  FILE* pipe = popen(command.c_str(), "r");
-  if (pipe == nullptr) return {-1, "popen failed"};
-  std::string output;
-  std::array<char, 4096> buffer;
-  size_t n;
-  while ((n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0) output.append(buffer.data(), n);
-  const int status = pclose(pipe);
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, output};
+  return test::RunShell(std::string(TROCAR_BINARY) + " " + arguments);
 }
 
 TEST(TrocarRobotInfo, DescribesEveryBundledRobot) {
@@ -368,15 +357,10 @@ TEST(TrocarPhantom, RefusesToOverwriteACaseUnlessForced) {
 TEST(TrocarPhantom, OutOfMemoryIsAClearError) {
   const std::string dir = ::testing::TempDir() + "/trocar_cli_phantom_oom";
   std::filesystem::remove_all(dir);
-  const std::string command = "bash -c 'ulimit -v 500000; " + std::string(TROCAR_BINARY) +
-                              " phantom --out " + dir + " --voxel 0.0007' 2>&1";
-  FILE* pipe = popen(command.c_str(), "r");
-  ASSERT_NE(pipe, nullptr);
-  std::string output;
-  std::array<char, 4096> buffer;
-  for (size_t n; (n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0;) output.append(buffer.data(), n);
-  const int status = pclose(pipe);
-  EXPECT_EQ(WIFEXITED(status) ? WEXITSTATUS(status) : -1, 1) << output;
+  const CommandRun run = test::RunShell("bash -c 'ulimit -v 500000; " + std::string(TROCAR_BINARY) +
+                                         " phantom --out " + dir + " --voxel 0.0007'");
+  const std::string& output = run.output;
+  EXPECT_EQ(run.exit_code, 1) << output;
   EXPECT_NE(output.find("error: out of memory running 'trocar phantom --out"), std::string::npos) << output;
   EXPECT_EQ(output.find("internal error"), std::string::npos) << output;
 }

@@ -28,21 +28,9 @@ namespace {
 
 using test::SourcePath;
 
-struct CommandRun {
-  int exit_code;
-  std::string output;
-};
+using test::CommandRun;
 
-CommandRun Shell(const std::string& command) {
-  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
-  if (pipe == nullptr) return {-1, "popen failed"};
-  std::string output;
-  std::array<char, 4096> buffer;
-  size_t n;
-  while ((n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0) output.append(buffer.data(), n);
-  const int status = pclose(pipe);
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, output};
-}
+CommandRun Shell(const std::string& command) { return test::RunShell(command); }
 
 CommandRun Trocar(const std::string& arguments) {
   return Shell("cd " + SourcePath("") + " && " + std::string(TROCAR_BINARY) + " " + arguments);
