@@ -219,6 +219,7 @@ SceneStyle SceneStyle::Default() {
       {"pivots", {0.95, 0.30, 0.95}},  {"table", {0.45, 0.50, 0.58}},
       {"floor", {0.28, 0.29, 0.31}},   {"robot", {0.78, 0.80, 0.86}},
       {"collision", {1.00, 0.10, 0.05}},  {"near_miss", {1.00, 0.65, 0.00}},
+      {"pointer", {0.10, 0.55, 1.00}},
   };
   s.opacities = {{"skin", 0.35}, {"cones", 0.55}};
   return s;
@@ -314,6 +315,7 @@ struct Scene::Impl {
   };
   std::vector<LinkActor> links;
   std::vector<int> highlighted, near;
+  bool pointer_shown = false;
 
   Group& GetGroup(const std::string& name) {
     for (Group& g : groups)
@@ -364,7 +366,7 @@ struct Scene::Impl {
       vtkProperty* p = actor->GetProperty();
       p->SetColor(colour.data());
       p->SetOpacity(style.Opacity(g.name));
-      actor->SetVisibility(style.Visible(g.name));
+      actor->SetVisibility(style.Visible(g.name) && (g.name != "pointer" || pointer_shown));
       // Closed surfaces are seen from outside only: a camera inside one (the endoscope in the
       // chest, a scope tip at a port) looks through it.
       p->SetBackfaceCulling(g.name == "skin" || g.name == "ports" || g.name == "pivots");
@@ -517,6 +519,26 @@ Scene::Scene(std::shared_ptr<const patient::PatientModel> patient,
     impl_->BuildFloor();
   }
   if (impl_->robot) impl_->BuildRobot();
+  // The teaching pointer: its tip a sphere, its body a cone behind the tip along its -z; hidden
+  // until placed.
+  vtkNew<vtkAppendPolyData> pointer;
+  pointer->AddInputData(Sphere(Eigen::Vector3d::Zero(), 0.004));
+  vtkNew<vtkConeSource> body;
+  body->SetCenter(0, 0, -0.0165);
+  body->SetDirection(0, 0, 1);  // apex toward the tip
+  body->SetHeight(0.025);
+  body->SetRadius(0.004);
+  body->SetResolution(20);
+  pointer->AddInputData(Output(body));
+  impl_->Add("pointer", Output(pointer));
+}
+
+void Scene::SetPointer(const Eigen::Isometry3d& X_WP, bool visible) {
+  impl_->pointer_shown = visible;
+  if (auto* g = impl_->FindGroup("pointer")) {
+    for (auto& a : g->actors) a->SetUserMatrix(ToVtk(X_WP));
+    impl_->ApplyStyle(*g);
+  }
 }
 
 Scene::~Scene() = default;

@@ -101,6 +101,9 @@ class Scene {
   void SetRobotState(const robot::RobotState& state);
   const robot::RobotState* robot_state() const;
 
+  /// The teaching pointer (thesis §6.3.3; group "pointer"): its tip at `X_WP`'s origin, its body
+  /// along -z; hidden until placed. Every view of the scene shows it.
+  void SetPointer(const Eigen::Isometry3d& X_WP, bool visible = true);
   /// Highlights robot links (by index): `colliding` in the "collision" colour, `near` (near
   /// misses) in the "near_miss" colour; the others back to theirs.
   void HighlightLinks(const std::vector<int>& colliding, const std::vector<int>& near = {});

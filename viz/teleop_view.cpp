@@ -19,6 +19,8 @@
 #include <vtkRenderWindowInteractor.h>
 #include <vtkInteractorStyle.h>
 #include <vtkRenderer.h>
+#include <vtkTextActor.h>
+#include <vtkTextProperty.h>
 
 #include <unistd.h>
 
@@ -107,15 +109,31 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
   vtkNew<vtkRenderer> renderer;
   scene->AddTo(renderer);
   render_window->AddRenderer(renderer);
+  // The endoscope's view on the right half, when asked for: the same actors (the pointer too).
+  vtkNew<vtkRenderer> scope;
+  if (options.endoscope) {
+    renderer->SetViewport(0, 0, 0.5, 1);
+    scope->SetViewport(0.5, 0, 1, 1);
+    scene->AddTo(scope);
+    render_window->AddRenderer(scope);
+    scope->SetInteractive(0);
+  }
   vtkInteractorStyle* style = NewThesisCameraStyle();
   render_window->GetInteractor()->SetInteractorStyle(style);
   style->Delete();
   window.setCentralWidget(widget);
   auto* status = new QLabel;
   window.statusBar()->addWidget(status, 1);
+  // The devices' overlay: top left of the 3D view, over the scene.
+  vtkNew<vtkTextActor> overlay;
+  overlay->GetTextProperty()->SetFontSize(14);
+  overlay->GetTextProperty()->SetColor(1.0, 1.0, 0.85);
+  overlay->SetDisplayPosition(8, 8);
+  if (options.overlay) renderer->AddViewProp(overlay);
   KeyFilter filter(keyboard);
   app.installEventFilter(&filter);
-  Scene::Apply(scene->ExternalCamera(double(options.width) / options.height), renderer);
+  const double aspect = double(options.width) / options.height / (options.endoscope ? 2.0 : 1.0);
+  Scene::Apply(scene->ExternalCamera(aspect), renderer);
 
   // The render side's own kinematics state: the control thread's is never touched.
   const robot::RobotModel& robot = *scene->robot();
@@ -133,11 +151,15 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
       if (snap.q.size() == robot.num_positions() && kinematics::ForwardKinematics(robot, snap.q, &state).ok) {
         scene->SetRobotState(state);
         if (options.on_frame) extra = options.on_frame(state);
+        if (options.endoscope) Scene::Apply(scene->OnFrame(*options.endoscope), scope, &*options.endoscope);
       }
+      if (options.pointer_channel >= 0 && options.pointer_channel < static_cast<int>(snap.channels.size()))
+        scene->SetPointer(snap.channels[options.pointer_channel].X_WD);
       status->setText(QString("t = %1 s").arg(snap.t, 0, 'f', 2) +
                       (snap.status == control::SampleStatus::kFollowing ? "" : " (holding)") +
                       (extra.empty() ? QString() : "  ·  " + QString::fromStdString(extra)));
     }
+    if (options.overlay) overlay->SetInput(options.overlay().c_str());
     render_window->Render();
     ++stats.frames;
     if (finished()) {

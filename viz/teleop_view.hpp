@@ -8,6 +8,7 @@
 #include <atomic>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <string>
 
 #include "control/device_input.hpp"
@@ -24,6 +25,13 @@ struct TeleopViewOptions {
   /// Called on each frame with the pose shown (after the scene has it): what to add to the status
   /// line (e.g. the pose's collisions, highlighted by the callback).
   std::function<std::string(const robot::RobotState&)> on_frame;
+  /// Called on each frame: a status text of its own (e.g. each network device's rate, drops and
+  /// latency), shown in the window's overlay.
+  std::function<std::string()> overlay;
+  /// Index into the snapshots' channels of a teaching pointer (-1: none): drawn where it is.
+  int pointer_channel = -1;
+  /// When set, an endoscope view beside the external one, from this robot frame.
+  std::optional<FrameCamera> endoscope;
 };
 
 struct TeleopViewStats {

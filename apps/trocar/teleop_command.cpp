@@ -21,6 +21,8 @@
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/start_configuration.hpp"
 #include "robot/load_robot.hpp"
+#include "control/device_config.hpp"
+#include "control/force_feedback.hpp"
 #include "control/igtl_device.hpp"
 #include "scene.hpp"
 #include "view_inputs.hpp"
@@ -56,6 +58,205 @@ struct TeleopCommandOptions {
   std::string plan;     ///< teleoperate an arm of a plan, in its patient
   int plan_index = 1;
   std::string arm;      ///< which arm of the plan ("": its first instrument)
+  std::string devices;  ///< a device file: which device drives which arm (docs/network-devices.md)
+  double feedback_rate = 100.0;  ///< Hz: force feedback and pose streaming
+};
+
+/// One driven arm: the robot with its tool at the arm's tool frame.
+struct DrivenArm {
+  std::string name;          ///< the plan's arm name, or the robot's frame
+  std::shared_ptr<const robot::RobotModel> model;
+  std::vector<int> positions;  ///< the joints it moves (indices into q)
+  const control::DeviceBinding* binding = nullptr;
+};
+
+/// The robot of `builder` with its tool at the frame `frame` (a named frame or a link).
+std::shared_ptr<const robot::RobotModel> WithTool(robot::RobotModelBuilder builder, const robot::RobotModel& plain,
+                                                  const std::string& frame, const std::string& where) {
+  if (frame == "tool" || frame == plain.tool_frame().name) return std::make_shared<const robot::RobotModel>(plain);
+  const robot::Frame* f = nullptr;
+  try {
+    f = &plain.GetFrame(frame);
+  } catch (const Error& e) {
+    TROCAR_THROW(where << ": " << e.what());
+  }
+  robot::RobotModelBuilder::FrameSpec tool;
+  tool.name = frame + "_teleop_tool";  // the frame stays a frame of its own
+  tool.link = plain.link(f->link).name;
+  tool.X_LF = f->X_LF;
+  builder.SetTool(tool);
+  return std::make_shared<const robot::RobotModel>(builder.Build());
+}
+
+/// "|F| 1.2 N (near psm1_tool_shaft - heart; insertion limit)" style words for a cue's reasons.
+std::string Reasons(unsigned r) {
+  std::string out;
+  auto add = [&](const char* w) { out += (out.empty() ? "" : ", ") + std::string(w); };
+  if (r & control::ForceCue::kNear) add("nearness");
+  if (r & control::ForceCue::kJointLimit) add("joint limit");
+  if (r & control::ForceCue::kInsertionLimit) add("insertion limit");
+  return out.empty() ? "none" : out;
+}
+
+struct FeedbackStats {
+  long updates = 0;
+  long forces_sent = 0;
+  long poses_streamed = 0;
+  double max_force = 0.0;  ///< N
+  unsigned reasons = 0;    ///< every ForceCue reason seen
+  double nearest = std::numeric_limits<double>::infinity();  ///< m, the arms' nearest approach
+  std::string nearest_pair;
+  double total_update_time = 0.0, max_update_time = 0.0;  ///< s per update
+  long silences = 0, resumptions = 0;
+};
+
+/// LPS (the patient frame, metres) to RAS (3D Slicer's): a half turn about z.
+Eigen::Isometry3d RasFromLps() {
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.linear() = Eigen::Vector3d(-1, -1, 1).asDiagonal();
+  return X;
+}
+
+/// The feedback thread's work (see RunTeleop): until `done`, at o.feedback_rate, on the newest
+/// control step: each arm's force cue to its device as SENSOR (N, device frame), every arm's tool
+/// and the pointer as TRANSFORM to every connection (the patient's CT frame in RAS millimetres,
+/// as 3D Slicer takes them; the world's without a patient), and word of silent devices.
+void RunFeedback(const TeleopCommandOptions& o, control::IgtlDeviceServer& server, const std::vector<DrivenArm>& arms,
+                 const std::vector<control::SessionChannel>& channels, const std::vector<std::string>& devices,
+                 const std::vector<control::NetworkDeviceInput*>& network, const viz::LoadedView* plan_view,
+                 robot::RobotState state, control::TripleBuffer<control::SessionSnapshot>* buffer,
+                 const std::atomic<bool>& done, FeedbackStats* stats) {
+  const robot::RobotModel& fk_model = plan_view ? *plan_view->robot : *arms.front().model;
+  std::unique_ptr<planners::PlanCollisions> collisions;
+  if (plan_view)
+    collisions = std::make_unique<planners::PlanCollisions>(*plan_view->patient, plan_view->robot, *plan_view->plan,
+                                                            static_cast<std::size_t>(o.plan_index - 1));
+  std::vector<control::ForceFeedback> cues;
+  std::vector<int> tool_links;
+  for (const DrivenArm& arm : arms) {
+    std::vector<int> positions = arm.positions;
+    if (positions.empty()) positions = control::ArmPositions(*arm.model, arm.model->tool_frame().link);
+    cues.emplace_back(*arm.model, positions);
+    tool_links.push_back(arm.model->tool_frame().link);
+  }
+  // What is streamed: every arm of the plan (or the driven arms), by name.
+  std::vector<std::pair<std::string, robot::Frame>> streamed;
+  if (plan_view) {
+    for (const auto& a : plan_view->plan->arms) streamed.push_back({a.name, fk_model.GetFrame(a.tool_frame)});
+  } else {
+    for (const DrivenArm& arm : arms) streamed.push_back({arm.name, arm.model->tool_frame()});
+  }
+  const Eigen::Isometry3d X_out_W =
+      plan_view ? RasFromLps() * plan_view->patient->X_WP.inverse() : Eigen::Isometry3d::Identity();
+  const std::uint64_t newton = control::IgtlNewtonUnit();
+  std::vector<bool> heard(channels.size(), false), silent(channels.size(), true);
+  control::SessionSnapshot snap;
+  const auto period = std::chrono::duration<double>(1.0 / o.feedback_rate);
+  auto next = std::chrono::steady_clock::now();
+  while (!done.load()) {
+    next += std::chrono::duration_cast<std::chrono::steady_clock::duration>(period);
+    std::this_thread::sleep_until(next);
+    if (std::chrono::steady_clock::now() > next + 10 * period) next = std::chrono::steady_clock::now();
+    // Devices going silent and coming back: said as it happens.
+    for (std::size_t i = 0; i < network.size() && i < channels.size(); ++i) {
+      const bool now = network[i]->silent();
+      if (now == silent[i]) continue;
+      silent[i] = now;
+      const std::string who = "device '" + (devices[i].empty() ? std::string("(first)") : devices[i]) + "'";
+      if (now && heard[i]) {
+        ++stats->silences;
+        std::cerr << "warning: " << who << " is silent: " << channels[i].name << " holds\n";
+      } else if (!now) {
+        if (heard[i]) {
+          ++stats->resumptions;
+          std::cerr << who << " is back: " << channels[i].name << " re-anchored where it held\n";
+        }
+        heard[i] = true;
+      }
+    }
+    if (!buffer->Read(&snap) || snap.q.size() != fk_model.num_positions()) continue;
+    const auto t0 = std::chrono::steady_clock::now();
+    if (!kinematics::ForwardKinematics(fk_model, snap.q, &state).ok) continue;
+    std::vector<collision::Clearance> near;
+    if (collisions) near = collisions->ArmsNearest(state, tool_links);
+    for (std::size_t i = 0; i < arms.size(); ++i) {
+      control::ArmNearness n;
+      if (i < near.size() && near[i].valid()) {
+        n.distance = near[i].distance;
+        n.p_W_arm = near[i].p_W_a;
+        n.p_W_other = near[i].p_W_b;
+        if (n.distance < stats->nearest) {
+          stats->nearest = n.distance;
+          stats->nearest_pair = collisions->PairName(near[i]);
+        }
+      }
+      const control::ForceCue cue = cues[i].Compute(state, arms[i].model->tool_frame(), n);
+      stats->reasons |= cue.reasons;
+      const Eigen::Vector3d f_D = control::ForceFeedback::InDevice(cue.f_W, channels[i].mapping.R_WC);
+      stats->max_force = std::max(stats->max_force, f_D.norm());
+      std::string name = devices[i];
+      if (name.empty()) {
+        control::DeviceSample s;
+        std::uint64_t seq = 0;
+        std::chrono::steady_clock::time_point arrival;
+        server.Latest("", &s, &seq, &arrival, &name);
+      }
+      if (!name.empty() && server.Send(name, control::IgtlSensorMessage(name, {f_D.x(), f_D.y(), f_D.z()}, newton)))
+        ++stats->forces_sent;
+    }
+    for (const auto& [name, frame] : streamed) {
+      server.Broadcast(control::IgtlTransformMessage(name, X_out_W * kinematics::FramePose(state, frame), 0.001));
+      ++stats->poses_streamed;
+    }
+    for (std::size_t i = 0; i < channels.size(); ++i) {
+      if (channels[i].loop) continue;  // the pointer
+      server.Broadcast(control::IgtlTransformMessage(channels[i].name, X_out_W * snap.channels[i].X_WD, 0.001));
+      ++stats->poses_streamed;
+    }
+    const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    stats->total_update_time += took;
+    stats->max_update_time = std::max(stats->max_update_time, took);
+    ++stats->updates;
+  }
+}
+
+/// The window's overlay: each device's message rate, drops, latency, and whether it is silent.
+class DeviceOverlay {
+ public:
+  DeviceOverlay(const control::IgtlDeviceServer* server, std::vector<std::string> devices,
+                std::vector<control::NetworkDeviceInput*> network)
+      : server_(server), devices_(std::move(devices)), network_(std::move(network)) {}
+  std::string Text() {
+    if (!server_) return "";
+    const auto now = std::chrono::steady_clock::now();
+    const double dt = std::chrono::duration<double>(now - last_time_).count();
+    if (dt >= 0.5) {  // rates over half a second
+      const auto counters = server_->Counters();
+      std::ostringstream text;
+      text << std::fixed << std::setprecision(1);
+      for (std::size_t i = 0; i < devices_.size(); ++i) {
+        const std::string& d = devices_[i];
+        const auto it = counters.find(d);
+        const control::DeviceCounters c = it == counters.end() ? control::DeviceCounters{} : it->second;
+        const double rate = (c.messages - last_messages_[d]) / dt;
+        last_messages_[d] = c.messages;
+        text << (d.empty() ? "device" : d) << ": " << std::setprecision(0) << rate << " Hz, " << c.drops()
+             << " dropped, latency " << std::setprecision(2) << network_[i]->last_latency() * 1e3 << " ms"
+             << (network_[i]->silent() ? "  SILENT (arm holds)" : "") << "\n";
+      }
+      text_ = text.str();
+      last_time_ = now;
+    }
+    return text_;
+  }
+
+ private:
+  const control::IgtlDeviceServer* server_;
+  std::vector<std::string> devices_;
+  std::vector<control::NetworkDeviceInput*> network_;
+  std::chrono::steady_clock::time_point last_time_ = std::chrono::steady_clock::now();
+  std::map<std::string, long> last_messages_;
+  std::string text_;
 };
 
 int RunTeleop(const TeleopCommandOptions& o) {
@@ -66,8 +267,27 @@ int RunTeleop(const TeleopCommandOptions& o) {
   std::unique_ptr<viz::LoadedView> plan_view;
   std::vector<std::pair<std::string, double>> held;
   Eigen::Isometry3d X_WB = Eigen::Isometry3d::Identity();
-  std::shared_ptr<const robot::RobotModel> shared_model;
-  std::string plan_arm;
+  std::optional<control::DeviceConfig> config;
+  if (!o.devices.empty()) {
+    TROCAR_THROW_UNLESS(!o.listen.empty(), "--devices maps network devices to arms: give --listen too");
+    TROCAR_THROW_UNLESS(o.device.empty() && o.arm.empty(),
+                        "--devices names the devices and their arms: give no --device or --arm");
+    config = control::ReadDeviceConfig(o.devices);
+  }
+  std::string robot_file;
+  // The arms to drive: with a device file, its arms; else the one arm (--arm, or the plan's first
+  // instrument, or the robot's tool).
+  std::vector<std::string> arm_names;
+  std::vector<const control::DeviceBinding*> bindings;
+  if (config) {
+    for (const auto& b : config->devices) {
+      if (b.pointer) continue;
+      arm_names.push_back(b.arm);
+      bindings.push_back(&b);
+    }
+    TROCAR_THROW_UNLESS(!arm_names.empty(), o.devices << ": no device drives an arm (only pointers)");
+  }
+  std::map<std::string, std::string> tool_of_arm;  // arm name -> robot frame
   if (!o.plan.empty()) {
     TROCAR_THROW_UNLESS(o.robot.empty(), "--plan names its robot: give no --robot");
     viz::ViewInputs in;
@@ -76,35 +296,65 @@ int RunTeleop(const TeleopCommandOptions& o) {
     in.case_dir = planners::ReadPlanFile(o.plan).case_dir;
     plan_view = std::make_unique<viz::LoadedView>(viz::LoadView(in));
     const planners::PlanFile& file = *plan_view->plan;
-    const planners::StoredArm* arm = nullptr;
-    for (const auto& a : file.arms)
-      if ((o.arm.empty() && a.role == "instrument" && !arm) || a.name == o.arm) arm = &a;
-    TROCAR_THROW_UNLESS(arm, o.plan << ": no arm '" << o.arm << "' (arms: " << [&] {
-      std::string names;
-      for (const auto& a : file.arms) names += (names.empty() ? "" : ", ") + a.name;
-      return names;
-    }() << ")");
-    plan_arm = arm->name;
-    robot::RobotModelBuilder builder = robot::LoadRobotDescription(file.robot_file, load);
-    bool found = false;
-    for (const auto& f : builder.frames()) {
-      if (f.name == arm->tool_frame) {
-        robot::RobotModelBuilder::FrameSpec tool = f;
-        tool.name = arm->name + "_teleop_tool";  // the arm's tool frame stays a frame of its own
-        builder.SetTool(tool);
-        found = true;
-      }
+    std::string names;
+    for (const auto& a : file.arms) {
+      names += (names.empty() ? "" : ", ") + a.name;
+      tool_of_arm[a.name] = a.tool_frame;
     }
-    TROCAR_THROW_UNLESS(found, o.plan << ": arm " << arm->name << "'s tool frame '" << arm->tool_frame
-                                      << "' is not a frame of " << file.robot_file);
-    shared_model = std::make_shared<const robot::RobotModel>(builder.Build());
+    if (!config) {
+      const planners::StoredArm* arm = nullptr;
+      for (const auto& a : file.arms)
+        if ((o.arm.empty() && a.role == "instrument" && !arm) || a.name == o.arm) arm = &a;
+      TROCAR_THROW_UNLESS(arm, o.plan << ": no arm '" << o.arm << "' (arms: " << names << ")");
+      arm_names.push_back(arm->name);
+    }
+    for (std::size_t i = 0; i < arm_names.size(); ++i)
+      TROCAR_THROW_UNLESS(tool_of_arm.count(arm_names[i]),
+                          (config ? o.devices + ": device '" + bindings[i]->name + "'" : o.plan)
+                              << ": no arm '" << arm_names[i] << "' in " << o.plan << " (arms: " << names << ")");
+    robot_file = file.robot_file;
     const planners::StoredPlan& plan = file.plans[o.plan_index - 1];
     held = plan.setup_joints;
     X_WB = plan.X_WB;
   } else {
     TROCAR_THROW_UNLESS(!o.robot.empty(), "teleop: give --robot FILE, or --plan PLAN.json");
-    shared_model = std::make_shared<const robot::RobotModel>(robot::LoadRobot(o.robot, load));
+    TROCAR_THROW_UNLESS(o.arm.empty(), "--arm names an arm of a plan: give --plan, or a device file (--devices)");
+    robot_file = o.robot;
+    if (!config) arm_names.push_back("tool");
+    for (const auto& n : arm_names) tool_of_arm[n] = n;  // a frame of the robot
   }
+  const robot::RobotModelBuilder builder = robot::LoadRobotDescription(robot_file, load);
+  const robot::RobotModel plain = builder.Build();
+  std::vector<DrivenArm> arms;
+  for (std::size_t i = 0; i < arm_names.size(); ++i) {
+    DrivenArm arm;
+    arm.name = arm_names[i];
+    arm.binding = config ? bindings[i] : nullptr;
+    const std::string where = config ? o.devices + ": device '" + bindings[i]->name + "', arm '" + arm.name + "'"
+                                     : (o.plan.empty() ? robot_file : o.plan + ": arm " + arm.name);
+    if (!o.plan.empty()) {
+      robot::RobotModelBuilder::FrameSpec tool;  // the arm's tool frame stays a frame of its own
+      const robot::Frame& f = [&]() -> const robot::Frame& {
+        try {
+          return plain.GetFrame(tool_of_arm[arm.name]);
+        } catch (const Error& e) {
+          TROCAR_THROW(where << ": tool frame '" << tool_of_arm[arm.name] << "' is not a frame of " << robot_file);
+        }
+      }();
+      tool.name = arm.name + "_teleop_tool";
+      tool.link = plain.link(f.link).name;
+      tool.X_LF = f.X_LF;
+      robot::RobotModelBuilder b = builder;
+      b.SetTool(tool);
+      arm.model = std::make_shared<const robot::RobotModel>(b.Build());
+    } else {
+      arm.model = WithTool(builder, plain, arm.name, where);
+    }
+    arm.positions = control::ArmPositions(*arm.model, arm.model->tool_frame().link);
+    if (arm_names.size() == 1) arm.positions.clear();  // one arm moves the whole robot
+    arms.push_back(std::move(arm));
+  }
+  std::shared_ptr<const robot::RobotModel> shared_model = arms.front().model;
   const robot::RobotModel& model = *shared_model;
   // The robot's home, or one chosen away from limits and singularities; --q0 overrides both.
   kinematics::StartConfiguration start = plan_view ? kinematics::StartConfiguration{} : kinematics::ChooseStart(model);
@@ -112,7 +362,9 @@ int RunTeleop(const TeleopCommandOptions& o) {
   if (plan_view) {
     q0 = plan_view->scene->robot_state()->q;  // the plan's nominal pose (same joints, same order)
     start.q = q0;
-    start.basis = "the nominal pose of plan " + std::to_string(o.plan_index) + ", arm " + plan_arm;
+    start.basis = "the nominal pose of plan " + std::to_string(o.plan_index) + ", arm" +
+                  (arms.size() > 1 ? "s" : "");
+    for (const auto& arm : arms) start.basis += " " + arm.name;
   }
   if (!o.q0.empty()) {
     TROCAR_THROW_UNLESS(static_cast<int>(o.q0.size()) == model.num_positions(),
@@ -137,7 +389,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
     fallback = tuned.gains;
     std::string saved;
     try {
-      saved = "saved to " + control::SaveControllerGains(o.robot, "jt", tuned.gains);
+      saved = "saved to " + control::SaveControllerGains(robot_file, "jt", tuned.gains);
     } catch (const Error& e) {
       saved = std::string("not saved: ") + e.what();
     }
@@ -146,43 +398,77 @@ int RunTeleop(const TeleopCommandOptions& o) {
          << ", " << saved << "\n";
     tuned_note = note.str();
   }
-  control::ControlLoop loop(model, control::MakeController(o.controller, model, fallback), q0, X_WB, held);
+  std::vector<std::unique_ptr<control::ControlLoop>> loops;
+  for (const auto& arm : arms)
+    loops.push_back(std::make_unique<control::ControlLoop>(
+        *arm.model, control::MakeController(o.controller, *arm.model, fallback), q0, X_WB, held));
 
-  std::unique_ptr<control::DeviceInput> input;
+  std::vector<std::unique_ptr<control::DeviceInput>> inputs;  // one per channel
   std::optional<double> step_time;
   const bool is_file = o.input.size() > 4 && o.input.substr(o.input.size() - 4) == ".csv";
   viz::KeyboardInput* keyboard = nullptr;
   std::unique_ptr<control::IgtlDeviceServer> server;
-  control::NetworkDeviceInput* network = nullptr;
+  std::vector<control::NetworkDeviceInput*> network;  // per channel, with --listen
+  std::vector<std::string> channel_devices;           // the device of each channel
+  int pointer_channel = -1;
   if (!o.listen.empty()) {
     control::IgtlServerOptions so;
     control::ParseListenAddress(o.listen, &so);
     TROCAR_THROW_UNLESS(std::isfinite(o.units) && o.units > 0, "--units " << o.units << ": expected metres per device unit, > 0");
     so.default_units = o.units;
+    if (config)
+      for (const auto& b : config->devices) so.units[b.name] = b.units;
     server = std::make_unique<control::IgtlDeviceServer>(so);
-    std::cout << "listening on " << server->address() << ":" << server->port() << " (OpenIGTLink) for "
-              << (o.device.empty() ? "the first device" : "device " + o.device) << std::endl;
-    // The session starts with the first pose, so that its clock is the device's.
+    std::string who = o.device.empty() ? "the first device" : "device " + o.device;
+    if (config) {
+      who.clear();
+      for (const auto& b : config->devices)
+        who += (who.empty() ? "" : ", ") + b.name + (b.pointer ? " (pointer)" : " -> " + b.arm);
+    }
+    std::cout << "listening on " << server->address() << ":" << server->port() << " (OpenIGTLink) for " << who
+              << std::endl;
+    // The session starts with the first pose, so that its clock is the device's. Devices that
+    // have not spoken yet hold their arms until they do.
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(o.wait);
     control::DeviceSample s;
     std::uint64_t sequence = 0;
     std::chrono::steady_clock::time_point arrival;
-    while (!server->Latest(o.device, &s, &sequence, &arrival)) {
+    auto any = [&] {
+      if (!config) return server->Latest(o.device, &s, &sequence, &arrival);
+      for (const auto& b : config->devices)
+        if (server->Latest(b.name, &s, &sequence, &arrival)) return true;
+      return false;
+    };
+    while (!any()) {
       TROCAR_THROW_UNLESS(std::chrono::steady_clock::now() < deadline,
                           "no device sent a pose to " << server->address() << ":" << server->port()
                                                       << " within " << o.wait << " s");
       std::this_thread::sleep_for(std::chrono::milliseconds(1));
     }
-    auto n = std::make_unique<control::NetworkDeviceInput>(server.get(), o.device);
-    network = n.get();
-    input = std::move(n);
+    auto add = [&](const std::string& device) {
+      auto n = std::make_unique<control::NetworkDeviceInput>(server.get(), device);
+      network.push_back(n.get());
+      channel_devices.push_back(device);
+      inputs.push_back(std::move(n));
+    };
+    if (config) {
+      for (const auto* b : bindings) add(b->name);
+      for (const auto& b : config->devices) {
+        if (!b.pointer) continue;
+        TROCAR_THROW_UNLESS(pointer_channel < 0, o.devices << ": device '" << b.name << "': one pointer at most");
+        pointer_channel = static_cast<int>(inputs.size());
+        add(b.name);
+      }
+    } else {
+      add(o.device);
+    }
   } else if (o.input == "keyboard") {
     TROCAR_THROW_UNLESS(o.view, "--input keyboard needs --view (the window takes the keys)");
     auto k = std::make_unique<viz::KeyboardInput>();
     keyboard = k.get();
-    input = std::move(k);
+    inputs.push_back(std::move(k));
   } else if (is_file) {
-    input = std::make_unique<control::CsvReplayInput>(o.input);
+    inputs.push_back(std::make_unique<control::CsvReplayInput>(o.input));
   } else {
     control::ScriptedMotion motion;
     motion.kind = control::ParseScriptedMotion(o.input);
@@ -190,8 +476,9 @@ int RunTeleop(const TeleopCommandOptions& o) {
                         "--amplitude " << o.amplitude << " must be positive");
     motion.amplitude = o.amplitude;
     if (motion.kind == control::ScriptedMotion::Kind::kStep) step_time = motion.step_time;
-    input = std::make_unique<control::ScriptedInput>(motion);
+    inputs.push_back(std::make_unique<control::ScriptedInput>(motion));
   }
+  control::DeviceInput* input = inputs.front().get();
   control::TeleopSessionOptions session;
   session.duration = o.duration;
   session.rate_hz = o.rate;
@@ -205,6 +492,34 @@ int RunTeleop(const TeleopCommandOptions& o) {
   session.mapping.max_jump = o.max_jump;
   if (!o.camera_rpy.empty()) {
     session.mapping.R_WC = RotationFromRpy(Eigen::Vector3d(o.camera_rpy[0], o.camera_rpy[1], o.camera_rpy[2]));
+  }
+  // The channels: each arm from its device (its scale and device-to-camera rotation), then the
+  // pointer.
+  std::vector<control::SessionChannel> channels;
+  for (std::size_t i = 0; i < inputs.size(); ++i) {
+    control::SessionChannel c;
+    c.input = inputs[i].get();
+    c.mapping = session.mapping;
+    const control::DeviceBinding* b = nullptr;
+    if (static_cast<int>(i) == pointer_channel) {
+      for (const auto& d : config->devices)
+        if (d.pointer) b = &d;
+      c.name = b->name;
+      c.X_WP_start = loops.front()->ToolPose();  // the pointer starts at the first instrument's tip
+      c.mapping.position_only = true;
+      c.mapping.R_WC = c.mapping.R_WC * b->R_CD;
+      if (b->scale) c.mapping.scale = *b->scale;
+    } else {
+      c.loop = loops[i].get();
+      c.name = arms[i].name;
+      c.positions = arms[i].positions;
+      b = arms[i].binding;
+      if (b) {
+        if (b->scale) c.mapping.scale = *b->scale;
+        c.mapping.R_WC = c.mapping.R_WC * b->R_CD;
+      }
+    }
+    channels.push_back(c);
   }
   if (!o.record.empty()) {  // fail before the run, not after it
     std::error_code ec;
@@ -226,8 +541,44 @@ int RunTeleop(const TeleopCommandOptions& o) {
   control::RunnerStats timing;
   session.realtime = o.realtime || o.view || server;  // a person or a device: the wall's clock
   session.runner_stats = &timing;
-  control::Recorder recorder;
+  std::vector<control::Recorder> recorders;
   viz::TeleopViewStats view_stats;
+
+  // Force feedback to each arm's device, the instruments' poses out to every connection (3D
+  // Slicer), and word of devices going silent: a thread of its own at --feedback-rate, reading
+  // the control thread's newest step and never blocking it.
+  std::atomic<bool> session_done{false};
+  FeedbackStats feedback;
+  control::TripleBuffer<control::SessionSnapshot> feedback_buffer;
+  std::thread feedback_thread;
+  std::exception_ptr feedback_failure;
+  // Copies made here, before any thread runs: the control thread and the window change theirs.
+  const robot::RobotState feedback_start = plan_view ? *plan_view->scene->robot_state() : loops.front()->state();
+  if (server) {
+    TROCAR_THROW_UNLESS(std::isfinite(o.feedback_rate) && o.feedback_rate >= 1 && o.feedback_rate <= 2000,
+                        "--feedback-rate " << o.feedback_rate << ": expected 1..2000 Hz");
+    session.feedback = &feedback_buffer;
+    feedback_thread = std::thread([&] {
+      try {
+        RunFeedback(o, *server, arms, channels, channel_devices, network, plan_view.get(), feedback_start,
+                    &feedback_buffer, session_done, &feedback);
+      } catch (...) {
+        feedback_failure = std::current_exception();
+      }
+    });
+  }
+  auto run_session = [&] {
+    try {
+      recorders = control::RunTeleopSession(channels, session);
+    } catch (...) {
+      session_done = true;
+      if (feedback_thread.joinable()) feedback_thread.join();
+      throw;
+    }
+    session_done = true;
+    if (feedback_thread.joinable()) feedback_thread.join();
+    if (feedback_failure) std::rethrow_exception(feedback_failure);
+  };
   if (o.view) {
     // The control thread runs the session; this thread renders what it publishes, never
     // waiting on it.
@@ -245,7 +596,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
     std::exception_ptr failure;
     std::thread control_thread([&] {
       try {
-        recorder = control::RunTeleopSession(&loop, input.get(), session);
+        run_session();
       } catch (...) {
         failure = std::current_exception();
       }
@@ -254,6 +605,17 @@ int RunTeleop(const TeleopCommandOptions& o) {
     viz::TeleopViewOptions vo;
     vo.fps = o.fps;
     vo.grab_path = o.grab;
+    vo.pointer_channel = pointer_channel;
+    if (plan_view) {
+      // The endoscope's view beside the external one, when the plan has an endoscope.
+      try {
+        viz::FrameCamera used;
+        viz::ViewCamera(*scene, viz::ViewSpec::Parse("endoscope"), 1.0,
+                        &plan_view->plan->plans[o.plan_index - 1], &used);
+        vo.endoscope = used;
+      } catch (const Error&) {
+      }
+    }
     long frames_in_collision = 0;
     if (plan_view && plan_view->collisions) {
       // Each frame's collisions by the plan's rules, highlighted and said.
@@ -264,6 +626,8 @@ int RunTeleop(const TeleopCommandOptions& o) {
         return viz::Describe(pose);
       };
     }
+    DeviceOverlay overlay(server.get(), channel_devices, network);
+    if (server) vo.overlay = [&] { return overlay.Text(); };
     try {
       view_stats = viz::RunTeleopView(scene, &snapshots, [&] { return done.load(); }, vo, keyboard);
       view_stats.frames_in_collision = frames_in_collision;
@@ -274,8 +638,9 @@ int RunTeleop(const TeleopCommandOptions& o) {
     control_thread.join();
     if (failure) std::rethrow_exception(failure);
   } else {
-    recorder = control::RunTeleopSession(&loop, input.get(), session);
+    run_session();
   }
+  const control::Recorder& recorder = recorders.front();
   const control::TrackingSummary s = recorder.Summarize(step_time);
 
   std::cout << std::setprecision(4);
@@ -307,6 +672,17 @@ int RunTeleop(const TeleopCommandOptions& o) {
   std::cout << "  samples: " << s.steps << " (" << s.dropped << " dropped, " << s.held
             << " held); a joint limit acted at " << limited_steps
             << (recorder.stride() > 1 ? " recorded" : "") << " steps\n";
+  for (std::size_t i = 1; i < recorders.size(); ++i) {
+    const control::TrackingSummary c = recorders[i].Summarize();
+    if (!channels[i].loop) {
+      std::cout << "  pointer '" << channels[i].name << "': " << c.steps << " steps, " << c.held << " held\n";
+      continue;
+    }
+    std::cout << "  arm " << channels[i].name << ": position error RMS " << c.rms_position_error * 1e3 << " mm, max "
+              << c.max_position_error * 1e3 << " mm; " << c.held << " steps held, " << c.dropped << " dropped\n";
+  }
+  if (recorders.size() > 1)
+    std::cout << "  (the lines above the arms' are arm " << channels[0].name << "'s)\n";
   if (recorder.stride() > 1) {
     std::cout << "  record thinned to every " << recorder.stride() << "th step ("
               << recorder.rows().size() << " rows; TROCAR_MAX_RECORDED_SAMPLES bounds it)\n";
@@ -323,16 +699,28 @@ int RunTeleop(const TeleopCommandOptions& o) {
       std::cout << "  device '" << name << "': " << c.messages << " poses, " << c.drops() << " dropped (crc "
                 << c.crc << ", malformed " << c.malformed << ", oversized " << c.oversized << ", unknown type "
                 << c.unknown_type << ", non-finite " << c.non_finite << ", truncated " << c.truncated << "), "
+                << c.buttons << " button messages, " << c.sent << " sent (" << c.send_drops << " not read), "
                 << c.connections << " connection" << (c.connections == 1 ? "" : "s") << "\n";
     }
-    std::vector<double> latency = network->latencies();
-    if (!latency.empty()) {
+    for (std::size_t i = 0; i < network.size(); ++i) {
+      std::vector<double> latency = network[i]->latencies();
+      if (latency.empty()) continue;
       std::sort(latency.begin(), latency.end());
       auto at = [&](double f) { return latency[std::min(latency.size() - 1, static_cast<std::size_t>(f * latency.size()))] * 1e3; };
-      std::cout << "  latency, arrival to command: median " << at(0.5) << " ms, p99 " << at(0.99) << " ms, max "
-                << latency.back() * 1e3 << " ms over " << latency.size() << " poses; silences "
-                << network->silences() << "\n";
+      std::cout << "  latency, arrival to command" << (network.size() > 1 ? " (" + channels[i].name + ")" : std::string())
+                << ": median " << at(0.5) << " ms, p99 " << at(0.99) << " ms, max " << latency.back() * 1e3
+                << " ms over " << latency.size() << " poses; silences " << network[i]->silences() << "\n";
     }
+    std::cout << "  feedback: " << feedback.updates << " updates at " << o.feedback_rate << " Hz (mean "
+              << feedback.total_update_time / std::max(1L, feedback.updates) * 1e3 << " ms, max "
+              << feedback.max_update_time * 1e3 << " ms), " << feedback.forces_sent << " force messages (max "
+              << feedback.max_force << " N; cues: " << Reasons(feedback.reasons) << "), " << feedback.poses_streamed
+              << " poses streamed (" << (plan_view ? "CT frame, RAS mm" : "world frame, mm") << ", "
+              << server->broadcast_drops() << " dropped); devices silent " << feedback.silences << " times, back "
+              << feedback.resumptions << " times";
+    if (std::isfinite(feedback.nearest))
+      std::cout << "; nearest approach " << feedback.nearest * 1e3 << " mm (" << feedback.nearest_pair << ")";
+    std::cout << "\n";
   }
   if (o.realtime || o.view || server) {
     std::cout << "  real time: " << timing.steps << " steps, mean period "
@@ -444,6 +832,14 @@ void AddTeleopCommand(CLI::App* app) {
                   "drive the robot from an OpenIGTLink device (TRANSFORM or POSITION): [ADDRESS:]PORT, "
                   "localhost unless an address is given (OpenIGTLink's usual port: 18944)");
   cmd->add_option("--device", o->device, "with --listen: the device's name (default: the first that sends)");
+  cmd->add_option("--devices", o->devices,
+                  "with --listen: a device file (YAML) mapping device names to arms (a plan's psm1, psm2, ecm; "
+                  "a robot's frames) or to a teaching pointer, with units, scale and device-to-camera rotation "
+                  "(docs/network-devices.md)");
+  cmd->add_option("--feedback-rate", o->feedback_rate,
+                  "with --listen: Hz of force feedback (SENSOR) to the devices and of instrument poses "
+                  "(TRANSFORM) to every connection")
+      ->capture_default_str();
   cmd->add_option("--wait", o->wait, "with --listen: seconds to wait for the first pose")->capture_default_str();
   cmd->add_option("--units", o->units,
                   "with --listen: metres per device unit (OpenIGTLink: mm, 0.001; the dVRK bridge: m, 1)")
@@ -463,6 +859,8 @@ void AddDeviceCommand(CLI::App* app) {
     std::string name = "device";
     std::string input = "circle";
     double duration = 5.0, rate = 1000.0, amplitude = 0.04, units = 0.001;
+    std::vector<std::string> clutch;  ///< "START:END" seconds with the clutch pressed
+    std::string log;                  ///< CSV of the force received
   };
   auto o = std::make_shared<DeviceOptions>();
   CLI::App* cmd = app->add_subcommand(
@@ -476,6 +874,10 @@ void AddDeviceCommand(CLI::App* app) {
   cmd->add_option("--rate", o->rate, "messages per second")->capture_default_str();
   cmd->add_option("--amplitude", o->amplitude, "scripted motion amplitude (m)")->capture_default_str();
   cmd->add_option("--units", o->units, "metres per unit sent (0.001: millimetres, OpenIGTLink's)")->capture_default_str();
+  cmd->add_option("--clutch", o->clutch,
+                  "START:END (s): hold the clutch in that window (repeatable); sent as the device's buttons "
+                  "(SENSOR: clutch, present), as is a CSV's clutch and present columns");
+  cmd->add_option("--log", o->log, "write what comes back (force, N, in the device frame) to this CSV");
   cmd->callback([o]() {
     control::IgtlServerOptions target;
     control::ParseListenAddress(o->connect, &target);
@@ -491,28 +893,71 @@ void AddDeviceCommand(CLI::App* app) {
       motion.amplitude = o->amplitude;
       input = std::make_unique<control::ScriptedInput>(motion);
     }
+    std::vector<std::pair<double, double>> windows;
+    for (const std::string& w : o->clutch) {
+      const auto colon = w.find(':');
+      double a = NAN, b = NAN;
+      try {
+        if (colon != std::string::npos) {
+          a = std::stod(w.substr(0, colon));
+          b = std::stod(w.substr(colon + 1));
+        }
+      } catch (const std::exception&) {
+      }
+      TROCAR_THROW_UNLESS(std::isfinite(a) && std::isfinite(b) && a >= 0 && b > a,
+                          "--clutch '" << w << "': expected START:END in seconds, END > START >= 0");
+      windows.push_back({a, b});
+    }
+    std::ostringstream log;
+    log << "t,fx,fy,fz\n";
     control::IgtlDeviceClient client(target.address, target.port);
     const auto start = std::chrono::steady_clock::now();
     const auto period = std::chrono::duration<double>(1.0 / o->rate);
-    long sent = 0;
+    long sent = 0, button_messages = 0, clutch_changes = 0;
+    int last_buttons = -1;
+    auto button_period = std::chrono::duration<double>(0.1);
+    auto next_buttons = start;
     for (long k = 0;; ++k) {
       const auto due = start + std::chrono::duration_cast<std::chrono::steady_clock::duration>(period * k);
       std::this_thread::sleep_until(due);
-      const double t = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      const auto now = std::chrono::steady_clock::now();
+      const double t = std::chrono::duration<double>(now - start).count();
       if (t > o->duration) break;
-      const control::DeviceSample s = input->Sample(t);
+      control::DeviceSample s = input->Sample(t);
+      for (const auto& [a, b] : windows) s.clutch = s.clutch || (t >= a && t < b);
+      // Buttons when they change, and every 0.1 s so that a trocar that joins late knows them.
+      const int buttons = (s.clutch ? 1 : 0) | (s.operator_present ? 2 : 0);
+      if (buttons != last_buttons || now >= next_buttons) {
+        if (last_buttons >= 0 && ((buttons ^ last_buttons) & 1)) ++clutch_changes;
+        if (!client.SendButtons(o->name, s.clutch, s.operator_present)) break;
+        ++button_messages;
+        last_buttons = buttons;
+        next_buttons = now + std::chrono::duration_cast<std::chrono::steady_clock::duration>(button_period);
+      }
       if (!client.SendPose(o->name, s.X_DH, o->units)) {
         std::cout << "device: the trocar closed the connection after " << sent << " messages\n";
         break;
       }
       ++sent;
+      if (!o->log.empty() && k % 10 == 0) {
+        client.Received();
+        std::vector<double> f;
+        if (client.LastSensor(o->name, &f) && f.size() >= 3)
+          log << t << "," << f[0] << "," << f[1] << "," << f[2] << "\n";
+      }
     }
-    std::cout << "device '" << o->name << "': sent " << sent << " TRANSFORM messages to " << o->connect << " in "
+    std::cout << "device '" << o->name << "': sent " << sent << " TRANSFORM and " << button_messages
+              << " button (SENSOR) messages (" << clutch_changes << " clutch changes) to " << o->connect << " in "
               << std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count() << " s; received";
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
     const auto& got = client.Received();
     if (got.empty()) std::cout << " nothing";
     for (const auto& [type, n] : got) std::cout << " " << n << " " << type;
-    std::cout << "\n";
+    std::cout << "; largest force " << client.max_force() << " N\n";
+    if (!o->log.empty()) {
+      WriteFileAtomically(o->log, log.str());
+      std::cout << "  force log: " << o->log << "\n";
+    }
   });
 }
 

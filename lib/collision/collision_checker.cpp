@@ -159,7 +159,11 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
 struct DistanceData {
   const CollisionWorld::Impl* world = nullptr;
   unsigned mask = 0;
+  int arm = -1;  ///< >= 0: only pairs with a body of this arm
   Clearance best;
+  bool OfArm(int a, int b) const {
+    return arm < 0 || world->bodies[a].arm == arm || world->bodies[b].arm == arm;
+  }
 };
 
 // FCL's distance between two objects, 0 with a contact point for both witnesses when touching.
@@ -202,7 +206,7 @@ bool DistancePair(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* ra
   auto& d = *static_cast<DistanceData*>(raw);
   int a = -1, b = -1;
   PairClass cls{};
-  if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls)) return false;
+  if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls) || !d.OfArm(a, b)) return false;
   if (PortPair(*d.world, a, b) >= 0) return false;  // zero at the port by design
   Eigen::Vector3d p_a, p_b;
   const double distance = FclDistance(o1, o2, &p_a, &p_b);
@@ -357,7 +361,7 @@ void CollisionChecker::State::DistanceRobotFixed(DistanceData& d) {
     for (int f : w.fixed_bodies) {
       PairClass cls{};
       const int a = std::min(r, f), b = std::max(r, f);
-      if (!ScreenPair(w, d.mask, a, b, &cls) || PortPair(w, a, b) >= 0) continue;
+      if (!ScreenPair(w, d.mask, a, b, &cls) || PortPair(w, a, b) >= 0 || !d.OfArm(a, b)) continue;
       const Convex::Kind fast = FastPath(w, r, f);
       if (fast == Convex::Kind::kOther) {
         others.push_back({AabbDistance(o_r->getAABB(), objects[f]->getAABB()), r, f});
@@ -476,7 +480,7 @@ CollisionReport CollisionChecker::Check(unsigned mask) {
   return d.report;
 }
 
-Clearance CollisionChecker::MinimumDistance(unsigned mask) {
+Clearance CollisionChecker::MinimumDistance(unsigned mask, int arm) {
   const CollisionWorld::Impl& w = world_->impl();
   TROCAR_THROW_UNLESS(w.options.bvh == BvhKind::kObbRss,
                       "collision checker: distance queries need an OBBRSS world (this one uses "
@@ -484,6 +488,7 @@ Clearance CollisionChecker::MinimumDistance(unsigned mask) {
   DistanceData d;
   d.world = &w;
   d.mask = mask;
+  d.arm = arm;
   if (state_->robot_tree.size() == 0) return d.best;
   state_->robot_tree.distance(&d, DistancePair);
   if (d.best.distance > 0.0) state_->DistanceRobotFixed(d);

@@ -216,8 +216,9 @@ class CollisionChecker {
   /// Every colliding pair among the classes in `mask`.
   CollisionReport Check(unsigned mask = kAllMovingPairs);
   /// Minimum distance over the pairs of the classes in `mask`, with witness points (needs an
-  /// OBBRSS world). Pairs in contact give 0.
-  Clearance MinimumDistance(unsigned mask = kAllMovingPairs);
+  /// OBBRSS world). Pairs in contact give 0. With `arm` >= 0 (an index into
+  /// CollisionWorld::arms()), only the pairs with a body of that arm.
+  Clearance MinimumDistance(unsigned mask = kAllMovingPairs, int arm = -1);
   /// The minimum distance of each class present in the world (index: PairClass).
   std::vector<Clearance> ClearanceByClass();
 

@@ -18,7 +18,9 @@
 
 #include <igtlMessageHeader.h>
 #include <igtlPositionMessage.h>
+#include <igtlSensorMessage.h>
 #include <igtlTransformMessage.h>
+#include <igtlUnit.h>
 
 #include "common/error.hpp"
 
@@ -43,13 +45,16 @@ std::string Field(const unsigned char* p, std::size_t n) {
 bool TakeMessage(const unsigned char* m, std::size_t body_size, double units, IgtlStreamParser::Pose* pose,
                  DeviceCounters* count) {
   const std::string type = Field(m + 2, 12);
-  const bool transform = type == "TRANSFORM", position = type == "POSITION";
-  if (!transform && !position) {
+  const bool transform = type == "TRANSFORM", position = type == "POSITION", sensor = type == "SENSOR";
+  if (!transform && !position && !sensor) {
     ++count->unknown_type;
     return false;
   }
+  // SENSOR (buttons): 1 byte count, 1 byte status, 8 bytes unit, then count float64 values.
+  const std::size_t sensor_values = sensor && body_size >= 10 ? m[kHeaderSize] : 0;
   if (m[0] != 0 || m[1] != 1 || (transform && body_size != 48) ||
-      (position && body_size != 12 && body_size != 24 && body_size != 28)) {
+      (position && body_size != 12 && body_size != 24 && body_size != 28) ||
+      (sensor && (sensor_values < 1 || sensor_values > 32 || body_size != 10 + 8 * sensor_values))) {
     ++count->malformed;
     return false;
   }
@@ -58,6 +63,30 @@ bool TakeMessage(const unsigned char* m, std::size_t body_size, double units, Ig
   std::memcpy(header->GetPackPointer(), m, kHeaderSize);
   header->Unpack();
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  if (sensor) {
+    igtl::SensorMessage::Pointer sm = igtl::SensorMessage::New();
+    sm->SetMessageHeader(header);
+    sm->AllocatePack();
+    std::memcpy(sm->GetPackBodyPointer(), m + kHeaderSize, body_size);
+    if (!(sm->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) {
+      ++count->crc;
+      return false;
+    }
+    pose->pressed = 0;
+    for (unsigned i = 0; i < sm->GetLength(); ++i) {
+      const double v = sm->GetValue(i);
+      if (!std::isfinite(v)) {
+        ++count->non_finite;
+        return false;
+      }
+      if (i == 0) pose->clutch = v != 0.0;
+      else if (i == 1) pose->present = v != 0.0;
+      else if (v != 0.0) pose->pressed |= 1u << (i - 2);
+    }
+    pose->device = Field(m + 14, 20);
+    pose->is_buttons = true;
+    return true;
+  }
   if (transform) {
     igtl::TransformMessage::Pointer t = igtl::TransformMessage::New();
     t->SetMessageHeader(header);
@@ -143,7 +172,7 @@ bool IgtlStreamParser::Feed(const unsigned char* data, std::size_t n, std::vecto
     last_name_ = name;
     Pose pose;
     if (TakeMessage(m, static_cast<std::size_t>(body), units_(name), &pose, &(*counters)[name])) {
-      ++(*counters)[name].messages;
+      ++(pose.is_buttons ? (*counters)[name].buttons : (*counters)[name].messages);
       poses->push_back(std::move(pose));
     }
     at += kHeaderSize + static_cast<std::size_t>(body);
@@ -190,6 +219,7 @@ struct IgtlDeviceServer::Impl {
   IgtlServerOptions options;
   int listen_fd = -1;
   int port = 0;
+  int wake[2] = {-1, -1};  ///< a pipe: another thread queued a message
   std::atomic<bool> stop{false};
   std::thread thread;
 
@@ -198,20 +228,31 @@ struct IgtlDeviceServer::Impl {
     std::uint64_t sequence = 0;
     std::chrono::steady_clock::time_point arrival;
     int connection = -1;  ///< the connection it last spoke on
+    bool clutch = false, present = true;
+    std::uint32_t pressed = 0;
+    bool has_pose = false;
   };
   mutable std::mutex mutex;
   std::map<std::string, Device> devices;
   std::map<std::string, DeviceCounters> counters;
   std::string first;  ///< the first device with a valid pose
   int next_connection_id = 0;
+  int open_connections = 0;
+  struct Outgoing {
+    int connection = -1;  ///< -1: every connection
+    std::string device;   ///< whose counters (unicast)
+    std::string bytes;
+  };
+  std::vector<Outgoing> outbox;  ///< under `mutex`
+  long broadcast_sent = 0, broadcast_drops = 0;
 
   struct Connection {
     int fd = -1;
     int id = 0;
     std::unique_ptr<IgtlStreamParser> parser;
+    std::string pending;  ///< bytes queued to send
   };
   std::vector<Connection> connections;
-
 
   /// New bytes of a connection: its poses taken, its drops counted. False: close it.
   bool Feed(Connection& c, const unsigned char* data, std::size_t n) {
@@ -222,21 +263,73 @@ struct IgtlDeviceServer::Impl {
     for (auto& pose : poses) {
       Device& d = devices[pose.device];
       if (d.connection != c.id) ++counters[pose.device].connections;
-      d.sample.X_DH = pose.X_DH;
-      d.sample.clutch = false;
-      d.sample.operator_present = true;
-      d.arrival = now;
       d.connection = c.id;
+      if (pose.is_buttons) {
+        d.clutch = pose.clutch;
+        d.present = pose.present;
+        d.pressed = pose.pressed;
+        continue;
+      }
+      d.sample.X_DH = pose.X_DH;
+      d.arrival = now;
+      d.has_pose = true;
       ++d.sequence;
       if (first.empty()) first = pose.device;
     }
     return keep;
   }
 
+  /// Appends a whole message to a connection's queue, or drops it whole. True when queued.
+  bool Queue(Connection& c, const std::string& bytes) {
+    if (c.pending.size() + bytes.size() > options.max_pending) return false;
+    c.pending += bytes;
+    return true;
+  }
+
+  /// Takes the other threads' messages into the connections' queues.
+  void TakeOutbox() {
+    std::vector<Outgoing> out;
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      out.swap(outbox);
+      for (Outgoing& o : out) {
+        if (o.connection < 0) {
+          bool all = true;
+          for (Connection& c : connections) all = Queue(c, o.bytes) && all;
+          ++(all ? broadcast_sent : broadcast_drops);
+          continue;
+        }
+        bool queued = false;
+        for (Connection& c : connections)
+          if (c.id == o.connection) queued = Queue(c, o.bytes);
+        ++(queued ? counters[o.device].sent : counters[o.device].send_drops);
+      }
+    }
+    char drain[256];
+    while (::read(wake[0], drain, sizeof(drain)) > 0) {
+    }
+  }
+
+  /// Sends what the socket takes now. False: the connection is gone.
+  static bool Flush(Connection& c) {
+    while (!c.pending.empty()) {
+      const ssize_t n = ::send(c.fd, c.pending.data(), c.pending.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+      if (n > 0) {
+        c.pending.erase(0, static_cast<std::size_t>(n));
+      } else if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR)) {
+        return true;
+      } else {
+        return false;
+      }
+    }
+    return true;
+  }
+
   void Close(Connection& c) {
     {
       std::lock_guard<std::mutex> lock(mutex);
       c.parser->Close(&counters);
+      --open_connections;
     }
     ::close(c.fd);
     c.fd = -1;
@@ -245,9 +338,12 @@ struct IgtlDeviceServer::Impl {
   void Run() {
     std::vector<unsigned char> chunk(1 << 16);
     while (!stop.load()) {
+      TakeOutbox();
       std::vector<pollfd> fds;
       fds.push_back({listen_fd, POLLIN, 0});
-      for (const Connection& c : connections) fds.push_back({c.fd, POLLIN, 0});
+      fds.push_back({wake[0], POLLIN, 0});
+      for (const Connection& c : connections)
+        fds.push_back({c.fd, static_cast<short>(POLLIN | (c.pending.empty() ? 0 : POLLOUT)), 0});
       const int n = ::poll(fds.data(), fds.size(), 20);
       if (n <= 0) continue;
       if (fds[0].revents & POLLIN) {
@@ -266,18 +362,21 @@ struct IgtlDeviceServer::Impl {
               return options.units.count(name) ? options.units.at(name) : options.default_units;
             });
             connections.push_back(std::move(c));
+            std::lock_guard<std::mutex> lock(mutex);
+            ++open_connections;
           }
         }
       }
       // Only the connections this poll watched: one accepted just now is read on the next.
-      const std::size_t polled = fds.size() - 1;
+      const std::size_t polled = fds.size() - 2;
       for (std::size_t i = 0; i < polled && i < connections.size(); ++i) {
-        const short events = fds[i + 1].revents;
+        const short events = fds[i + 2].revents;
         if (!events) continue;
         Connection& c = connections[i];
         bool open = true;
+        if (events & POLLOUT) open = Flush(c);
         // Read what is there, never more than one message's bound beyond a header.
-        while (open) {
+        while (open && (events & (POLLIN | POLLHUP | POLLERR))) {
           const ssize_t got = ::recv(c.fd, chunk.data(), chunk.size(), 0);
           if (got > 0) {
             open = Feed(c, chunk.data(), static_cast<std::size_t>(got));
@@ -291,11 +390,19 @@ struct IgtlDeviceServer::Impl {
         }
         if (!open) Close(c);
       }
+      // Queued messages go out now rather than at the next poll.
+      for (Connection& c : connections)
+        if (c.fd >= 0 && !c.pending.empty() && !Flush(c)) Close(c);
       connections.erase(std::remove_if(connections.begin(), connections.end(),
                                        [](const Connection& c) { return c.fd < 0; }),
                         connections.end());
     }
     for (Connection& c : connections) ::close(c.fd);
+  }
+
+  void Wake() {
+    const char one = 1;
+    [[maybe_unused]] const ssize_t n = ::write(wake[1], &one, 1);  // full pipe: already woken
   }
 };
 
@@ -321,6 +428,11 @@ IgtlDeviceServer::IgtlDeviceServer(const IgtlServerOptions& options) : impl_(std
                                            : std::strerror(e)));
   }
   ::fcntl(fd, F_SETFL, ::fcntl(fd, F_GETFL) | O_NONBLOCK);
+  if (::pipe(impl_->wake) != 0) {
+    ::close(fd);
+    TROCAR_THROW(where << ": cannot make the server's wake-up pipe: " << std::strerror(errno));
+  }
+  for (int end : impl_->wake) ::fcntl(end, F_SETFL, ::fcntl(end, F_GETFL) | O_NONBLOCK);
   socklen_t len = sizeof(addr);
   ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
   impl_->listen_fd = fd;
@@ -330,8 +442,11 @@ IgtlDeviceServer::IgtlDeviceServer(const IgtlServerOptions& options) : impl_(std
 
 IgtlDeviceServer::~IgtlDeviceServer() {
   impl_->stop = true;
+  impl_->Wake();
   if (impl_->thread.joinable()) impl_->thread.join();
   ::close(impl_->listen_fd);
+  ::close(impl_->wake[0]);
+  ::close(impl_->wake[1]);
 }
 
 int IgtlDeviceServer::port() const { return impl_->port; }
@@ -343,8 +458,10 @@ bool IgtlDeviceServer::Latest(const std::string& device, DeviceSample* sample, s
   const std::string& key = device.empty() ? impl_->first : device;
   auto it = impl_->devices.find(key);
   if (key.empty() && device.empty() && impl_->first.empty()) return false;
-  if (it == impl_->devices.end()) return false;
+  if (it == impl_->devices.end() || !it->second.has_pose) return false;
   *sample = it->second.sample;
+  sample->clutch = it->second.clutch;
+  sample->operator_present = it->second.present;
   *sequence = it->second.sequence;
   *arrival = it->second.arrival;
   if (name) *name = it->first;
@@ -354,6 +471,59 @@ bool IgtlDeviceServer::Latest(const std::string& device, DeviceSample* sample, s
 std::map<std::string, DeviceCounters> IgtlDeviceServer::Counters() const {
   std::lock_guard<std::mutex> lock(impl_->mutex);
   return impl_->counters;
+}
+
+bool IgtlDeviceServer::Buttons(const std::string& device, bool* clutch, bool* present,
+                               std::uint32_t* pressed) const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  auto it = impl_->devices.find(device.empty() ? impl_->first : device);
+  if (it == impl_->devices.end()) return false;
+  *clutch = it->second.clutch;
+  *present = it->second.present;
+  if (pressed) *pressed = it->second.pressed;
+  return true;
+}
+
+bool IgtlDeviceServer::Send(const std::string& device, std::string message) {
+  {
+    std::lock_guard<std::mutex> lock(impl_->mutex);
+    auto it = impl_->devices.find(device.empty() ? impl_->first : device);
+    if (it == impl_->devices.end() || it->second.connection < 0) return false;
+    // A queue already long (the server thread is not keeping up): dropped, counted.
+    if (impl_->outbox.size() > 4096) {
+      ++impl_->counters[it->first].send_drops;
+      return false;
+    }
+    impl_->outbox.push_back({it->second.connection, it->first, std::move(message)});
+  }
+  impl_->Wake();
+  return true;
+}
+
+void IgtlDeviceServer::Broadcast(std::string message) {
+  {
+    std::lock_guard<std::mutex> lock(impl_->mutex);
+    if (impl_->open_connections == 0) return;
+    if (impl_->outbox.size() > 4096) {
+      ++impl_->broadcast_drops;
+      return;
+    }
+    impl_->outbox.push_back({-1, "", std::move(message)});
+  }
+  impl_->Wake();
+}
+
+long IgtlDeviceServer::broadcast_sent() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->broadcast_sent;
+}
+long IgtlDeviceServer::broadcast_drops() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->broadcast_drops;
+}
+int IgtlDeviceServer::connections() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->open_connections;
 }
 
 NetworkDeviceInput::NetworkDeviceInput(const IgtlDeviceServer* server, std::string device, double silence)
@@ -377,12 +547,16 @@ DeviceSample NetworkDeviceInput::Sample(double t) {
   if (silent) {
     if (!silent_) ++silences_;
     silent_ = true;
+    silent_now_.store(true, std::memory_order_relaxed);
     s.operator_present = false;  // the arm holds; it re-anchors when the device speaks again
     return s;
   }
   silent_ = false;
+  silent_now_.store(false, std::memory_order_relaxed);
   if (sequence != last_sequence_) {
-    if (latencies_.size() < latencies_.capacity()) latencies_.push_back(std::chrono::duration<double>(now - arrival).count());
+    const double latency = std::chrono::duration<double>(now - arrival).count();
+    last_latency_.store(latency, std::memory_order_relaxed);
+    if (latencies_.size() < latencies_.capacity()) latencies_.push_back(latency);
     last_sequence_ = sequence;
   }
   return s;
@@ -426,19 +600,50 @@ bool IgtlDeviceClient::SendBytes(const std::string& bytes) {
   return true;
 }
 
-bool IgtlDeviceClient::SendPose(const std::string& device, const Eigen::Isometry3d& X_DH, double units) {
+std::string IgtlTransformMessage(const std::string& device, const Eigen::Isometry3d& X, double units) {
   igtl::TransformMessage::Pointer m = igtl::TransformMessage::New();
   m->SetDeviceName(device.c_str());
   igtl::Matrix4x4 matrix;
   for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) matrix[r][c] = static_cast<float>(X_DH.matrix()(r, c));
-  for (int r = 0; r < 3; ++r) matrix[r][3] = static_cast<float>(X_DH.translation()[r] / units);
+    for (int c = 0; c < 4; ++c) matrix[r][c] = static_cast<float>(X.matrix()(r, c));
+  for (int r = 0; r < 3; ++r) matrix[r][3] = static_cast<float>(X.translation()[r] / units);
   m->SetMatrix(matrix);
   igtl::TimeStamp::Pointer ts = igtl::TimeStamp::New();
   ts->GetTime();
   m->SetTimeStamp(ts);
   m->Pack();
-  return SendBytes(std::string(static_cast<const char*>(m->GetPackPointer()), static_cast<std::size_t>(m->GetPackSize())));
+  return std::string(static_cast<const char*>(m->GetPackPointer()), static_cast<std::size_t>(m->GetPackSize()));
+}
+
+std::string IgtlSensorMessage(const std::string& device, const std::vector<double>& values, std::uint64_t unit) {
+  TROCAR_THROW_UNLESS(!values.empty() && values.size() <= 255, "SENSOR message: 1 to 255 values, not " << values.size());
+  igtl::SensorMessage::Pointer m = igtl::SensorMessage::New();
+  m->SetDeviceName(device.c_str());
+  m->SetLength(static_cast<unsigned>(values.size()));
+  m->SetUnit(unit);
+  for (std::size_t i = 0; i < values.size(); ++i) m->SetValue(static_cast<unsigned>(i), values[i]);
+  igtl::TimeStamp::Pointer ts = igtl::TimeStamp::New();
+  ts->GetTime();
+  m->SetTimeStamp(ts);
+  m->Pack();
+  return std::string(static_cast<const char*>(m->GetPackPointer()), static_cast<std::size_t>(m->GetPackSize()));
+}
+
+std::uint64_t IgtlNewtonUnit() {
+  igtl::Unit::Pointer unit = igtl::Unit::New();
+  unit->SetPrefix(igtl::Unit::SI_PREFIX_NONE);
+  unit->Append(igtl::Unit::SI_DERIVED_NEWTON, 1);
+  return unit->Pack();
+}
+
+bool IgtlDeviceClient::SendPose(const std::string& device, const Eigen::Isometry3d& X_DH, double units) {
+  return SendBytes(IgtlTransformMessage(device, X_DH, units));
+}
+
+bool IgtlDeviceClient::SendButtons(const std::string& device, bool clutch, bool present, const std::vector<bool>& others) {
+  std::vector<double> values = {clutch ? 1.0 : 0.0, present ? 1.0 : 0.0};
+  for (bool b : others) values.push_back(b ? 1.0 : 0.0);
+  return SendBytes(IgtlSensorMessage(device, values));
 }
 
 const std::map<std::string, long>& IgtlDeviceClient::Received() {
@@ -451,18 +656,79 @@ const std::map<std::string, long>& IgtlDeviceClient::Received() {
   }
   std::size_t at = 0;
   while (buffer_.size() - at >= kHeaderSize) {
-    const std::uint64_t body = BigEndian64(buffer_.data() + at + 42);
+    const unsigned char* m = buffer_.data() + at;
+    const std::uint64_t body = BigEndian64(m + 42);
     if (body > (1u << 16)) {
       buffer_.clear();
       at = 0;
       break;
     }
     if (buffer_.size() - at < kHeaderSize + body) break;
-    ++received_[Field(buffer_.data() + at + 2, 12)];
+    const std::string type = Field(m + 2, 12), name = Field(m + 14, 20);
+    igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
+    header->InitPack();
+    std::memcpy(header->GetPackPointer(), m, kHeaderSize);
+    header->Unpack();
+    if (type == "SENSOR" && body >= 10) {
+      igtl::SensorMessage::Pointer sm = igtl::SensorMessage::New();
+      sm->SetMessageHeader(header);
+      sm->AllocatePack();
+      if (static_cast<std::uint64_t>(sm->GetPackBodySize()) == body) {
+        std::memcpy(sm->GetPackBodyPointer(), m + kHeaderSize, body);
+        if (sm->Unpack(1) & igtl::MessageHeader::UNPACK_BODY) {
+          std::vector<double> values(sm->GetLength());
+          double squared = 0.0;
+          for (unsigned i = 0; i < values.size(); ++i) {
+            values[i] = sm->GetValue(i);
+            if (i < 3) squared += values[i] * values[i];
+          }
+          if (sm->GetUnit() == IgtlNewtonUnit()) max_force_ = std::max(max_force_, std::sqrt(squared));
+          sensors_[name] = {std::move(values), sm->GetUnit()};
+          ++received_[type];
+        } else {
+          ++received_["SENSOR bad crc"];
+        }
+      }
+    } else if (type == "TRANSFORM" && body == 48) {
+      igtl::TransformMessage::Pointer t = igtl::TransformMessage::New();
+      t->SetMessageHeader(header);
+      t->AllocatePack();
+      std::memcpy(t->GetPackBodyPointer(), m + kHeaderSize, body);
+      if (t->Unpack(1) & igtl::MessageHeader::UNPACK_BODY) {
+        igtl::Matrix4x4 matrix;
+        t->GetMatrix(matrix);
+        Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+        for (int r = 0; r < 3; ++r) {
+          for (int k = 0; k < 3; ++k) X.matrix()(r, k) = matrix[r][k];
+          X.matrix()(r, 3) = matrix[r][3] * 0.001;
+        }
+        transforms_[name] = X;
+        ++received_[type];
+      } else {
+        ++received_["TRANSFORM bad crc"];
+      }
+    } else {
+      ++received_[type];
+    }
     at += kHeaderSize + static_cast<std::size_t>(body);
   }
   buffer_.erase(buffer_.begin(), buffer_.begin() + static_cast<std::ptrdiff_t>(at));
   return received_;
+}
+
+bool IgtlDeviceClient::LastSensor(const std::string& device, std::vector<double>* values, std::uint64_t* unit) const {
+  auto it = sensors_.find(device);
+  if (it == sensors_.end()) return false;
+  *values = it->second.first;
+  if (unit) *unit = it->second.second;
+  return true;
+}
+
+bool IgtlDeviceClient::LastTransform(const std::string& name, Eigen::Isometry3d* X) const {
+  auto it = transforms_.find(name);
+  if (it == transforms_.end()) return false;
+  *X = it->second;
+  return true;
 }
 
 }  // namespace trocar::control

@@ -1,8 +1,10 @@
 #pragma once
 /// @file
 /// Network devices over OpenIGTLink (protocol 2, header version 1: a 58-byte big-endian header
-/// with the body's CRC-64): a server that takes TRANSFORM and POSITION messages from several
-/// devices at once, and a DeviceInput that drives the teleop core from one of them.
+/// with the body's CRC-64): a server that takes TRANSFORM and POSITION messages (poses) and SENSOR
+/// messages (buttons: clutch, operator present) from several devices at once and sends messages
+/// back (force feedback, instrument poses for 3D Slicer), and a DeviceInput that drives the
+/// teleop core from one device. The messages each way are documented in docs/network-devices.md.
 ///
 /// Everything from the network is untrusted: a body's size is bounded before anything is
 /// allocated for it, the CRC is checked, each type's body must have its exact size, and
@@ -10,6 +12,7 @@
 /// on localhost unless told otherwise. Messages are decoded with libopenigtlink; the sockets are
 /// ours (poll), so that no read ever waits on a peer.
 
+#include <atomic>
 #include <chrono>
 #include <functional>
 #include <cstdint>
@@ -25,6 +28,9 @@ namespace trocar::control {
 /// What arrived from one device, and what was dropped, by reason.
 struct DeviceCounters {
   long messages = 0;      ///< poses taken
+  long buttons = 0;       ///< button messages taken (SENSOR: clutch, present, others)
+  long sent = 0;          ///< messages sent to the device (force feedback)
+  long send_drops = 0;    ///< messages not sent: the device did not read fast enough
   long crc = 0;           ///< wrong CRC
   long malformed = 0;     ///< a body of the wrong size for its type
   long oversized = 0;     ///< a body larger than the bound (its connection is closed)
@@ -40,9 +46,15 @@ struct DeviceCounters {
 /// and bounded body between calls.
 class IgtlStreamParser {
  public:
+  /// A pose (TRANSFORM, POSITION) or the device's buttons (SENSOR: value 0 the clutch, 1 the
+  /// operator's presence, the rest other buttons; non-zero is pressed).
   struct Pose {
     std::string device;
     Eigen::Isometry3d X_DH = Eigen::Isometry3d::Identity();  ///< translation in metres
+    bool is_buttons = false;
+    bool clutch = false;
+    bool present = true;
+    std::uint32_t pressed = 0;  ///< bit i: value i+2 pressed
   };
   /// `units(device)`: metres per unit of that device's translations.
   IgtlStreamParser(std::size_t max_body, std::function<double(const std::string&)> units);
@@ -66,6 +78,9 @@ struct IgtlServerOptions {
   int port = 18944;                   ///< OpenIGTLink's usual port; 0: any free port
   std::size_t max_body = 1 << 16;     ///< bytes; a larger body closes its connection
   int max_connections = 16;
+  /// Bytes waiting to be sent to one connection; a message that does not fit is dropped whole
+  /// (a client that does not read never blocks the server or grows its memory).
+  std::size_t max_pending = 1 << 18;
   /// Metres per unit of a device's translations, by device name; others: `default_units`
   /// (OpenIGTLink's millimetres; the dVRK's bridge sends metres: 1).
   std::map<std::string, double> units;
@@ -93,7 +108,18 @@ class IgtlDeviceServer {
               std::chrono::steady_clock::time_point* arrival, std::string* name = nullptr) const;
   /// Counters per device name (drops before a device name was read count under "").
   std::map<std::string, DeviceCounters> Counters() const;
+  /// The newest button state of `device` ("": the first device); false when it sent none.
+  bool Buttons(const std::string& device, bool* clutch, bool* present, std::uint32_t* pressed = nullptr) const;
 
+  /// Queues a whole message for the connection `device` last spoke on (never blocks; the server
+  /// thread sends it). False when that device is not connected.
+  bool Send(const std::string& device, std::string message);
+  /// Queues a whole message for every connection (3D Slicer, devices).
+  void Broadcast(std::string message);
+  /// Messages broadcast, and those dropped for a connection that did not read.
+  long broadcast_sent() const;
+  long broadcast_drops() const;
+  int connections() const;  ///< open connections
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
@@ -111,6 +137,9 @@ class NetworkDeviceInput final : public DeviceInput {
   /// Time from a pose's arrival to the control step that took it (s), per new pose.
   const std::vector<double>& latencies() const { return latencies_; }
   long silences() const { return silences_; }  ///< times the device went silent
+  /// Safe from any thread: whether the device is silent now, and the newest pose's latency (s).
+  bool silent() const { return silent_now_.load(std::memory_order_relaxed); }
+  double last_latency() const { return last_latency_.load(std::memory_order_relaxed); }
 
  private:
   const IgtlDeviceServer* server_;
@@ -120,6 +149,8 @@ class NetworkDeviceInput final : public DeviceInput {
   bool silent_ = true;
   std::vector<double> latencies_;
   long silences_ = 0;
+  std::atomic<bool> silent_now_{true};
+  std::atomic<double> last_latency_{0.0};
 };
 
 /// A device's side: connects to a server and sends poses as OpenIGTLink TRANSFORM messages
@@ -134,15 +165,37 @@ class IgtlDeviceClient {
 
   /// False when the server has gone (the connection closed).
   bool SendPose(const std::string& device, const Eigen::Isometry3d& X_DH, double units = 0.001);
+  /// The device's buttons as a SENSOR message: [clutch, present, other buttons...].
+  bool SendButtons(const std::string& device, bool clutch, bool present = true,
+                   const std::vector<bool>& others = {});
   /// Raw bytes, as they are (tests inject faults with it). False when the connection closed.
   bool SendBytes(const std::string& bytes);
-  /// Reads what the server sent, without waiting: messages by type.
+  /// Reads what the server sent, without waiting: messages by type ("SENSOR bad crc" for
+  /// SENSOR messages whose CRC does not check).
   const std::map<std::string, long>& Received();
+  /// The newest SENSOR values sent to `device` and their unit (OpenIGTLink's 64-bit unit code);
+  /// false when none came. Call Received() first.
+  bool LastSensor(const std::string& device, std::vector<double>* values, std::uint64_t* unit = nullptr) const;
+  /// The largest force magnitude (N) in the SENSOR messages received so far.
+  double max_force() const { return max_force_; }
+  /// The newest TRANSFORM received for `name` (translation in metres); false when none came.
+  bool LastTransform(const std::string& name, Eigen::Isometry3d* X) const;
 
  private:
   int fd_ = -1;
   std::vector<unsigned char> buffer_;
   std::map<std::string, long> received_;
+  std::map<std::string, std::pair<std::vector<double>, std::uint64_t>> sensors_;
+  std::map<std::string, Eigen::Isometry3d> transforms_;
+  double max_force_ = 0.0;
 };
+
+/// OpenIGTLink messages, packed by libopenigtlink (header version 1, CRC-64, now as timestamp):
+/// a TRANSFORM of `X` (translation given in metres, sent in `units` metres each), and a SENSOR of
+/// float64 `values` with `unit` (igtl_unit.h's 64-bit code; 0: none).
+std::string IgtlTransformMessage(const std::string& device, const Eigen::Isometry3d& X, double units = 0.001);
+std::string IgtlSensorMessage(const std::string& device, const std::vector<double>& values, std::uint64_t unit = 0);
+/// OpenIGTLink's unit code for newtons (SI derived unit 0x0B, exponent 1, no prefix).
+std::uint64_t IgtlNewtonUnit();
 
 }  // namespace trocar::control

@@ -21,6 +21,7 @@ PlanCollisions::PlanCollisions(const patient::PatientModel& patient,
       options.shaft_ports.push_back(arm.shaft_link);
     }
   }
+  robot_ = robot;
   world_ = collision::CollisionWorld::Build(&patient, std::move(robot), options);
   checker_ = std::make_unique<collision::CollisionChecker>(world_);
   // Each arm's port: RCM ports by frame, shaft ports after them in arm order.
@@ -52,10 +53,45 @@ PlanCollisions::PlanCollisions(const patient::PatientModel& patient,
 
 PlanCollisions::~PlanCollisions() = default;
 
-PoseCollisions PlanCollisions::Check(const robot::RobotState& state, double near_miss) {
+void PlanCollisions::SetState(const robot::RobotState& state) {
   checker_->SetRobotState(state);
   for (std::size_t a = 0; a < port_of_arm_.size(); ++a)
     checker_->SetPortPosition(port_of_arm_[a], pivots_[a], allowance_[a]);
+}
+
+std::vector<collision::Clearance> PlanCollisions::ArmsNearest(const robot::RobotState& state,
+                                                              const std::vector<int>& arm_links) {
+  SetState(state);
+  std::vector<collision::Clearance> out;
+  const auto& arms = world_->arms();
+  for (int link : arm_links) {
+    int arm = -1;
+    for (int l = link; l >= 0 && arm < 0;) {
+      for (std::size_t k = 0; k < arms.size(); ++k)
+        if (arms[k].root_link == l) arm = static_cast<int>(k);
+      const int j = robot_->link(l).parent_joint;
+      l = j >= 0 ? robot_->joint(j).parent_link : -1;
+    }
+    collision::Clearance c;
+    if (arm >= 0) {
+      c = checker_->MinimumDistance(collision::kAllMovingPairs & ~collision::Bit(collision::PairClass::kSelf), arm);
+      if (c.valid() && world_->bodies()[c.a].arm != arm) {  // the arm's body first
+        std::swap(c.a, c.b);
+        std::swap(c.p_W_a, c.p_W_b);
+      }
+    }
+    out.push_back(c);
+  }
+  return out;
+}
+
+std::string PlanCollisions::PairName(const collision::Clearance& c) const {
+  if (!c.valid()) return "";
+  return world_->bodies()[c.a].name + " - " + world_->bodies()[c.b].name;
+}
+
+PoseCollisions PlanCollisions::Check(const robot::RobotState& state, double near_miss) {
+  SetState(state);
   PoseCollisions out;
   const auto& bodies = world_->bodies();
   auto add_link = [&](std::vector<int>* links, int body) {

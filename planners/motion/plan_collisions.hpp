@@ -38,6 +38,13 @@ class PlanCollisions {
   /// miss.
   PoseCollisions Check(const robot::RobotState& state, double near_miss = 0.005);
 
+  /// For each link in `arm_links` (a link of an arm, e.g. its tool's), that arm's nearest
+  /// approach at `state` to anything it may not touch (its own links aside), with witness points,
+  /// the arm's body as `a`; an invalid Clearance for a link on no arm. For force feedback.
+  std::vector<collision::Clearance> ArmsNearest(const robot::RobotState& state, const std::vector<int>& arm_links);
+  /// "psm1_tool_shaft - heart".
+  std::string PairName(const collision::Clearance& c) const;
+
   const collision::CollisionWorld& world() const { return *world_; }
 
  private:
@@ -46,6 +53,8 @@ class PlanCollisions {
   std::vector<int> port_of_arm_;
   std::vector<double> allowance_;
   std::vector<Eigen::Vector3d> pivots_;
+  std::shared_ptr<const robot::RobotModel> robot_;
+  void SetState(const robot::RobotState& state);
 };
 
 }  // namespace trocar::planners

@@ -81,9 +81,29 @@ class RawClient {
   }
   ~RawClient() { ::close(fd_); }
   void Send(const std::string& bytes) { ASSERT_EQ(::send(fd_, bytes.data(), bytes.size(), MSG_NOSIGNAL), ssize_t(bytes.size())); }
+  /// The next whole message (header and body), waiting up to 3 s; "" when none came.
+  std::string ReadMessage() {
+    for (int i = 0; i < 300; ++i) {
+      char chunk[4096];
+      const ssize_t n = ::recv(fd_, chunk, sizeof(chunk), MSG_DONTWAIT);
+      if (n > 0) buffer_.append(chunk, static_cast<std::size_t>(n));
+      if (buffer_.size() >= 58) {
+        std::uint64_t size = 0;
+        for (int k = 0; k < 8; ++k) size = (size << 8) | static_cast<unsigned char>(buffer_[42 + k]);
+        if (buffer_.size() >= 58 + size) {
+          std::string m = buffer_.substr(0, 58 + size);
+          buffer_.erase(0, 58 + size);
+          return m;
+        }
+      }
+      if (n <= 0) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    return "";
+  }
 
  private:
   int fd_;
+  std::string buffer_;
 };
 
 /// Waits until `done` holds (the server runs in its own thread), at most 3 s.
@@ -103,6 +123,35 @@ Eigen::Isometry3d RandomPose(std::mt19937* rng) {
   X.translation() = Eigen::Vector3d(u(*rng), u(*rng), u(*rng)) * 0.2;
   return X;
 }
+
+std::uint64_t Get64(const std::string& s, std::size_t at) {
+  std::uint64_t v = 0;
+  for (int k = 0; k < 8; ++k) v = (v << 8) | static_cast<unsigned char>(s[at + k]);
+  return v;
+}
+double GetDouble(const std::string& s, std::size_t at) {
+  const std::uint64_t u = Get64(s, at);
+  double d;
+  std::memcpy(&d, &u, 8);
+  return d;
+}
+void PutDouble(std::string* s, double d) {
+  std::uint64_t u;
+  std::memcpy(&u, &d, 8);
+  Put64(s, u);
+}
+/// SENSOR body: count, status, unit (64 bits), then the float64 values.
+std::string SensorBody(const std::vector<double>& values, std::uint64_t unit = 0, int count = -1) {
+  std::string b;
+  b.push_back(static_cast<char>(count >= 0 ? count : static_cast<int>(values.size())));
+  b.push_back(0);
+  Put64(&b, unit);
+  for (double v : values) PutDouble(&b, v);
+  return b;
+}
+/// igtl_unit.h by hand: 4 bits of prefix, then (6 bits unit, 4 bits exponent) per unit. Newton
+/// is SI derived unit 0x0B; one unit, exponent 1, no prefix.
+constexpr std::uint64_t kNewtonByHand = (0x0Bull << 54) | (1ull << 50);
 
 IgtlServerOptions AnyPort() {
   IgtlServerOptions o;
@@ -256,6 +305,97 @@ TEST(IgtlDevice, TwoDevicesAreKeptApartAndASilentOneHoldsThenResumes) {
   a.Send(Message("TRANSFORM", "left", TransformBody(Xa)));
   EXPECT_TRUE(Eventually([&] { return left.Sample(2).operator_present; }));
   EXPECT_FALSE(left.latencies().empty());
+}
+
+TEST(IgtlDevice, TheServersSensorAndTransformMessagesDecodeInAClientWrittenFromTheProtocol) {
+  EXPECT_EQ(IgtlNewtonUnit(), kNewtonByHand) << "the unit codes of the two implementations differ";
+  IgtlDeviceServer server(AnyPort());
+  RawClient client(server.port());
+  client.Send(Message("TRANSFORM", "hand", TransformBody(Eigen::Isometry3d::Identity())));
+  DeviceSample s;
+  std::uint64_t seq = 0;
+  std::chrono::steady_clock::time_point at;
+  ASSERT_TRUE(Eventually([&] { return server.Latest("hand", &s, &seq, &at); }));
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-4, 4);
+  for (int i = 0; i < 20; ++i) {
+    const std::vector<double> f = {u(rng), u(rng), u(rng)};
+    ASSERT_TRUE(server.Send("hand", IgtlSensorMessage("hand", f, IgtlNewtonUnit())));
+    const std::string m = client.ReadMessage();
+    ASSERT_EQ(m.size(), 58u + 10 + 24) << i;
+    EXPECT_EQ(m.substr(2, 12), Fixed("SENSOR", 12));
+    EXPECT_EQ(m.substr(14, 20), Fixed("hand", 20));
+    const std::string body = m.substr(58);
+    EXPECT_EQ(Get64(m, 50), Crc64(body)) << "the CRC-64 of the two implementations differ";
+    EXPECT_EQ(static_cast<unsigned char>(body[0]), 3);
+    EXPECT_EQ(Get64(body, 2), kNewtonByHand);
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(GetDouble(body, 10 + 8 * k), f[k]) << i;
+  }
+  // A pose out to every connection (3D Slicer's way in): millimetres, our CRC.
+  const Eigen::Isometry3d X = RandomPose(&rng);
+  server.Broadcast(IgtlTransformMessage("psm1", X, 0.001));
+  const std::string m = client.ReadMessage();
+  ASSERT_EQ(m.size(), 58u + 48);
+  EXPECT_EQ(m.substr(14, 20), Fixed("psm1", 20));
+  EXPECT_EQ(Get64(m, 50), Crc64(m.substr(58)));
+  EXPECT_EQ(m.substr(58), TransformBody(X));
+  EXPECT_EQ(server.Counters().at("hand").sent, 20);
+}
+
+TEST(IgtlDevice, ButtonsFromTheDeviceSetClutchAndPresenceAndBadOnesAreCounted) {
+  IgtlDeviceServer server(AnyPort());
+  RawClient client(server.port());
+  client.Send(Message("TRANSFORM", "hand", TransformBody(Eigen::Isometry3d::Identity())));
+  NetworkDeviceInput input(&server, "hand", 1.0);
+  ASSERT_TRUE(Eventually([&] { return input.Sample(0).operator_present; }));
+  EXPECT_FALSE(input.Sample(0).clutch);
+  client.Send(Message("SENSOR", "hand", SensorBody({1, 1, 0, 1})));  // clutch, present, 2 others
+  ASSERT_TRUE(Eventually([&] { return input.Sample(0).clutch; }));
+  bool clutch = false, present = false;
+  std::uint32_t pressed = 0;
+  ASSERT_TRUE(server.Buttons("hand", &clutch, &present, &pressed));
+  EXPECT_EQ(pressed, 2u);  // the fourth value
+  client.Send(Message("SENSOR", "hand", SensorBody({0, 0})));  // released, operator away
+  ASSERT_TRUE(Eventually([&] { return !input.Sample(0).operator_present; }));
+  EXPECT_FALSE(input.Sample(0).clutch);
+  client.Send(Message("SENSOR", "hand", SensorBody({0, 1}, 0, 5)));  // says 5 values, has 2
+  client.Send(Message("SENSOR", "hand", SensorBody({NAN, 1})));
+  client.Send(Message("SENSOR", "hand", SensorBody({1, 1}), ~0ull, /*bad_crc=*/true));
+  client.Send(Message("SENSOR", "hand", SensorBody({0, 1})));
+  ASSERT_TRUE(Eventually([&] { return server.Counters().at("hand").buttons == 3; }));
+  const auto c = server.Counters().at("hand");
+  EXPECT_EQ(c.malformed, 1);
+  EXPECT_EQ(c.non_finite, 1);
+  EXPECT_EQ(c.crc, 1);
+  EXPECT_TRUE(input.Sample(0).operator_present);
+  EXPECT_FALSE(input.Sample(0).clutch);  // the bad clutch message was not taken
+}
+
+TEST(IgtlDevice, AClientThatDoesNotReadNeitherBlocksTheServerNorGrowsItsMemory) {
+  IgtlServerOptions o = AnyPort();
+  o.max_pending = 8192;
+  IgtlDeviceServer server(o);
+  RawClient deaf(server.port()), other(server.port());
+  deaf.Send(Message("TRANSFORM", "deaf", TransformBody(Eigen::Isometry3d::Identity())));
+  DeviceSample s;
+  std::uint64_t seq = 0;
+  std::chrono::steady_clock::time_point at;
+  ASSERT_TRUE(Eventually([&] { return server.Latest("deaf", &s, &seq, &at); }));
+  // Far more than the socket's buffers and the pending bound hold.
+  const std::string big = IgtlSensorMessage("deaf", std::vector<double>(200, 1.0));
+  for (int i = 0; i < 20000; ++i) server.Send("deaf", big);
+  // The server still takes another device's poses at once.
+  for (int i = 1; i <= 20; ++i) {
+    other.Send(Message("TRANSFORM", "other", TransformBody(Eigen::Isometry3d::Identity())));
+    ASSERT_TRUE(Eventually([&] { return server.Latest("other", &s, &seq, &at) && seq == std::uint64_t(i); })) << i;
+  }
+  ASSERT_TRUE(Eventually([&] {
+    const auto c = server.Counters().at("deaf");
+    return c.sent + c.send_drops == 20000;
+  })) << "every message sent or dropped whole";
+  const auto c = server.Counters().at("deaf");
+  EXPECT_GT(c.sent, 0);
+  EXPECT_GT(c.send_drops, 0);
 }
 
 TEST(IgtlDevice, APortInUseAndBadAddressesAreClearErrors) {
