@@ -359,6 +359,15 @@ int RunTeleop(const TeleopCommandOptions& o) {
   // The robot's home, or one chosen away from limits and singularities; --q0 overrides both.
   kinematics::StartConfiguration start = plan_view ? kinematics::StartConfiguration{} : kinematics::ChooseStart(model);
   Eigen::VectorXd q0 = start.q;
+  if (!plan_view && !model.has_home()) {
+    // Several arms: each starts where its own tool moves well, on its own joints.
+    for (std::size_t i = 1; i < arms.size(); ++i) {
+      const kinematics::StartConfiguration own = kinematics::ChooseStart(*arms[i].model);
+      for (int k : arms[i].positions) q0[k] = own.q[k];
+      for (const std::string& w : own.warnings) start.warnings.push_back(arms[i].name + ": " + w);
+    }
+    start.q = q0;
+  }
   if (plan_view) {
     q0 = plan_view->scene->robot_state()->q;  // the plan's nominal pose (same joints, same order)
     start.q = q0;

@@ -808,5 +808,65 @@ TEST(TrocarTeleopNetwork, ACircleThroughTheNetworkTracksAsTheSameCircleHeadless)
   EXPECT_NE(second.output.find("no device sent a pose"), std::string::npos) << second.output;
 }
 
+// Issue #16: two devices drive the cart's two PSMs at once through a device file, a third is a
+// teaching pointer; each device gets force messages back and every connection the arms' poses.
+TEST(TrocarTeleopNetwork, TwoDevicesDriveTwoArmsAndAPointerFromADeviceFile) {
+  const std::string cart = test::SourcePath("robots/davinci-classic/cart.yaml");
+  const auto dir = std::filesystem::temp_directory_path() / ("trocar_devices_cli_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const std::string devices = (dir / "devices.yaml").string();
+  std::ofstream(devices) << "devices:\n"
+                            "  - {name: left, arm: psm1_tool, units: mm}\n"
+                            "  - {name: right, arm: psm2_tool, units: m, scale: 2}\n"
+                            "  - {name: senior, pointer: true}\n";
+  const std::string address = "127.0.0.1:" + std::to_string(FreePort());
+  CommandRun listening{-1, ""};
+  std::thread server([&] {
+    listening = Trocar("teleop --robot " + cart + " --listen " + address + " --devices " + devices +
+                       " --duration 3 --wait 20");
+  });
+  CommandRun right{-1, ""}, senior{-1, ""};
+  std::thread second([&] {
+    right = Trocar("device --connect " + address + " --name right --units 1 --input sinusoid --amplitude 0.02 "
+                   "--duration 3.5");
+  });
+  std::thread third([&] {
+    senior = Trocar("device --connect " + address + " --name senior --input circle --rate 200 --duration 3.5");
+  });
+  const CommandRun left = Trocar("device --connect " + address + " --name left --input circle --duration 3.5 "
+                                 "--clutch 1.5:2");
+  server.join();
+  second.join();
+  third.join();
+  std::filesystem::remove_all(dir);
+  ASSERT_EQ(listening.exit_code, 0) << listening.output << left.output << right.output;
+  const std::string& out = listening.output;
+  // Both arms tracked their own device; the pointer followed its own.
+  const double rms1 = RmsPositionError(out);
+  ASSERT_TRUE(std::isfinite(rms1)) << out;
+  EXPECT_LT(rms1, 1.0) << out;
+  const auto arm2 = out.find("  arm psm2_tool: position error RMS ");
+  ASSERT_NE(arm2, std::string::npos) << out;
+  EXPECT_LT(std::stod(out.substr(arm2 + 36)), 1.0) << out;
+  EXPECT_NE(out.find("pointer 'senior'"), std::string::npos) << out;
+  for (const char* d : {"device 'left': ", "device 'right': ", "device 'senior': "})
+    EXPECT_NE(out.find(d), std::string::npos) << d << "\n" << out;
+  // The clutch window held psm1 about half a second (at 1 kHz), and nothing was dropped.
+  const auto samples = out.find("  samples: ");
+  ASSERT_NE(samples, std::string::npos) << out;
+  const auto held = out.find(" held)", samples);
+  const long held_steps = std::stol(out.substr(out.rfind(", ", held) + 2));
+  EXPECT_NEAR(held_steps, 500, 60) << out;
+  EXPECT_EQ(out.find("dropped (crc 1"), std::string::npos) << out;
+  // Each device heard force messages and the arms' poses.
+  for (const CommandRun* d : {&left, static_cast<const CommandRun*>(&right)}) {
+    ASSERT_EQ(d->exit_code, 0) << d->output;
+    EXPECT_NE(d->output.find(" SENSOR"), std::string::npos) << d->output;
+    EXPECT_NE(d->output.find(" TRANSFORM"), std::string::npos) << d->output;
+    EXPECT_EQ(d->output.find("bad crc"), std::string::npos) << d->output;
+  }
+  EXPECT_NE(out.find("poses streamed (world frame, mm"), std::string::npos) << out;
+}
+
 }  // namespace
 }  // namespace trocar

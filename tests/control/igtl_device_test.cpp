@@ -8,6 +8,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -17,6 +18,10 @@
 #include <gtest/gtest.h>
 
 #include "common/error.hpp"
+#include "control/control_loop.hpp"
+#include "control/teleop_session.hpp"
+#include "robot/load_robot.hpp"
+#include "test_util.hpp"
 
 namespace trocar::control {
 namespace {
@@ -396,6 +401,75 @@ TEST(IgtlDevice, AClientThatDoesNotReadNeitherBlocksTheServerNorGrowsItsMemory) 
   const auto c = server.Counters().at("deaf");
   EXPECT_GT(c.sent, 0);
   EXPECT_GT(c.send_drops, 0);
+}
+
+// The faults injected into a running session: the arm holds through bad packets and a silence,
+// and resumes from where it held when the device comes back on a new connection with its hand
+// elsewhere (a re-anchor, not a jump).
+TEST(IgtlDevice, ASessionHoldsThroughFaultsAndSilenceAndResumesWithoutAJump) {
+  IgtlDeviceServer server(AnyPort());
+  const auto model = robot::LoadRobot(test::SourcePath("robots/davinci-classic/psm.yaml"));
+  control::ControlLoop loop(model, control::MakeController("dls", model, control::Vector6d::Constant(20)),
+                            model.home_configuration());
+  NetworkDeviceInput input(&server, "d", 0.05);
+  auto pose = [](double x, double y) {
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.translation() = Eigen::Vector3d(x, y, 0);
+    return X;
+  };
+  std::atomic<bool> started{false};
+  std::thread device([&] {
+    {
+      RawClient c(server.port());
+      for (int i = 0; i < 400; ++i) {  // 0.4 s moving along x
+        c.Send(Message("TRANSFORM", "d", TransformBody(pose(0.02 * i / 400.0, 0))));
+        started = true;
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      }
+      c.Send(Message("TRANSFORM", "d", TransformBody(pose(0.5, 0)), ~0ull, true));  // bad CRC
+      Eigen::Isometry3d nan = pose(0, 0);
+      nan.translation().y() = NAN;
+      c.Send(Message("TRANSFORM", "d", TransformBody(nan)));
+      c.Send(Message("STRING", "d", std::string(30, 'x')));
+      c.Send(Message("TRANSFORM", "d", TransformBody(pose(0.5, 0))).substr(0, 80));  // cut by the close
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));  // silent
+    RawClient again(server.port());
+    for (int i = 0; i < 800; ++i) {  // back, the hand 5 cm away, moving along x again
+      again.Send(Message("TRANSFORM", "d", TransformBody(pose(0.02 + 0.02 * i / 400.0, 0.05))));
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+  });
+  while (!started) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  TeleopSessionOptions options;
+  // The device's 0.4 s, faults, 0.3 s of silence, then on past the session's end (room for a
+  // loaded machine's slow sleeps).
+  options.duration = 1.2;
+  options.realtime = true;
+  const Recorder record = RunTeleopSession(&loop, &input, options);
+  device.join();
+  const auto& rows = record.rows();
+  long absent = 0, following_after = 0;
+  double largest_step = 0.0;
+  for (std::size_t i = 1; i < rows.size(); ++i) {
+    largest_step = std::max(largest_step, (rows[i].X_WD.translation() - rows[i - 1].X_WD.translation()).norm());
+    if (rows[i].status == SampleStatus::kHeldAbsent) {
+      ++absent;
+      EXPECT_LT((rows[i].X_WD.translation() - rows[i - 1].X_WD.translation()).norm(), 1e-12) << "moved while silent";
+    } else if (absent > 0 && rows[i].status == SampleStatus::kFollowing) {
+      ++following_after;
+    }
+  }
+  EXPECT_GT(absent, 150) << "the silence was not taken as absence";
+  EXPECT_GT(following_after, 100) << "teleoperation did not resume";
+  EXPECT_LT(largest_step, 0.002) << "the desired pose jumped (the 5 cm the hand moved while away?)";
+  const auto c = server.Counters().at("d");
+  EXPECT_EQ(c.crc, 1);
+  EXPECT_EQ(c.non_finite, 1);
+  EXPECT_EQ(c.unknown_type, 1);
+  EXPECT_EQ(c.truncated, 1);
+  EXPECT_EQ(c.connections, 2);
+  EXPECT_EQ(input.silences(), 1);
 }
 
 TEST(IgtlDevice, APortInUseAndBadAddressesAreClearErrors) {
