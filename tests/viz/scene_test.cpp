@@ -218,6 +218,69 @@ TEST(Scene, AScopeCameraOnTheEcmSeesTheTargetItIsAimedAtAndNothingOfItWhenTurned
   EXPECT_EQ(CountColour(away, style.Colour("target:" + lad.name)), 0);
 }
 
+// Issue #16: the teaching pointer (thesis §6.3.3) is drawn in the external view and in the
+// endoscope's, where it is put; hidden until placed.
+TEST(Scene, ThePointerIsDrawnInBothViewsWhereItIsPut) {
+  auto ecm = LoadShared("robots/davinci-classic/ecm.yaml");
+  auto patient = Phantom();
+  SceneStyle style = FlatStyle();
+  style.colours["pointer"] = {1.0, 0.0, 1.0};
+  Scene scene(patient, ecm, style);
+  for (const char* g : {"skin", "cones", "candidates"}) scene.SetVisible(g, false);
+  const patient::Target& lad = patient->targets.front();
+  const std::size_t middle = lad.points.size() / 2;
+  const Eigen::Vector3d p_W = patient->X_WP * lad.points[middle];
+  const Eigen::Vector3d axis = -(patient->X_WP.linear() * lad.normals[middle]).normalized();
+  // The scope 6 cm out from the target, aimed at it.
+  robot::RobotState state = *scene.robot_state();
+  const Eigen::Isometry3d X_BT = kinematics::FramePose(state, ecm->tool_frame());
+  Eigen::Isometry3d X_WT = Eigen::Isometry3d::Identity();
+  X_WT.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
+  X_WT.translation() = p_W - 0.06 * axis;
+  state.X_WB = X_WT * X_BT.inverse();
+  kinematics::ForwardKinematics(*ecm, &state);
+  scene.SetRobotState(state);
+  FrameCamera scope;
+  scope.frame = ecm->tool_frame().name;
+  ViewSpec endoscope;
+  endoscope.kind = ViewSpec::Kind::kFrame;
+  endoscope.camera = scope;
+  const int w = 640, h = 320;
+  // The external view from outside the chest, 40 cm above the target, looking down at it (the
+  // bones hidden: the pointer is inside the rib cage).
+  for (const std::string& g : scene.groups())
+    if (g != "pointer") scene.SetVisible(g, false);
+  CameraPose outside;
+  outside.position = p_W + Eigen::Vector3d(0.0, -0.2, 0.6);
+  outside.focal_point = p_W;
+  auto render = [&] { return Render(scene, {{ViewSpec{}, outside}, {endoscope, scene.OnFrame(scope)}}, w, h); };
+  auto count_halves = [&](const Image& image, long* left, long* right) {
+    const auto want = Rgb8(style.Colour("pointer"));
+    *left = *right = 0;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x)
+        if (Near(image.Pixel(x, y), want)) ++(x < w / 2 ? *left : *right);
+  };
+  long left = 0, right = 0;
+  count_halves(render(), &left, &right);
+  EXPECT_EQ(left + right, 0) << "the pointer is drawn before it is placed";
+  // Put between the scope and the target, pointing at the target.
+  Eigen::Isometry3d X_WP = X_WT;
+  X_WP.translation() = p_W - 0.03 * axis;
+  scene.SetPointer(X_WP);
+  const Image image = render();
+  if (const char* dump = std::getenv("TROCAR_TEST_DUMP")) WritePng(image, std::string(dump) + "/pointer.png");
+  count_halves(image, &left, &right);
+  EXPECT_GT(left, 20) << "not in the external view";
+  EXPECT_GT(right, 200) << "not in the endoscope's view (3 cm in front of it)";
+  // Moved behind the scope: gone from its view, still in the external one.
+  X_WP.translation() = p_W - 0.12 * axis;
+  scene.SetPointer(X_WP);
+  count_halves(render(), &left, &right);
+  EXPECT_GT(left, 20);
+  EXPECT_EQ(right, 0);
+}
+
 TEST(Scene, TheScopeLightsItsViewByItsIntensity) {
   auto ecm = LoadShared("robots/davinci-classic/ecm.yaml");
   Scene scene(Phantom(), ecm);  // shaded

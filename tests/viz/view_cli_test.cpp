@@ -16,6 +16,9 @@
 #include <unistd.h>
 
 #include "common/file_util.hpp"
+#include "control/igtl_device.hpp"
+#include "kinematics/forward_kinematics.hpp"
+#include <thread>
 #include "port_placement/plan_file.hpp"
 #include "robot/load_robot.hpp"
 #include "scene.hpp"
@@ -406,6 +409,54 @@ TEST_F(ViewCli, AnArmOfThePlanIsTeleoperatedInItsPatientWithItsCollisionsSaid) {
   EXPECT_NE(run.output.find("no arm 'psm7'"), std::string::npos) << run.output;
   run = Trocar("teleop --plan " + Plan() + " --robot robots/davinci-classic/psm.yaml --duration 1");
   EXPECT_EQ(run.exit_code, 1) << run.output;
+}
+
+// Issue #16: a plan's arms driven by devices named in a device file; each instrument's pose goes
+// out in the patient's CT frame as 3D Slicer takes it (RAS, millimetres), and force comes back
+// as SENSOR messages in newtons, from the arm's nearness to the patient by the plan's rules.
+TEST_F(ViewCli, TeleopStreamsThePlansInstrumentsInTheCtFrameAndSendsForceBack) {
+  const std::string devices = Out("devices.yaml");
+  std::ofstream(devices) << "devices:\n  - {name: left, arm: psm1}\n  - {name: right, arm: psm2}\n";
+  const std::string address = "127.0.0.1:" + std::to_string(test::FreePort());
+  CommandRun run{-1, ""};
+  std::thread trocar([&] {
+    run = Trocar("teleop --plan " + Plan() + " --listen " + address + " --devices " + devices +
+                 " --duration 2 --wait 20");
+  });
+  // The left device holds still: psm1 stays at the plan's nominal pose, as does psm2 (its
+  // device never comes).
+  control::IgtlDeviceClient client("127.0.0.1", std::stoi(address.substr(10)), 20.0);
+  for (int i = 0; i < 1500; ++i) {
+    ASSERT_TRUE(client.SendPose("left", Eigen::Isometry3d::Identity()));
+    client.Received();
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  client.Received();
+  trocar.join();
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("CT frame, RAS mm"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("nearest approach"), std::string::npos) << run.output;
+  // Where the instruments are, by the test's own kinematics of the plan's nominal pose.
+  ViewInputs in;
+  in.case_dir = planners::ReadPlanFile(Plan()).case_dir;
+  in.plan = Plan();
+  const LoadedView view = LoadView(in);
+  Eigen::Isometry3d X_RAS_LPS = Eigen::Isometry3d::Identity();
+  X_RAS_LPS.linear() = Eigen::Vector3d(-1, -1, 1).asDiagonal();
+  for (const auto& arm : view.plan->arms) {
+    Eigen::Isometry3d got;
+    ASSERT_TRUE(client.LastTransform(arm.name, &got)) << arm.name << " was not streamed";
+    const Eigen::Isometry3d X_WT = kinematics::FramePose(*view.scene->robot_state(), view.robot->GetFrame(arm.tool_frame));
+    const Eigen::Isometry3d want = X_RAS_LPS * view.patient->X_WP.inverse() * X_WT;
+    EXPECT_LT((got.translation() - want.translation()).norm(), 0.001) << arm.name;  // held within 1 mm
+    EXPECT_LT((got.linear() - want.linear()).norm(), 0.01) << arm.name;
+  }
+  std::vector<double> force;
+  std::uint64_t unit = 0;
+  ASSERT_TRUE(client.LastSensor("left", &force, &unit)) << "no force message came";
+  EXPECT_EQ(force.size(), 3u);
+  EXPECT_EQ(unit, control::IgtlNewtonUnit());
+  for (double f : force) EXPECT_TRUE(std::isfinite(f));
 }
 
 TEST_F(ViewCli, BadInputIsNamedAndNoPictureIsWritten) {
