@@ -567,16 +567,20 @@ int RunTeleop(const TeleopCommandOptions& o) {
     TROCAR_THROW_UNLESS(std::isfinite(o.feedback_rate) && o.feedback_rate >= 1 && o.feedback_rate <= 2000,
                         "--feedback-rate " << o.feedback_rate << ": expected 1..2000 Hz");
     session.feedback = &feedback_buffer;
-    feedback_thread = std::thread([&] {
-      try {
-        RunFeedback(o, *server, arms, channels, channel_devices, network, plan_view.get(), feedback_start,
-                    &feedback_buffer, session_done, &feedback);
-      } catch (...) {
-        feedback_failure = std::current_exception();
-      }
-    });
   }
+  // The feedback thread lives exactly as long as the session: started here, joined on every way
+  // out.
   auto run_session = [&] {
+    if (server) {
+      feedback_thread = std::thread([&] {
+        try {
+          RunFeedback(o, *server, arms, channels, channel_devices, network, plan_view.get(), feedback_start,
+                      &feedback_buffer, session_done, &feedback);
+        } catch (...) {
+          feedback_failure = std::current_exception();
+        }
+      });
+    }
     try {
       recorders = control::RunTeleopSession(channels, session);
     } catch (...) {
@@ -916,6 +920,12 @@ void AddDeviceCommand(CLI::App* app) {
       TROCAR_THROW_UNLESS(std::isfinite(a) && std::isfinite(b) && a >= 0 && b > a,
                           "--clutch '" << w << "': expected START:END in seconds, END > START >= 0");
       windows.push_back({a, b});
+    }
+    if (!o->log.empty()) {  // fail before the run, not after it: a file written and removed now
+      const std::string probe = o->log + ".trocar-write-test";
+      WriteFileAtomically(probe, "");
+      std::error_code ec;
+      std::filesystem::remove(probe, ec);
     }
     std::ostringstream log;
     log << "t,fx,fy,fz\n";
