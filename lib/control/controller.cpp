@@ -40,6 +40,32 @@ Vector6d ToolTaskVelocity(const robot::RobotModel& model, const robot::RobotStat
 // top rows of a 6 × n buffer, so that R × R products and solves are fixed-size (on the stack).
 template <int R>
 using Rows = Eigen::Block<kinematics::Matrix6Xd, R, Eigen::Dynamic, false>;
+/// Solves L Lᵀ x = b from a Cholesky factor (the lower triangle of `llt`), unrolled for R, with
+/// the diagonal's reciprocals: Eigen's general triangular solves divided on the critical path and
+/// were a fifth of a PSM control step (bench/control_bench).
+template <int R>
+struct CholeskySolve {
+  explicit CholeskySolve(const Eigen::Matrix<double, R, R>& llt) : L(llt) {
+    for (int i = 0; i < R; ++i) inverse_diagonal[i] = 1.0 / L(i, i);
+  }
+  Eigen::Matrix<double, R, 1> operator()(const Eigen::Matrix<double, R, 1>& b) const {
+    Eigen::Matrix<double, R, 1> y;
+    for (int i = 0; i < R; ++i) {  // L y = b
+      double s = b[i];
+      for (int j = 0; j < i; ++j) s -= L(i, j) * y[j];
+      y[i] = s * inverse_diagonal[i];
+    }
+    for (int i = R - 1; i >= 0; --i) {  // Lᵀ x = y, in place
+      double s = y[i];
+      for (int j = i + 1; j < R; ++j) s -= L(j, i) * y[j];
+      y[i] = s * inverse_diagonal[i];
+    }
+    return y;
+  }
+  const Eigen::Matrix<double, R, R>& L;
+  double inverse_diagonal[R];
+};
+
 template <int R>
 using ConstRows = Eigen::Block<const kinematics::Matrix6Xd, R, Eigen::Dynamic, false>;
 
@@ -64,8 +90,9 @@ Eigen::Matrix<double, R, 1> DampedSolve(const JacobianRows& J, const Eigen::Matr
   double lambda_min = HUGE_VAL;
   // A factorisation that failed (J J^T singular to rounding) is a singular arm: full damping.
   if (chol.info() != Eigen::Success) lambda_min = 0.0;
+  const CholeskySolve<R> solve(chol.matrixLLT());
   for (int iteration = 0; iteration < 100 && lambda_min > 0.0; ++iteration) {
-    const Vector y = chol.solve(x);
+    const Vector y = solve(x);
     const double norm = y.norm();
     if (!(norm > 0.0) || !std::isfinite(norm)) {  // singular to working precision
       lambda_min = 0.0;
@@ -79,7 +106,7 @@ Eigen::Matrix<double, R, 1> DampedSolve(const JacobianRows& J, const Eigen::Matr
   }
   warm->head<R>() = x;
   const double sigma_min = std::sqrt(std::max(0.0, lambda_min - 1e-12));
-  if (sigma_min >= threshold) return chol.solve(v);
+  if (sigma_min >= threshold) return solve(v);
   const double ratio = sigma_min / threshold;
   const double lambda2 = (1.0 - ratio * ratio) * max_damping * max_damping;
   JJt.diagonal().array() += lambda2;

@@ -1,5 +1,6 @@
 #include "kinematics/forward_kinematics.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -117,39 +118,51 @@ ConfigurationResult SetHeldJoint(const RobotModel& model, const std::string& nam
 void ForwardKinematics(const RobotModel& model, RobotState* state) {
   std::vector<Eigen::Isometry3d>& X_WL = state->X_WL;
   X_WL[0] = state->X_WB;
-  for (const Joint& joint : model.joints()) {
-    const Eigen::Isometry3d& X_WP = X_WL[joint.parent_link];
-    Eigen::Isometry3d& X_WC = X_WL[joint.child_link];
-    switch (joint.type) {
-      case JointType::kFixed:
-        X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
-        X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
-        X_WC.translation() += X_WP.translation();
-        break;
-      case JointType::kRevolute: {
-        const double value = state->joint_values[joint.dof_index];
-        double s, c;
-        SinCos(value, &s, &c);
-        const Eigen::Matrix3d& R_PJ = joint.X_PJ.linear();
-        Eigen::Matrix3d R_PC;
-        if (joint.axis_J.z() == 1.0) {  // the common case (DH, most URDFs): no Rodrigues
-          R_PC.col(0) = c * R_PJ.col(0) + s * R_PJ.col(1);
-          R_PC.col(1) = c * R_PJ.col(1) - s * R_PJ.col(0);
-          R_PC.col(2) = R_PJ.col(2);
-        } else {  // Rodrigues, with the joint's constant terms from the model
-          R_PC = c * (R_PJ - joint.rodrigues_M) + s * joint.rodrigues_N + joint.rodrigues_M;
+  // The revolute joints' sines and cosines first, a batch at a time: they do not depend on one
+  // another, so the CPU runs their polynomials side by side, where along the chain each waited
+  // on its own (measured: FK of the PA10 180 -> 120 ns; bench/kinematics_bench).
+  constexpr std::size_t kBatch = 32;
+  double sines[kBatch], cosines[kBatch];
+  const std::vector<Joint>& joints = model.joints();
+  for (std::size_t start = 0; start < joints.size(); start += kBatch) {
+    const std::size_t end = std::min(joints.size(), start + kBatch);
+    for (std::size_t i = start; i < end; ++i) {
+      if (joints[i].type == JointType::kRevolute)
+        SinCos(state->joint_values[joints[i].dof_index], &sines[i - start], &cosines[i - start]);
+    }
+    for (std::size_t i = start; i < end; ++i) {
+      const Joint& joint = joints[i];
+      const Eigen::Isometry3d& X_WP = X_WL[joint.parent_link];
+      Eigen::Isometry3d& X_WC = X_WL[joint.child_link];
+      switch (joint.type) {
+        case JointType::kFixed:
+          X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
+          X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
+          X_WC.translation() += X_WP.translation();
+          break;
+        case JointType::kRevolute: {
+          const double s = sines[i - start], c = cosines[i - start];
+          const Eigen::Matrix3d& R_PJ = joint.X_PJ.linear();
+          Eigen::Matrix3d R_PC;
+          if (joint.axis_J.z() == 1.0) {  // the common case (DH, most URDFs): no Rodrigues
+            R_PC.col(0) = c * R_PJ.col(0) + s * R_PJ.col(1);
+            R_PC.col(1) = c * R_PJ.col(1) - s * R_PJ.col(0);
+            R_PC.col(2) = R_PJ.col(2);
+          } else {  // Rodrigues, with the joint's constant terms from the model
+            R_PC = c * (R_PJ - joint.rodrigues_M) + s * joint.rodrigues_N + joint.rodrigues_M;
+          }
+          X_WC.linear().noalias() = X_WP.linear() * R_PC;
+          X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
+          X_WC.translation() += X_WP.translation();
+          break;
         }
-        X_WC.linear().noalias() = X_WP.linear() * R_PC;
-        X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
-        X_WC.translation() += X_WP.translation();
-        break;
-      }
-      case JointType::kPrismatic: {
-        const double value = state->joint_values[joint.dof_index];
-        X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
-        X_WC.translation().noalias() = X_WC.linear() * (value * joint.axis_J);
-        X_WC.translation() += X_WP * joint.X_PJ.translation();
-        break;
+        case JointType::kPrismatic: {
+          const double value = state->joint_values[joint.dof_index];
+          X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
+          X_WC.translation().noalias() = X_WC.linear() * (value * joint.axis_J);
+          X_WC.translation() += X_WP * joint.X_PJ.translation();
+          break;
+        }
       }
     }
   }
