@@ -464,7 +464,6 @@ int RunTeleop(const TeleopCommandOptions& o) {
       for (const auto* b : bindings) add(b->name);
       for (const auto& b : config->devices) {
         if (!b.pointer) continue;
-        TROCAR_THROW_UNLESS(pointer_channel < 0, o.devices << ": device '" << b.name << "': one pointer at most");
         pointer_channel = static_cast<int>(inputs.size());
         add(b.name);
       }

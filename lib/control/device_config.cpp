@@ -26,6 +26,7 @@ DeviceConfig ReadDeviceConfig(const std::string& path) {
   DeviceConfig config;
   config.path = path;
   std::set<std::string> names, arms;
+  std::string pointer;
   for (std::size_t i = 0; i < list.size(); ++i) {
     const YAML::Node d = list[i];
     const std::string at = "devices[" + std::to_string(i) + "]";
@@ -42,6 +43,10 @@ DeviceConfig ReadDeviceConfig(const std::string& path) {
     TROCAR_THROW_UNLESS(b.pointer != !b.arm.empty(),
                         y.Where(d, at) << ": device '" << b.name
                                        << "': give either arm: NAME (psm1, psm2, ecm, tool) or pointer: true");
+    TROCAR_THROW_UNLESS(!b.pointer || pointer.empty(),
+                        y.Where(d, at) << ": device '" << b.name << "': '" << pointer
+                                       << "' is the pointer already (one pointer at most)");
+    if (b.pointer) pointer = b.name;
     TROCAR_THROW_UNLESS(b.pointer || arms.insert(b.arm).second,
                         y.Where(d["arm"], at + ".arm") << ": arm '" << b.arm << "' already has a device");
     if (d["units"]) {

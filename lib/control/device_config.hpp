@@ -36,7 +36,7 @@ struct DeviceConfig {
 };
 
 /// Reads a device file. @throws trocar::Error naming the file, line, field and what was expected
-/// (unknown keys, a name over 20 bytes or used twice, two devices on one arm, units other than
+/// (unknown keys, a name over 20 bytes or used twice, two devices on one arm, two pointers, units other than
 /// mm, m or a positive number of metres, a non-positive scale).
 DeviceConfig ReadDeviceConfig(const std::string& path);
 

@@ -295,6 +295,7 @@ TEST_F(DeviceFile, EveryMistakeIsNamedByItsField) {
       {"devices:\n  - {name: a, arm: psm1, scale: 0}\n", "devices[0].scale"},
       {"devices:\n  - {name: a, arm: psm1, device_to_camera_rpy: [0, 0]}\n", "device_to_camera_rpy"},
       {"devices: []\n", "no devices"},
+      {"devices:\n  - {name: a, pointer: true}\n  - {name: b, pointer: true}\n", "one pointer at most"},
       {"arms: {}\n", "arms"},
   };
   for (const auto& [text, expected] : bad) {
