@@ -710,7 +710,8 @@ int RunTeleop(const TeleopCommandOptions& o) {
     for (const auto& [name, c] : server->Counters()) {
       std::cout << "  device '" << name << "': " << c.messages << " poses, " << c.drops() << " dropped (crc "
                 << c.crc << ", malformed " << c.malformed << ", oversized " << c.oversized << ", unknown type "
-                << c.unknown_type << ", non-finite " << c.non_finite << ", truncated " << c.truncated << "), "
+                << c.unknown_type << ", non-finite " << c.non_finite << ", truncated " << c.truncated
+                << ", name in use " << c.name_in_use << "), "
                 << c.buttons << " button messages, " << c.sent << " sent (" << c.send_drops << " not read), "
                 << c.connections << " connection" << (c.connections == 1 ? "" : "s") << "\n";
     }

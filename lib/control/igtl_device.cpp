@@ -231,6 +231,7 @@ struct IgtlDeviceServer::Impl {
     bool clutch = false, present = true;
     std::uint32_t pressed = 0;
     bool has_pose = false;
+    std::chrono::steady_clock::time_point last_heard;
   };
   mutable std::mutex mutex;
   std::map<std::string, Device> devices;
@@ -262,8 +263,20 @@ struct IgtlDeviceServer::Impl {
     const auto now = std::chrono::steady_clock::now();
     for (auto& pose : poses) {
       Device& d = devices[pose.device];
-      if (d.connection != c.id) ++counters[pose.device].connections;
+      if (d.connection != c.id) {
+        // Another connection owns this name while it is open and speaking: not taken.
+        const bool owner_open = std::any_of(connections.begin(), connections.end(), [&](const Connection& o) {
+          return o.id == d.connection && o.fd >= 0;
+        });
+        if (owner_open && now - d.last_heard < std::chrono::seconds(1)) {
+          ++counters[pose.device].name_in_use;
+          --(pose.is_buttons ? counters[pose.device].buttons : counters[pose.device].messages);
+          continue;
+        }
+        ++counters[pose.device].connections;
+      }
       d.connection = c.id;
+      d.last_heard = now;
       if (pose.is_buttons) {
         d.clutch = pose.clutch;
         d.present = pose.present;

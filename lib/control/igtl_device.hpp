@@ -37,8 +37,12 @@ struct DeviceCounters {
   long unknown_type = 0;  ///< a type this server does not take (skipped)
   long non_finite = 0;    ///< NaN or Inf values
   long truncated = 0;     ///< a message cut off by its connection closing
+  /// Messages under this device's name from a second connection while the device's own is open
+  /// and speaking (within a second): a name belongs to one connection at a time, so another
+  /// client cannot take an arm over; it may once the owner closes or falls silent.
+  long name_in_use = 0;
   long connections = 0;   ///< connections it was seen on (more than 1: reconnects)
-  long drops() const { return crc + malformed + oversized + unknown_type + non_finite + truncated; }
+  long drops() const { return crc + malformed + oversized + unknown_type + non_finite + truncated + name_in_use; }
 };
 
 /// Splits one connection's byte stream into OpenIGTLink messages and takes their poses: the

@@ -12,6 +12,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <memory>
 #include <random>
 #include <thread>
 
@@ -470,6 +471,37 @@ TEST(IgtlDevice, ASessionHoldsThroughFaultsAndSilenceAndResumesWithoutAJump) {
   EXPECT_EQ(c.truncated, 1);
   EXPECT_EQ(c.connections, 2);
   EXPECT_EQ(input.silences(), 1);
+}
+
+TEST(IgtlDevice, ADeviceNameBelongsToOneConnectionSoNoOtherClientTakesTheArmOver) {
+  IgtlDeviceServer server(AnyPort());
+  Eigen::Isometry3d mine = Eigen::Isometry3d::Identity(), theirs = Eigen::Isometry3d::Identity();
+  mine.translation() = Eigen::Vector3d(0.01, 0, 0);
+  theirs.translation() = Eigen::Vector3d(0, 0.3, 0);
+  DeviceSample s;
+  std::uint64_t seq = 0;
+  std::chrono::steady_clock::time_point at;
+  auto holder = std::make_unique<RawClient>(server.port());
+  holder->Send(Message("TRANSFORM", "left", TransformBody(mine)));
+  ASSERT_TRUE(Eventually([&] { return server.Latest("left", &s, &seq, &at); }));
+  RawClient intruder(server.port());
+  for (int i = 0; i < 5; ++i) {
+    intruder.Send(Message("TRANSFORM", "left", TransformBody(theirs)));
+    intruder.Send(Message("SENSOR", "left", SensorBody({1, 1})));  // nor its clutch
+  }
+  ASSERT_TRUE(Eventually([&] { return server.Counters().at("left").name_in_use == 10; }));
+  ASSERT_TRUE(server.Latest("left", &s, &seq, &at));
+  EXPECT_LT((s.X_DH.translation() - mine.translation()).norm(), 1e-6) << "another client moved the arm";
+  EXPECT_FALSE(s.clutch);
+  EXPECT_EQ(server.Counters().at("left").messages, 1);
+  // The owner goes: the name is free, and the other client's poses are taken.
+  holder.reset();
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  intruder.Send(Message("TRANSFORM", "left", TransformBody(theirs)));
+  ASSERT_TRUE(Eventually([&] {
+    return server.Latest("left", &s, &seq, &at) && (s.X_DH.translation() - theirs.translation()).norm() < 1e-6;
+  }));
+  EXPECT_EQ(server.Counters().at("left").connections, 2);
 }
 
 TEST(IgtlDevice, APortInUseAndBadAddressesAreClearErrors) {
