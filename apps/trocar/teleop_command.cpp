@@ -117,6 +117,51 @@ Eigen::Isometry3d RasFromLps() {
   return X;
 }
 
+/// The window's overlay: each device's message rate, drops, latency, and whether it is silent.
+class DeviceOverlay {
+ public:
+  DeviceOverlay(const control::IgtlDeviceServer* server, std::vector<std::string> devices,
+                std::vector<control::NetworkDeviceInput*> network)
+      : server_(server), devices_(std::move(devices)), network_(std::move(network)) {}
+  std::string Text() {
+    if (!server_) return "";
+    const auto now = std::chrono::steady_clock::now();
+    const double dt = std::chrono::duration<double>(now - last_time_).count();
+    if (dt >= 0.5) {  // rates over half a second
+      const auto counters = server_->Counters();
+      std::ostringstream text;
+      text << std::fixed << std::setprecision(1);
+      for (std::size_t i = 0; i < devices_.size(); ++i) {
+        std::string d = devices_[i];
+        if (d.empty()) {  // the first device that spoke, whatever its name
+          control::DeviceSample s;
+          std::uint64_t sequence = 0;
+          std::chrono::steady_clock::time_point arrival;
+          server_->Latest("", &s, &sequence, &arrival, &d);
+        }
+        const auto it = counters.find(d);
+        const control::DeviceCounters c = it == counters.end() ? control::DeviceCounters{} : it->second;
+        const double rate = (c.messages - last_messages_[d]) / dt;
+        last_messages_[d] = c.messages;
+        text << (d.empty() ? "device" : d) << ": " << std::setprecision(0) << rate << " Hz, " << c.drops()
+             << " dropped, latency " << std::setprecision(2) << network_[i]->last_latency() * 1e3 << " ms"
+             << (network_[i]->silent() ? "  SILENT (arm holds)" : "") << "\n";
+      }
+      text_ = text.str();
+      last_time_ = now;
+    }
+    return text_;
+  }
+
+ private:
+  const control::IgtlDeviceServer* server_;
+  std::vector<std::string> devices_;
+  std::vector<control::NetworkDeviceInput*> network_;
+  std::chrono::steady_clock::time_point last_time_ = std::chrono::steady_clock::now();
+  std::map<std::string, long> last_messages_;
+  std::string text_;
+};
+
 /// The feedback thread's work (see RunTeleop): until `done`, at o.feedback_rate, on the newest
 /// control step: each arm's force cue to its device as SENSOR (N, device frame), every arm's tool
 /// and the pointer as TRANSFORM to every connection (the patient's CT frame in RAS millimetres,
@@ -149,6 +194,10 @@ void RunFeedback(const TeleopCommandOptions& o, control::IgtlDeviceServer& serve
   const Eigen::Isometry3d X_out_W =
       plan_view ? RasFromLps() * plan_view->patient->X_WP.inverse() : Eigen::Isometry3d::Identity();
   const std::uint64_t newton = control::IgtlNewtonUnit();
+  // Headless, a status line a second on stderr: each device's rate, drops, latency (the window
+  // has its overlay).
+  DeviceOverlay status(&server, devices, network);
+  auto next_status = std::chrono::steady_clock::now() + std::chrono::seconds(1);
   std::vector<bool> heard(channels.size(), false), silent(channels.size(), true);
   control::SessionSnapshot snap;
   const auto period = std::chrono::duration<double>(1.0 / o.feedback_rate);
@@ -173,6 +222,13 @@ void RunFeedback(const TeleopCommandOptions& o, control::IgtlDeviceServer& serve
         }
         heard[i] = true;
       }
+    }
+    if (!o.view && std::chrono::steady_clock::now() >= next_status) {
+      next_status += std::chrono::seconds(1);
+      std::string line;
+      std::istringstream lines(status.Text());
+      for (std::string device; std::getline(lines, device);) line += (line.empty() ? "" : "; ") + device;
+      std::cerr << "status: " << line << "\n";
     }
     if (!buffer->Read(&snap) || snap.q.size() != fk_model.num_positions()) continue;
     const auto t0 = std::chrono::steady_clock::now();
@@ -219,45 +275,6 @@ void RunFeedback(const TeleopCommandOptions& o, control::IgtlDeviceServer& serve
     ++stats->updates;
   }
 }
-
-/// The window's overlay: each device's message rate, drops, latency, and whether it is silent.
-class DeviceOverlay {
- public:
-  DeviceOverlay(const control::IgtlDeviceServer* server, std::vector<std::string> devices,
-                std::vector<control::NetworkDeviceInput*> network)
-      : server_(server), devices_(std::move(devices)), network_(std::move(network)) {}
-  std::string Text() {
-    if (!server_) return "";
-    const auto now = std::chrono::steady_clock::now();
-    const double dt = std::chrono::duration<double>(now - last_time_).count();
-    if (dt >= 0.5) {  // rates over half a second
-      const auto counters = server_->Counters();
-      std::ostringstream text;
-      text << std::fixed << std::setprecision(1);
-      for (std::size_t i = 0; i < devices_.size(); ++i) {
-        const std::string& d = devices_[i];
-        const auto it = counters.find(d);
-        const control::DeviceCounters c = it == counters.end() ? control::DeviceCounters{} : it->second;
-        const double rate = (c.messages - last_messages_[d]) / dt;
-        last_messages_[d] = c.messages;
-        text << (d.empty() ? "device" : d) << ": " << std::setprecision(0) << rate << " Hz, " << c.drops()
-             << " dropped, latency " << std::setprecision(2) << network_[i]->last_latency() * 1e3 << " ms"
-             << (network_[i]->silent() ? "  SILENT (arm holds)" : "") << "\n";
-      }
-      text_ = text.str();
-      last_time_ = now;
-    }
-    return text_;
-  }
-
- private:
-  const control::IgtlDeviceServer* server_;
-  std::vector<std::string> devices_;
-  std::vector<control::NetworkDeviceInput*> network_;
-  std::chrono::steady_clock::time_point last_time_ = std::chrono::steady_clock::now();
-  std::map<std::string, long> last_messages_;
-  std::string text_;
-};
 
 int RunTeleop(const TeleopCommandOptions& o) {
   robot::LoadOptions load;

@@ -839,6 +839,9 @@ TEST(TrocarTeleopNetwork, TwoDevicesDriveTwoArmsAndAPointerFromADeviceFile) {
   ASSERT_NE(arm2, std::string::npos) << out;
   EXPECT_LT(std::stod(out.substr(arm2 + 36)), 1.0) << out;
   EXPECT_NE(out.find("pointer 'senior'"), std::string::npos) << out;
+  // Headless: a status line a second with each device's rate, drops and latency.
+  EXPECT_NE(out.find("status: left: "), std::string::npos) << out;
+  EXPECT_NE(out.find("; right: "), std::string::npos) << out;
   for (const char* d : {"device 'left': ", "device 'right': ", "device 'senior': "})
     EXPECT_NE(out.find(d), std::string::npos) << d << "\n" << out;
   // The clutch window held psm1 about half a second (at 1 kHz), and nothing was dropped.
