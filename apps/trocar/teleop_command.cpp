@@ -70,7 +70,8 @@ struct DrivenArm {
   const control::DeviceBinding* binding = nullptr;
 };
 
-/// The robot of `builder` with its tool at the frame `frame` (a named frame or a link).
+/// The robot of `builder` with its tool at the frame `frame` (a named frame or a link; "tool":
+/// the robot's own).
 std::shared_ptr<const robot::RobotModel> WithTool(robot::RobotModelBuilder builder, const robot::RobotModel& plain,
                                                   const std::string& frame, const std::string& where) {
   if (frame == "tool" || frame == plain.tool_frame().name) return std::make_shared<const robot::RobotModel>(plain);
@@ -349,24 +350,8 @@ int RunTeleop(const TeleopCommandOptions& o) {
     arm.binding = config ? bindings[i] : nullptr;
     const std::string where = config ? o.devices + ": device '" + bindings[i]->name + "', arm '" + arm.name + "'"
                                      : (o.plan.empty() ? robot_file : o.plan + ": arm " + arm.name);
-    if (!o.plan.empty()) {
-      robot::RobotModelBuilder::FrameSpec tool;  // the arm's tool frame stays a frame of its own
-      const robot::Frame& f = [&]() -> const robot::Frame& {
-        try {
-          return plain.GetFrame(tool_of_arm[arm.name]);
-        } catch (const Error& e) {
-          TROCAR_THROW(where << ": tool frame '" << tool_of_arm[arm.name] << "' is not a frame of " << robot_file);
-        }
-      }();
-      tool.name = arm.name + "_teleop_tool";
-      tool.link = plain.link(f.link).name;
-      tool.X_LF = f.X_LF;
-      robot::RobotModelBuilder b = builder;
-      b.SetTool(tool);
-      arm.model = std::make_shared<const robot::RobotModel>(b.Build());
-    } else {
-      arm.model = WithTool(builder, plain, arm.name, where);
-    }
+    // A plan's arm by its tool frame; a robot's by the frame named.
+    arm.model = WithTool(builder, plain, tool_of_arm[arm.name], where);
     arm.positions = control::ArmPositions(*arm.model, arm.model->tool_frame().link);
     if (arm_names.size() == 1) arm.positions.clear();  // one arm moves the whole robot
     arms.push_back(std::move(arm));

@@ -6,6 +6,7 @@
 /// limit among them). The force is computed in the world and expressed in the device's frame,
 /// so that it pushes the hand the way that moves the tool out of trouble.
 
+#include <limits>
 #include <string>
 #include <vector>
 

@@ -41,6 +41,29 @@ std::string Field(const unsigned char* p, std::size_t n) {
   return std::string(reinterpret_cast<const char*>(p), len);
 }
 
+/// libopenigtlink's header of the message at `m` (58 bytes).
+igtl::MessageHeader::Pointer UnpackHeader(const unsigned char* m) {
+  igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
+  header->InitPack();
+  std::memcpy(header->GetPackPointer(), m, kHeaderSize);
+  header->Unpack();
+  return header;
+}
+
+/// The body of the message at `m` unpacked by libopenigtlink as a `Message`; null when its size
+/// is not the one the header gives or its CRC does not check.
+template <typename Message>
+typename Message::Pointer UnpackBody(const igtl::MessageHeader::Pointer& header, const unsigned char* m,
+                                     std::size_t body_size) {
+  typename Message::Pointer message = Message::New();
+  message->SetMessageHeader(header);
+  message->AllocatePack();
+  if (static_cast<std::size_t>(message->GetPackBodySize()) != body_size) return typename Message::Pointer();
+  std::memcpy(message->GetPackBodyPointer(), m + kHeaderSize, body_size);
+  if (!(message->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) return typename Message::Pointer();
+  return message;
+}
+
 /// One complete message (header and body in `m`): a pose, or a drop counted.
 bool TakeMessage(const unsigned char* m, std::size_t body_size, double units, IgtlStreamParser::Pose* pose,
                  DeviceCounters* count) {
@@ -58,17 +81,12 @@ bool TakeMessage(const unsigned char* m, std::size_t body_size, double units, Ig
     ++count->malformed;
     return false;
   }
-  igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
-  header->InitPack();
-  std::memcpy(header->GetPackPointer(), m, kHeaderSize);
-  header->Unpack();
+  const igtl::MessageHeader::Pointer header = UnpackHeader(m);
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  // The sizes are checked above: a body that does not unpack fails its CRC.
   if (sensor) {
-    igtl::SensorMessage::Pointer sm = igtl::SensorMessage::New();
-    sm->SetMessageHeader(header);
-    sm->AllocatePack();
-    std::memcpy(sm->GetPackBodyPointer(), m + kHeaderSize, body_size);
-    if (!(sm->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) {
+    const igtl::SensorMessage::Pointer sm = UnpackBody<igtl::SensorMessage>(header, m, body_size);
+    if (sm.IsNull()) {
       ++count->crc;
       return false;
     }
@@ -88,11 +106,8 @@ bool TakeMessage(const unsigned char* m, std::size_t body_size, double units, Ig
     return true;
   }
   if (transform) {
-    igtl::TransformMessage::Pointer t = igtl::TransformMessage::New();
-    t->SetMessageHeader(header);
-    t->AllocatePack();
-    std::memcpy(t->GetPackBodyPointer(), m + kHeaderSize, body_size);
-    if (!(t->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) {
+    const igtl::TransformMessage::Pointer t = UnpackBody<igtl::TransformMessage>(header, m, body_size);
+    if (t.IsNull()) {
       ++count->crc;
       return false;
     }
@@ -115,11 +130,8 @@ bool TakeMessage(const unsigned char* m, std::size_t body_size, double units, Ig
     X.linear() = svd.matrixU() * svd.matrixV().transpose();
     X.translation() = p * units;
   } else {
-    igtl::PositionMessage::Pointer pm = igtl::PositionMessage::New();
-    pm->SetMessageHeader(header);
-    pm->AllocatePack();
-    std::memcpy(pm->GetPackBodyPointer(), m + kHeaderSize, body_size);
-    if (!(pm->Unpack(1) & igtl::MessageHeader::UNPACK_BODY)) {
+    const igtl::PositionMessage::Pointer pm = UnpackBody<igtl::PositionMessage>(header, m, body_size);
+    if (pm.IsNull()) {
       ++count->crc;
       return false;
     }
@@ -678,36 +690,31 @@ const std::map<std::string, long>& IgtlDeviceClient::Received() {
     }
     if (buffer_.size() - at < kHeaderSize + body) break;
     const std::string type = Field(m + 2, 12), name = Field(m + 14, 20);
-    igtl::MessageHeader::Pointer header = igtl::MessageHeader::New();
-    header->InitPack();
-    std::memcpy(header->GetPackPointer(), m, kHeaderSize);
-    header->Unpack();
-    if (type == "SENSOR" && body >= 10) {
-      igtl::SensorMessage::Pointer sm = igtl::SensorMessage::New();
-      sm->SetMessageHeader(header);
-      sm->AllocatePack();
-      if (static_cast<std::uint64_t>(sm->GetPackBodySize()) == body) {
-        std::memcpy(sm->GetPackBodyPointer(), m + kHeaderSize, body);
-        if (sm->Unpack(1) & igtl::MessageHeader::UNPACK_BODY) {
-          std::vector<double> values(sm->GetLength());
-          double squared = 0.0;
-          for (unsigned i = 0; i < values.size(); ++i) {
-            values[i] = sm->GetValue(i);
-            if (i < 3) squared += values[i] * values[i];
-          }
-          if (sm->GetUnit() == IgtlNewtonUnit()) max_force_ = std::max(max_force_, std::sqrt(squared));
-          sensors_[name] = {std::move(values), sm->GetUnit()};
-          ++received_[type];
-        } else {
-          ++received_["SENSOR bad crc"];
+    const igtl::MessageHeader::Pointer header = UnpackHeader(m);
+    // Each type's exact size before libopenigtlink reads it (its unpackers trust the count).
+    if (type == "SENSOR") {
+      const bool sized = body >= 10 && body == 10 + 8 * static_cast<std::uint64_t>(m[kHeaderSize]);
+      const igtl::SensorMessage::Pointer sm =
+          sized ? UnpackBody<igtl::SensorMessage>(header, m, body) : igtl::SensorMessage::Pointer();
+      if (sm.IsNull()) {
+        ++received_["SENSOR bad (size or CRC)"];
+      } else {
+        std::vector<double> values(sm->GetLength());
+        double squared = 0.0;
+        for (unsigned i = 0; i < values.size(); ++i) {
+          values[i] = sm->GetValue(i);
+          if (i < 3) squared += values[i] * values[i];
         }
+        if (sm->GetUnit() == IgtlNewtonUnit()) max_force_ = std::max(max_force_, std::sqrt(squared));
+        sensors_[name] = {std::move(values), sm->GetUnit()};
+        ++received_[type];
       }
-    } else if (type == "TRANSFORM" && body == 48) {
-      igtl::TransformMessage::Pointer t = igtl::TransformMessage::New();
-      t->SetMessageHeader(header);
-      t->AllocatePack();
-      std::memcpy(t->GetPackBodyPointer(), m + kHeaderSize, body);
-      if (t->Unpack(1) & igtl::MessageHeader::UNPACK_BODY) {
+    } else if (type == "TRANSFORM") {
+      const igtl::TransformMessage::Pointer t =
+          body == 48 ? UnpackBody<igtl::TransformMessage>(header, m, body) : igtl::TransformMessage::Pointer();
+      if (t.IsNull()) {
+        ++received_["TRANSFORM bad (size or CRC)"];
+      } else {
         igtl::Matrix4x4 matrix;
         t->GetMatrix(matrix);
         Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
@@ -717,8 +724,6 @@ const std::map<std::string, long>& IgtlDeviceClient::Received() {
         }
         transforms_[name] = X;
         ++received_[type];
-      } else {
-        ++received_["TRANSFORM bad crc"];
       }
     } else {
       ++received_[type];

@@ -174,8 +174,8 @@ class IgtlDeviceClient {
                    const std::vector<bool>& others = {});
   /// Raw bytes, as they are (tests inject faults with it). False when the connection closed.
   bool SendBytes(const std::string& bytes);
-  /// Reads what the server sent, without waiting: messages by type ("SENSOR bad crc" for
-  /// SENSOR messages whose CRC does not check).
+  /// Reads what the server sent, without waiting: messages by type ("SENSOR bad (size or
+  /// CRC)", "TRANSFORM bad (size or CRC)" for those that do not decode).
   const std::map<std::string, long>& Received();
   /// The newest SENSOR values sent to `device` and their unit (OpenIGTLink's 64-bit unit code);
   /// false when none came. Call Received() first.

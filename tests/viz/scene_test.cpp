@@ -95,6 +95,21 @@ bool Project(const CameraPose& c, int width, int height, const Eigen::Vector3d& 
   return true;
 }
 
+/// Puts the ECM (base moved, joints as they are) so that its scope's tip is `distance` from
+/// `p_W` along -`axis`, its shaft (the tool frame's z) along `axis`; returns the tip's pose.
+Eigen::Isometry3d AimScope(Scene* scene, const robot::RobotModel& ecm, const Eigen::Vector3d& p_W,
+                           const Eigen::Vector3d& axis, double distance) {
+  robot::RobotState state = *scene->robot_state();
+  const Eigen::Isometry3d X_BT = kinematics::FramePose(state, ecm.tool_frame());  // base at identity
+  Eigen::Isometry3d X_WT = Eigen::Isometry3d::Identity();
+  X_WT.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
+  X_WT.translation() = p_W - distance * axis;
+  state.X_WB = X_WT * X_BT.inverse();
+  kinematics::ForwardKinematics(ecm, &state);
+  scene->SetRobotState(state);
+  return X_WT;
+}
+
 TEST(Scene, AFlatPictureOfTheBundledCaseShowsThePatientTheTableAndTheRobot) {
   auto cart = LoadShared("robots/davinci-classic/cart.yaml");
   Scene scene(Phantom(), cart, FlatStyle());
@@ -182,15 +197,8 @@ TEST(Scene, AScopeCameraOnTheEcmSeesTheTargetItIsAimedAtAndNothingOfItWhenTurned
   scene.SetVisible("cones", false);
   scene.SetVisible("skin", false);  // the tip is put outside the chest wall, 6 cm out
   // The scope's tip 6 cm from the target, its shaft (the tool frame's z) aimed at it.
-  robot::RobotState state = *scene.robot_state();
-  const Eigen::Isometry3d X_BT = kinematics::FramePose(state, ecm->tool_frame());  // base at identity
-  Eigen::Isometry3d X_WT = Eigen::Isometry3d::Identity();
   const Eigen::Vector3d axis = -n_W.normalized();
-  X_WT.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
-  X_WT.translation() = p_W - 0.06 * axis;
-  state.X_WB = X_WT * X_BT.inverse();
-  kinematics::ForwardKinematics(*ecm, &state);
-  scene.SetRobotState(state);
+  const Eigen::Isometry3d X_WT = AimScope(&scene, *ecm, p_W, axis, 0.06);
   FrameCamera scope;
   scope.frame = ecm->tool_frame().name;
   const CameraPose pose = scene.OnFrame(scope);
@@ -232,14 +240,7 @@ TEST(Scene, ThePointerIsDrawnInBothViewsWhereItIsPut) {
   const Eigen::Vector3d p_W = patient->X_WP * lad.points[middle];
   const Eigen::Vector3d axis = -(patient->X_WP.linear() * lad.normals[middle]).normalized();
   // The scope 6 cm out from the target, aimed at it.
-  robot::RobotState state = *scene.robot_state();
-  const Eigen::Isometry3d X_BT = kinematics::FramePose(state, ecm->tool_frame());
-  Eigen::Isometry3d X_WT = Eigen::Isometry3d::Identity();
-  X_WT.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), axis).toRotationMatrix();
-  X_WT.translation() = p_W - 0.06 * axis;
-  state.X_WB = X_WT * X_BT.inverse();
-  kinematics::ForwardKinematics(*ecm, &state);
-  scene.SetRobotState(state);
+  const Eigen::Isometry3d X_WT = AimScope(&scene, *ecm, p_W, axis, 0.06);
   FrameCamera scope;
   scope.frame = ecm->tool_frame().name;
   ViewSpec endoscope;
