@@ -40,30 +40,49 @@ Vector6d ToolTaskVelocity(const robot::RobotModel& model, const robot::RobotStat
 // top rows of a 6 × n buffer, so that R × R products and solves are fixed-size (on the stack).
 template <int R>
 using Rows = Eigen::Block<kinematics::Matrix6Xd, R, Eigen::Dynamic, false>;
-/// Solves L Lᵀ x = b from a Cholesky factor (the lower triangle of `llt`), unrolled for R, with
-/// the diagonal's reciprocals: Eigen's general triangular solves divided on the critical path and
-/// were a fifth of a PSM control step (bench/control_bench).
+/// The inverse of a symmetric positive definite R × R matrix, through A = L D Lᵀ (unit lower L,
+/// no square roots) unrolled for R, then A⁻¹ = L⁻ᵀ D⁻¹ L⁻¹. A damped least-squares step solves
+/// with the same matrix three times (two for the smallest singular value, one for the step):
+/// triangular solves are chains of dependent operations, an inverse turns each into a product
+/// whose operations run side by side. Eigen's general LLT and triangular solves were a quarter
+/// of a PSM control step (bench/control_bench).
 template <int R>
-struct CholeskySolve {
-  explicit CholeskySolve(const Eigen::Matrix<double, R, R>& llt) : L(llt) {
-    for (int i = 0; i < R; ++i) inverse_diagonal[i] = 1.0 / L(i, i);
-  }
-  Eigen::Matrix<double, R, 1> operator()(const Eigen::Matrix<double, R, 1>& b) const {
-    Eigen::Matrix<double, R, 1> y;
-    for (int i = 0; i < R; ++i) {  // L y = b
-      double s = b[i];
-      for (int j = 0; j < i; ++j) s -= L(i, j) * y[j];
-      y[i] = s * inverse_diagonal[i];
+struct SpdInverse {
+  using Matrix = Eigen::Matrix<double, R, R>;
+  /// ok() is false when A is not positive definite to working precision (or not finite).
+  explicit SpdInverse(const Matrix& A) {
+    Matrix L = Matrix::Identity();
+    Eigen::Matrix<double, R, 1> D, inverse_d;
+    for (int j = 0; j < R; ++j) {
+      double w[R];
+      double d = A(j, j);
+      for (int k = 0; k < j; ++k) {
+        w[k] = L(j, k) * D[k];
+        d -= L(j, k) * w[k];
+      }
+      if (!(d > 0.0) || !std::isfinite(d)) return;
+      D[j] = d;
+      inverse_d[j] = 1.0 / d;
+      for (int i = j + 1; i < R; ++i) {
+        double s = A(i, j);
+        for (int k = 0; k < j; ++k) s -= L(i, k) * w[k];
+        L(i, j) = s * inverse_d[j];
+      }
     }
-    for (int i = R - 1; i >= 0; --i) {  // Lᵀ x = y, in place
-      double s = y[i];
-      for (int j = i + 1; j < R; ++j) s -= L(j, i) * y[j];
-      y[i] = s * inverse_diagonal[i];
+    Matrix M = Matrix::Identity();  // L⁻¹, unit lower; its columns are independent
+    for (int j = 0; j < R; ++j) {
+      for (int i = j + 1; i < R; ++i) {
+        double s = L(i, j);
+        for (int k = j + 1; k < i; ++k) s += L(i, k) * M(k, j);
+        M(i, j) = -s;
+      }
     }
-    return y;
+    inverse.noalias() = M.transpose() * inverse_d.asDiagonal() * M;
+    positive = true;
   }
-  const Eigen::Matrix<double, R, R>& L;
-  double inverse_diagonal[R];
+  bool ok() const { return positive; }
+  Matrix inverse;
+  bool positive = false;
 };
 
 template <int R>
@@ -71,11 +90,15 @@ using ConstRows = Eigen::Block<const kinematics::Matrix6Xd, R, Eigen::Dynamic, f
 
 // y = (J Jᵀ + λ² I)⁻¹ v with λ growing smoothly as the smallest singular value of J drops below
 // `threshold` (at most `max_damping`); q̇ = Jᵀ y is then the damped least-squares solution.
-// σ_min² (the smallest eigenvalue of J Jᵀ) comes from inverse iteration on the factorisation the
-// solve needs anyway, started from the last step's direction (`warm`): one or two iterations
-// when the arm moves smoothly. Its estimate never falls below the true value; it stops when two
-// estimates agree to 1e-4 (relative). A full eigen-decomposition per step cost more than the
-// rest of the step.
+// Whether to damp needs σ_min² (the smallest eigenvalue λ_min of J Jᵀ) only near the threshold:
+// - the inverse B = (J Jᵀ)⁻¹ the solve uses bounds it from below, λ_min ≥ 1 / ‖B‖_F (since
+//   ‖B‖_F ≥ λ_max(B)); at or above threshold², no damping, and nothing more to compute (the common
+//   case; the bound is at most √R too low);
+// - otherwise inverse iteration on B, started from the last step's direction (`warm`), gives the
+//   Rayleigh quotient ρ ≥ λ_min; it stops when the residual ‖J Jᵀ x − ρ x‖, within which of ρ an
+//   eigenvalue lies, is below 1e-10 of threshold² (or of ρ). Successive estimates that merely
+//   agree do not suffice: with two close eigenvalues they agree long before they are right.
+// A full eigen-decomposition per step cost more than the rest of the step.
 template <int R, typename JacobianRows>
 Eigen::Matrix<double, R, 1> DampedSolve(const JacobianRows& J, const Eigen::Matrix<double, R, 1>& v,
                                         double max_damping, double threshold, Vector6d* warm) {
@@ -83,34 +106,37 @@ Eigen::Matrix<double, R, 1> DampedSolve(const JacobianRows& J, const Eigen::Matr
   Eigen::Matrix<double, R, R> JJt;
   JJt.noalias() = J * J.transpose();
   JJt.diagonal().array() += 1e-12;
-  // Cholesky: J Jᵀ + εI is symmetric positive definite (no pivoting needed; cheaper than LDLT).
-  Eigen::LLT<Eigen::Matrix<double, R, R>> chol(JJt);
-  Vector x = warm->head<R>();
-  if (!(x.squaredNorm() > 0.5)) x = Vector::Constant(1.0 / std::sqrt(static_cast<double>(R)));
-  double lambda_min = HUGE_VAL;
-  // A factorisation that failed (J J^T singular to rounding) is a singular arm: full damping.
-  if (chol.info() != Eigen::Success) lambda_min = 0.0;
-  const CholeskySolve<R> solve(chol.matrixLLT());
-  for (int iteration = 0; iteration < 100 && lambda_min > 0.0; ++iteration) {
-    const Vector y = solve(x);
-    const double norm = y.norm();
-    if (!(norm > 0.0) || !std::isfinite(norm)) {  // singular to working precision
-      lambda_min = 0.0;
-      break;
+  const SpdInverse<R> inverse(JJt);
+  const double threshold2 = threshold * threshold;
+  // A factorisation that failed (J Jᵀ singular to rounding) is a singular arm: full damping.
+  double lambda_min = 0.0;
+  if (inverse.ok()) {
+    lambda_min = 1.0 / inverse.inverse.norm();  // a lower bound
+    if (lambda_min >= threshold2) return inverse.inverse * v;
+    Vector x = warm->head<R>();
+    if (!(x.squaredNorm() > 0.5)) x = Vector::Constant(1.0 / std::sqrt(static_cast<double>(R)));
+    for (int iteration = 0; iteration < 200; ++iteration) {
+      const Vector y = inverse.inverse * x;
+      const double norm = y.norm();
+      if (!(norm > 0.0) || !std::isfinite(norm)) {  // singular to working precision
+        lambda_min = 0.0;
+        break;
+      }
+      x = y / norm;
+      const Vector Ax = JJt * x;
+      lambda_min = x.dot(Ax);  // Rayleigh quotient: ≥ λ_min
+      if ((Ax - lambda_min * x).norm() <= 1e-10 * std::max(threshold2, lambda_min)) break;
     }
-    const double estimate = 1.0 / norm;  // ≥ λ_min for a unit x
-    x = y / norm;
-    const bool settled = std::abs(lambda_min - estimate) <= 1e-4 * estimate;
-    lambda_min = estimate;
-    if (settled) break;
+    warm->head<R>() = x;
   }
-  warm->head<R>() = x;
   const double sigma_min = std::sqrt(std::max(0.0, lambda_min - 1e-12));
-  if (sigma_min >= threshold) return solve(v);
+  if (sigma_min >= threshold) return inverse.inverse * v;
   const double ratio = sigma_min / threshold;
   const double lambda2 = (1.0 - ratio * ratio) * max_damping * max_damping;
   JJt.diagonal().array() += lambda2;
-  return JJt.llt().solve(v);
+  const SpdInverse<R> damped(JJt);
+  if (damped.ok()) return damped.inverse * v;
+  return JJt.llt().solve(v);  // not finite, or nothing to lift it: as Eigen solves it
 }
 
 // x -= J⁺ J x (the projection of x onto the null space of J), with J⁺ = Jᵀ (J Jᵀ)⁺ and the
@@ -136,14 +162,18 @@ template <int R>
 void SolveRows(const kinematics::Matrix6Xd& J, const Vector6d& v, bool use_frozen, double max_damping,
                double threshold, ControllerWorkspace* ws, Eigen::VectorXd* qdot) {
   const int n = static_cast<int>(J.cols());
+  const Eigen::Matrix<double, R, 1> task = v.tail<R>();
+  if (!use_frozen) {  // the task's rows of J as they are
+    const ConstRows<R> Jr(J, 6 - R, 0, R, n);
+    const Eigen::Matrix<double, R, 1> y = DampedSolve<R>(Jr, task, max_damping, threshold, &ws->sigma_direction);
+    qdot->noalias() = Jr.transpose() * y;
+    return;
+  }
   Rows<R> Jr = ws->J_task.topRows<R>();
   Jr = J.bottomRows<R>();  // R = 6: all rows; R = 3: the linear ones
-  if (use_frozen) {
-    for (int k = 0; k < n; ++k) {
-      if (ws->frozen[static_cast<std::size_t>(k)]) Jr.col(k).setZero();
-    }
+  for (int k = 0; k < n; ++k) {
+    if (ws->frozen[static_cast<std::size_t>(k)]) Jr.col(k).setZero();
   }
-  const Eigen::Matrix<double, R, 1> task = v.tail<R>();
   const Eigen::Matrix<double, R, 1> y = DampedSolve<R>(Jr, task, max_damping, threshold, &ws->sigma_direction);
   qdot->noalias() = Jr.transpose() * y;
 }

@@ -1,6 +1,7 @@
 #include <functional>
 #include <random>
 
+#include <Eigen/SVD>
 #include <gtest/gtest.h>
 
 #include "control/control_loop.hpp"
@@ -174,6 +175,72 @@ INSTANTIATE_TEST_SUITE_P(
         ControllerCase{"jla", &Pa10, [](const RobotModel& m, const Eigen::VectorXd&) { return control::MakeController("jla", m, TestGains()); }},
         ControllerCase{"rcm", &Pa10Instrument, &MakeRcm}),
     [](const ::testing::TestParamInfo<ControllerCase>& info) { return std::string(info.param.name); });
+
+// The damped least-squares step against its definition, computed independently through an SVD:
+// q̇ = Jᵀ (J Jᵀ + λ² I)⁻¹ v with λ² = (1 − (σ_min / σ₀)²) λ_max² below σ₀, 0 above. Seeded random
+// configurations of the PA10 and the PSM, some moved toward the PA10's stretched singularity so
+// that the damping is exercised; all six rows and the position rows alone; each from the last
+// one's warm start, as far from it as random configurations are. A wrong inverse, a smallest
+// singular value off by more than ~1e-7 (an inverse iteration stopped when two estimates merely
+// agree to 1e-4 was off by 1e-3 here) or damping on the wrong side of σ₀ fails it.
+TEST(DampedLeastSquares, StepEqualsTheSvdDefinitionOverRandomAndNearSingularConfigurations) {
+  constexpr double kMaxDamping = 0.05, kThreshold = 0.05, kTol = 1e-9;
+  const control::DampedLeastSquaresController controller(TestGains(), kMaxDamping, kThreshold);
+  std::mt19937 rng(18);
+  int damped = 0, undamped = 0;
+  for (const RobotModel* model : {&Pa10(), &Psm()}) {
+    const Eigen::VectorXd lower = model->lower_limits(), upper = model->upper_limits();
+    RobotState state(*model);
+    control::ControllerWorkspace ws;
+    for (int trial = 0; trial < 200; ++trial) {
+      Eigen::VectorXd q = model->home_configuration();
+      const double shrink = model == &Pa10() && trial % 2 == 0 ? std::pow(0.5, trial % 20) : 1.0;
+      for (int i = 0; i < q.size(); ++i) {
+        const double lo = std::max(lower[i], -2.0), hi = std::min(upper[i], 2.0);
+        const double u = std::uniform_real_distribution<double>(lo, hi)(rng);
+        q[i] = model == &Pa10() ? shrink * u : u;  // PA10 toward q = 0, straight up (singular)
+      }
+      if (!kinematics::ForwardKinematics(*model, q, &state).ok) continue;
+      TaskTarget target;
+      target.X_WD = kinematics::FramePose(state, model->tool_frame());
+      target.X_WD.translation() += Eigen::Vector3d(0.004, -0.003, 0.002);
+      target.X_WD.linear() = Eigen::AngleAxisd(0.05, Eigen::Vector3d(1, -2, 1).normalized()) *
+                             target.X_WD.linear();
+      target.V_WD << 0.01, -0.02, 0.03, 0.004, 0.002, -0.001;
+      target.position_only = trial % 3 == 0;
+      Eigen::VectorXd qdot;
+      controller.ComputeVelocity(*model, state, target, &ws, &qdot);
+
+      kinematics::Matrix6Xd J;
+      kinematics::ComputeFrameJacobian(*model, state, model->tool_frame(), &J);
+      const Vector6d v = target.V_WD + TestGains().asDiagonal() *
+                                           control::TaskError(target.X_WD, kinematics::FramePose(state, model->tool_frame()));
+      const int rows = target.position_only ? 3 : 6;
+      const Eigen::MatrixXd Jr = J.bottomRows(rows);
+      const Eigen::VectorXd vr = v.tail(rows);
+      const Eigen::JacobiSVD<Eigen::MatrixXd> svd(Jr);
+      const double sigma_min = svd.singularValues()[rows - 1];
+      double lambda2 = 0.0;
+      if (sigma_min < kThreshold) {
+        const double ratio = sigma_min / kThreshold;
+        lambda2 = (1.0 - ratio * ratio) * kMaxDamping * kMaxDamping;
+        ++damped;
+      } else {
+        ++undamped;
+      }
+      const Eigen::MatrixXd A =
+          Jr * Jr.transpose() + (lambda2 + 1e-12) * Eigen::MatrixXd::Identity(rows, rows);
+      const Eigen::VectorXd expected = Jr.transpose() * A.ldlt().solve(vr);
+      ASSERT_TRUE(qdot.allFinite());
+      EXPECT_LE((qdot - expected).norm(), kTol * std::max(1.0, expected.norm()))
+          << model->name() << " trial " << trial << ", σ_min " << sigma_min << "\n  got      "
+          << qdot.transpose() << "\n  expected " << expected.transpose();
+    }
+  }
+  // Both sides of the threshold were exercised.
+  EXPECT_GT(damped, 10);
+  EXPECT_GT(undamped, 100);
+}
 
 TEST(SoftwareRcm, KeepsTheShaftThroughThePortWhileTheToolMoves) {
   const RobotModel& model = Pa10Instrument();
