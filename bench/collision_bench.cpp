@@ -77,7 +77,7 @@ int main(int argc, char** argv) {
   std::printf(
       "patient %s: %ld triangles; cart placed: %s\n", patient.name.c_str(),
       patient.triangle_count(),
-      placement.placed() ? "every port reached" : "nearest placement (not every port reached)");
+      placement.ok() ? "every port reached" : "nearest placement (not every port reached)");
 
   std::mt19937 rng(7);
   std::vector<robot::RobotState> states;
@@ -90,7 +90,7 @@ int main(int argc, char** argv) {
       q[i] = std::clamp(q[i] + std::uniform_real_distribution<double>(-third, third)(rng),
                         lim.lower, lim.upper);
     }
-    if (kinematics::ForwardKinematics(*cart, q, &s).ok) states.push_back(s);
+    if (kinematics::ForwardKinematics(*cart, q, &s).ok()) states.push_back(s);
   }
   const unsigned robot_patient = collision::Bit(collision::PairClass::kArmPatient) |
                                  collision::Bit(collision::PairClass::kInstrumentPatient);
@@ -115,7 +115,7 @@ int main(int argc, char** argv) {
       Eigen::VectorXd q(cart->num_positions());
       for (int i = 0; i < q.size(); ++i)
         q[i] = uniform(cart->joint(cart->active_joints()[i]).limits);
-      if (!kinematics::ForwardKinematics(*cart, q, &s).ok) continue;
+      if (!kinematics::ForwardKinematics(*cart, q, &s).ok()) continue;
       checker.SetRobotState(s);
       if (checker.InCollision()) continue;
       if (checker.MinimumDistance(robot_patient).distance > 0.10) continue;

@@ -38,7 +38,7 @@ void BM_ControlStep(benchmark::State& bm) {
   const RobotModel& model = Load(kRobots[bm.range(0)]);
   const std::string controller = kControllers[bm.range(1)];
   trocar::control::ControlLoop loop(model, trocar::control::MakeController(controller, model, kGains),
-                                    model.home_configuration());
+                                    model.defaults().home);
   trocar::control::TaskTarget target;
   target.X_WD = loop.ToolPose();
   long k = 0;
@@ -59,7 +59,7 @@ void BM_SinusoidTracking(benchmark::State& bm) {
   trocar::control::TrackingSummary summary;
   for (auto _ : bm) {
     trocar::control::ControlLoop loop(
-        model, trocar::control::MakeController(controller, model, kGains), model.home_configuration());
+        model, trocar::control::MakeController(controller, model, kGains), model.defaults().home);
     trocar::control::ScriptedMotion motion;  // the thesis' sinusoid: 40 mm per axis
     trocar::control::ScriptedInput input(motion);
     trocar::control::TeleopSessionOptions options;
@@ -80,7 +80,7 @@ void BM_RunnerJitter10s(benchmark::State& bm) {
   trocar::control::RunnerStats stats;
   for (auto _ : bm) {
     trocar::control::ControlLoop loop(model, trocar::control::MakeController("dls", model, kGains),
-                                      model.home_configuration());
+                                      model.defaults().home);
     trocar::control::TaskTarget target;
     target.X_WD = loop.ToolPose();
     trocar::control::FixedRateRunner runner(1000.0, [&](double, double dt) { loop.Step(target, dt); });

@@ -31,7 +31,7 @@ std::vector<ReplayFrame> ReplayMotion(const robot::RobotModel& robot, const robo
     Eigen::VectorXd q = start.q;
     for (std::size_t d = 0; d < q_index.size(); ++d) q[q_index[d]] = w[d];
     const auto fk = kinematics::ForwardKinematics(robot, q, &frame.state);
-    TROCAR_THROW_UNLESS(fk.ok, "motion of " << motion.arm << " to sample " << motion.sample
+    TROCAR_THROW_UNLESS(fk.ok(), "motion of " << motion.arm << " to sample " << motion.sample
                                             << ": " << fk.message);
     if (collisions) frame.collisions = collisions->Check(frame.state, near_miss);
     frames.push_back(std::move(frame));

@@ -207,7 +207,7 @@ void ApplyScene(const SceneFile& f, Scene* scene) {
     q[robot.joint(j).q_index] = value;
   }
   const auto fk = kinematics::ForwardKinematics(robot, q, &state);
-  TROCAR_THROW_UNLESS(fk.ok, "scene file: the robot's pose: " << fk.message);
+  TROCAR_THROW_UNLESS(fk.ok(), "scene file: the robot's pose: " << fk.message);
   scene->SetRobotState(state);
 }
 

@@ -148,7 +148,7 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
     if (snapshots->Read(&snap)) {
       ++stats.snapshots;
       std::string extra;
-      if (snap.q.size() == robot.num_positions() && kinematics::ForwardKinematics(robot, snap.q, &state).ok) {
+      if (snap.q.size() == robot.num_positions() && kinematics::ForwardKinematics(robot, snap.q, &state).ok()) {
         scene->SetRobotState(state);
         if (options.on_frame) extra = options.on_frame(state);
         if (options.endoscope) Scene::Apply(scene->OnFrame(*options.endoscope), scope, &*options.endoscope);

@@ -549,7 +549,7 @@ class Workstation {
     const auto [lower, upper] = SliderRange(joint);
     q[joint.q_index] = lower + (upper - lower) * slider_value / 1000.0;
     const auto fk = kinematics::ForwardKinematics(robot, q, &state);
-    if (!fk.ok) {
+    if (!fk.ok()) {
       window_.statusBar()->showMessage(QString::fromStdString(joint.name + ": " + fk.message));
       return;
     }

@@ -140,7 +140,7 @@ int RunCheck(const CheckOptions& o) {
           << "warning: the setup joints do not reach every port; checking the nearest placement\n";
   } else {
     const auto fk = kinematics::ForwardKinematics(*cart, state.q, &state);
-    TROCAR_THROW_UNLESS(fk.ok, fk.message);
+    TROCAR_THROW_UNLESS(fk.ok(), fk.message);
   }
 
   collision::CollisionChecker checker(world);

@@ -175,7 +175,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         ++claims;
         try {
           const auto r = kinematics::SetHeldJoint(*robot, name, value.get<double>(), &state);
-          if (!r.ok) fail(tag + "setup joint '" + name + "': " + r.message);
+          if (!r.ok()) fail(tag + "setup joint '" + name + "': " + r.message);
         } catch (const Error& e) {
           fail(tag + "setup joint '" + name + "': " + e.what());
         }
@@ -191,7 +191,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       for (const auto& v : kinematics::LimitViolations(*robot, state.q))
         fail(tag + "nominal pose: " + v);
       const auto fk = kinematics::ForwardKinematics(*robot, state.q, &state);
-      if (!fk.ok) fail(tag + "nominal pose: " + fk.message);
+      if (!fk.ok()) fail(tag + "nominal pose: " + fk.message);
       const robot::RobotState nominal = state;
       // Ports: on their candidate curve, RCMs at them.
       std::vector<Eigen::Vector3d> pivots;
@@ -322,7 +322,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           continue;
         }
         const auto f = kinematics::ForwardKinematics(*robot, state.q, &state);
-        if (!f.ok) {
+        if (!f.ok()) {
           fail(where + f.message);
           continue;
         }
@@ -426,7 +426,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
             const auto limits = kinematics::LimitViolations(*robot, state.q);
             if (!limits.empty()) return limits.front();
             const auto f = kinematics::ForwardKinematics(*robot, state.q, &state);
-            if (!f.ok) return f.message;
+            if (!f.ok()) return f.message;
             const auto [n, which] = collisions(state, pivots);
             return n > 0 ? "collision: " + which : std::string();
           };

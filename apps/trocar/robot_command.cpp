@@ -179,7 +179,7 @@ void PrintInfo(std::ostream& out, const RobotModel& model) {
   const auto result =
       kinematics::ForwardKinematics(model, Eigen::VectorXd::Zero(model.num_positions()), &state);
   out << "\ntool pose at q = 0, in the base frame:\n";
-  if (result.ok) {
+  if (result.ok()) {
     PrintPose(out, kinematics::ToolPoseInBase(model, state), "  ");
   } else {
     out << "  not reachable: " << result.message << "\n";
@@ -219,7 +219,7 @@ int RunFk(const FkOptions& options) {
   }
   robot::RobotState state(model);
   const auto result = kinematics::ForwardKinematics(model, q, &state);
-  if (!result.ok) {
+  if (!result.ok()) {
     std::cerr << "not reachable: " << result.message << "\n";
     return 3;
   }
@@ -253,18 +253,18 @@ int RunSuj(const SujOptions& options) {
   }
   robot::RobotState state(model);
   const auto configured = kinematics::SetConfiguration(model, model.neutral_configuration(), &state);
-  TROCAR_THROW_UNLESS(configured.ok, "robot '" << model.name() << "': neutral configuration: "
+  TROCAR_THROW_UNLESS(configured.ok(), "robot '" << model.name() << "': neutral configuration: "
                                                << configured.message);
   kinematics::SetupJointOptions solver;
   solver.seed = options.seed;
   const auto result = kinematics::SolveSetupJoints(model, state, request, solver);
   std::cout << result.message << "\n";
-  std::cout << (result.solved() ? "setup joints:\n" : "best setup joints found:\n");
+  std::cout << (result.ok() ? "setup joints:\n" : "best setup joints found:\n");
   for (std::size_t i = 0; i < result.joints.size() && i < std::size_t(result.values.size()); ++i) {
     std::cout << "  " << std::left << std::setw(28) << result.joints[i] << std::right
               << result.values[i] << "\n";
   }
-  return result.solved() ? 0 : 3;
+  return result.ok() ? 0 : 3;
 }
 
 }  // namespace

@@ -233,7 +233,7 @@ void RunFeedback(const TeleopCommandOptions& o, control::IgtlDeviceServer& serve
     }
     if (!buffer->Read(&snap) || snap.q.size() != fk_model.num_positions()) continue;
     const auto t0 = std::chrono::steady_clock::now();
-    if (!kinematics::ForwardKinematics(fk_model, snap.q, &state).ok) continue;
+    if (!kinematics::ForwardKinematics(fk_model, snap.q, &state).ok()) continue;
     std::vector<collision::Clearance> near;
     if (collisions) near = collisions->ArmsNearest(state, tool_links);
     for (std::size_t i = 0; i < arms.size(); ++i) {
@@ -361,7 +361,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
   // The robot's home, or one chosen away from limits and singularities; --q0 overrides both.
   kinematics::StartConfiguration start = plan_view ? kinematics::StartConfiguration{} : kinematics::ChooseStart(model);
   Eigen::VectorXd q0 = start.q;
-  if (!plan_view && !model.has_home()) {
+  if (!plan_view && !model.defaults().has_home()) {
     // Several arms: each starts where its own tool moves well, on its own joints.
     for (std::size_t i = 1; i < arms.size(); ++i) {
       const kinematics::StartConfiguration own = kinematics::ChooseStart(*arms[i].model);
@@ -392,8 +392,8 @@ int RunTeleop(const TeleopCommandOptions& o) {
   // Jacobian transpose needs gains fitted to the robot (thesis §6.3.2): a robot that gives none
   // gets them tuned on first use, saved in the overlay beside it for the next sessions.
   std::string tuned_note;
-  if (o.controller == "jt" && model.controller().gains.count("jt") == 0 &&
-      model.controller().task_gains.size() == 0) {
+  if (o.controller == "jt" && model.defaults().controller.gains.count("jt") == 0 &&
+      model.defaults().controller.task_gains.size() == 0) {
     control::GainTuningOptions tuning;
     tuning.controller = "jt";
     const auto tuned = control::TuneGains(model, q0, tuning);

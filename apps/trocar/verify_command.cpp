@@ -212,7 +212,7 @@ int RunVerify(const VerifyOptions& o) {
       }
       TROCAR_THROW_UNLESS(state.q.allFinite(), o.plan << ": plan " << k << ": q_nominal is not finite");
       const auto fk = kinematics::ForwardKinematics(*robot, state.q, &state);
-      TROCAR_THROW_UNLESS(fk.ok, o.plan << ": plan " << k << ": nominal pose: " << fk.message);
+      TROCAR_THROW_UNLESS(fk.ok(), o.plan << ": plan " << k << ": nominal pose: " << fk.message);
       ev.q_nominal = state.q;
       ev.joint_values = state.joint_values;
       for (const auto& t : p.at("terms")) {

@@ -289,7 +289,7 @@ CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
   if (w.robot) {
     const robot::RobotState rest(*w.robot);
     robot::RobotState state = rest;
-    if (!kinematics::ForwardKinematics(*w.robot, state.q, &state).ok)
+    if (!kinematics::ForwardKinematics(*w.robot, state.q, &state).ok())
       kinematics::ForwardKinematics(*w.robot, &state);
     std::vector<fcl::CollisionObjectd*> robot;
     for (int i : w.robot_bodies) robot.push_back(state_->objects[i].get());

@@ -469,7 +469,7 @@ std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(
         Eigen::VectorXd q(model.num_positions());
         for (int i = 0; i < model.num_positions(); ++i)
           q[i] = sample(model.joint(model.active_joints()[i]).limits);
-        if (!kinematics::ForwardKinematics(model, q, &trial).ok) continue;
+        if (!kinematics::ForwardKinematics(model, q, &trial).ok()) continue;
         ++valid;
         checker.SetRobotState(trial);
         for (const auto& c :

@@ -20,10 +20,10 @@ ControlLoop::ControlLoop(const robot::RobotModel& model, std::unique_ptr<Control
   state_.X_WB = X_WB;
   for (const auto& [name, value] : held) {
     const auto set = kinematics::SetHeldJoint(model_, name, value, &state_);
-    TROCAR_THROW_UNLESS(set.ok, "robot '" << model_.name() << "': held joint '" << name << "': " << set.message);
+    TROCAR_THROW_UNLESS(set.ok(), "robot '" << model_.name() << "': held joint '" << name << "': " << set.message);
   }
   const auto result = kinematics::ForwardKinematics(model_, q0, &state_);
-  TROCAR_THROW_UNLESS(result.ok, "robot '" << model_.name()
+  TROCAR_THROW_UNLESS(result.ok(), "robot '" << model_.name()
                                            << "': start configuration: " << result.message);
 }
 
@@ -38,7 +38,7 @@ StepReport ControlLoop::Step(const TaskTarget& target, double dt) {
     report.limits =
         ApplyJointLimits(model_, state_.q, qdot_, qdot_command_, dt, &qdot_applied_, &q_next_);
     const auto result = kinematics::SetConfiguration(model_, q_next_, &state_);
-    if (result.ok) {
+    if (result.ok()) {
       qdot_ = qdot_applied_;
       kinematics::ForwardKinematics(model_, &state_);
     } else {

@@ -182,7 +182,7 @@ void SolveRows(const kinematics::Matrix6Xd& J, const Vector6d& v, bool use_froze
 
 Vector6d TaskGains(const robot::RobotModel& model, const std::string& name,
                    const Vector6d& fallback) {
-  const auto& settings = model.controller();
+  const auto& settings = model.defaults().controller;
   const auto found = settings.gains.find(name);
   if (found != settings.gains.end()) return Vector6d(found->second);
   return settings.task_gains.size() == 6 ? Vector6d(settings.task_gains) : fallback;

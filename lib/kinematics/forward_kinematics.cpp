@@ -40,7 +40,7 @@ ConfigurationResult ResolvePassive(const RobotModel& model, RobotState* state) {
     const double previous_driver = state->closure_drivers[ci];
     const FourBarSolution s =
         SolveFourBar(model, c, values[d], previous_driver, values[cp], values[rk]);
-    if (!s.ok) return ConfigurationResult{false, s.message, ci};
+    if (!s.ok()) return ConfigurationResult{ConfigurationResult::Status::kClosureRefused, s.message, ci};
     values[cp] = s.coupler;
     values[rk] = s.rocker;
     grad.row(cp) = s.dcoupler_ddriver * grad.row(d);
@@ -62,7 +62,7 @@ void KeepForUndo(RobotState* state) {
 // Runs ResolvePassive, restoring the kept values when a closure refuses.
 ConfigurationResult ResolveOrRestore(const RobotModel& model, RobotState* state, bool kept) {
   ConfigurationResult result = ResolvePassive(model, state);
-  if (!result.ok && kept) {
+  if (!result.ok() && kept) {
     state->q = state->undo.q;
     state->joint_values = state->undo.joint_values;
     state->closure_drivers = state->undo.closure_drivers;
@@ -72,6 +72,14 @@ ConfigurationResult ResolveOrRestore(const RobotModel& model, RobotState* state,
 }
 
 }  // namespace
+
+const char* ToString(ConfigurationResult::Status status) {
+  switch (status) {
+    case ConfigurationResult::Status::kSet: return "set";
+    case ConfigurationResult::Status::kClosureRefused: return "a closure refused";
+  }
+  return "unknown";
+}
 
 ConfigurationResult SetConfiguration(const RobotModel& model, const Eigen::VectorXd& q,
                                      RobotState* state) {
@@ -171,7 +179,7 @@ void ForwardKinematics(const RobotModel& model, RobotState* state) {
 ConfigurationResult ForwardKinematics(const RobotModel& model, const Eigen::VectorXd& q,
                                       RobotState* state) {
   ConfigurationResult result = SetConfiguration(model, q, state);
-  if (result.ok) ForwardKinematics(model, state);
+  if (result.ok()) ForwardKinematics(model, state);
   return result;
 }
 

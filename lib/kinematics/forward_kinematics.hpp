@@ -15,12 +15,16 @@
 namespace trocar::kinematics {
 
 /// Outcome of setting a configuration. A closure that cannot follow is an expected failure (a
-/// result, not an exception): the state is then left exactly as it was.
+/// result, not an exception): the state is then left exactly as it was. Like every result in the
+/// robot layer: a `status` (success first), a `message` saying why when not ok(), and ok().
 struct ConfigurationResult {
-  bool ok = true;
-  std::string message;     ///< why, when !ok
-  int failed_closure = -1; ///< closure index, when !ok
+  enum class Status { kSet, kClosureRefused };
+  Status status = Status::kSet;
+  std::string message;      ///< why, when !ok()
+  int failed_closure = -1;  ///< closure index, when !ok()
+  bool ok() const { return status == Status::kSet; }
 };
+const char* ToString(ConfigurationResult::Status status);
 
 /// Sets the active joints to `q`, then resolves mimic joints and closures (in the model's
 /// resolve order), also updating d joint_values / d q. Does not compute poses.

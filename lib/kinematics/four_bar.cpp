@@ -46,17 +46,17 @@ FourBarSolution SolveFourBar(const robot::RobotModel& model, const FourBarClosur
     return d >= range.min && d <= range.max;
   };
   auto feasible = [&](double theta) { return feasible_at(CrankEnd(c, theta)); };
-  auto refuse = [&](double theta, const char* why) {
+  auto refuse = [&](double theta, FourBarSolution::Status status, const char* why) {
     std::ostringstream msg;
     msg << "closure '" << c.name << "': driver '" << model.joint(c.driver).name << "' at "
         << driver << " rad is outside the mechanism's range (" << why << " at " << theta
         << " rad)";
-    out.ok = false;
+    out.status = status;
     out.message = msg.str();
     return out;
   };
   const Eigen::Vector2d P2 = CrankEnd(c, driver);
-  if (!feasible_at(P2)) return refuse(driver, "the coupler and rocker cannot meet");
+  if (!feasible_at(P2)) return refuse(driver, FourBarSolution::Status::kOutsideRange, "the coupler and rocker cannot meet");
   const Eigen::Vector2d D = c.P4 - c.P1;
   if (D.norm() > 1e-12) {
     const double phase = c.change_phase;
@@ -64,7 +64,7 @@ FourBarSolution SolveFourBar(const robot::RobotModel& model, const FourBarClosur
     // Extremes at theta = k*pi - phase.
     for (double k = std::ceil((lo + phase) / M_PI); k * M_PI - phase <= hi; k += 1.0) {
       const double theta = k * M_PI - phase;
-      if (!feasible(theta)) return refuse(theta, "a change point lies on the way");
+      if (!feasible(theta)) return refuse(theta, FourBarSolution::Status::kChangePoint, "a change point lies on the way");
     }
   }
   const Eigen::Vector2d to_rocker = c.P4 - P2;
@@ -99,13 +99,23 @@ FourBarSolution SolveFourBar(const robot::RobotModel& model, const FourBarClosur
           << driver << " rad would put joint '" << joint.name << "' at " << value
           << " rad, outside its limits [" << joint.limits.lower << ", " << joint.limits.upper
           << "]";
-      out.ok = false;
+      out.status = FourBarSolution::Status::kJointLimit;
       out.message = msg.str();
       return out;
     }
   }
-  out.ok = true;
+  out.status = FourBarSolution::Status::kSolved;
   return out;
+}
+
+const char* ToString(FourBarSolution::Status status) {
+  switch (status) {
+    case FourBarSolution::Status::kSolved: return "solved";
+    case FourBarSolution::Status::kOutsideRange: return "outside the mechanism's range";
+    case FourBarSolution::Status::kChangePoint: return "a change point on the way";
+    case FourBarSolution::Status::kJointLimit: return "a joint limit";
+  }
+  return "unknown";
 }
 
 double FourBarClosureGap(const robot::RobotModel& model, const FourBarClosure& c, double driver,

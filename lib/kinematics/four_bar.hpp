@@ -12,13 +12,22 @@
 namespace trocar::kinematics {
 
 struct FourBarSolution {
-  bool ok = false;
-  std::string message;  ///< why the step was refused, when !ok
+  enum class Status {
+    kSolved,
+    kOutsideRange,  ///< the coupler and rocker cannot meet at this driver value
+    kChangePoint,   ///< a change point (where the loop could invert) lies on the way
+    kJointLimit,    ///< the coupler or the rocker would leave its joint limits
+  };
+  Status status = Status::kSolved;
+  std::string message;  ///< why the step was refused, when !ok()
+  bool ok() const { return status == Status::kSolved; }
   double coupler = 0.0;  ///< coupler joint value (rad)
   double rocker = 0.0;   ///< rocker joint value (rad)
   double dcoupler_ddriver = 0.0;
   double drocker_ddriver = 0.0;
 };
+
+const char* ToString(FourBarSolution::Status status);
 
 /// Solves `closure` for the driver value `driver`, moving continuously from `previous_driver`
 /// (where the loop was closed with coupler and rocker values `previous_coupler` and

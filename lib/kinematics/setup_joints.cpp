@@ -82,7 +82,7 @@ SetupJointResult SolveSetupJoints(const robot::RobotModel& model, const robot::R
   auto evaluate = [&](const Eigen::VectorXd& values, Evaluation* e) {
     for (int i = 0; i < n; ++i) work.joint_values[model.joint(joints[i]).dof_index] = values[i];
     // Held joints may drive mimic joints or closures; re-resolve them (active q unchanged).
-    if (!SetConfiguration(model, work.q, &work).ok) return false;
+    if (!SetConfiguration(model, work.q, &work).ok()) return false;
     ForwardKinematics(model, &work);
     const Eigen::Isometry3d X_WF = FramePose(work, frame);
     const Eigen::Vector3d p = X_WF.translation();
@@ -191,6 +191,14 @@ SetupJointResult SolveSetupJoints(const robot::RobotModel& model, const robot::R
   }
   result.message = msg.str();
   return result;
+}
+
+const char* ToString(SetupJointResult::Status status) {
+  switch (status) {
+    case SetupJointResult::Status::kSolved: return "solved";
+    case SetupJointResult::Status::kUnreachable: return "unreachable";
+  }
+  return "unknown";
 }
 
 }  // namespace trocar::kinematics

@@ -50,8 +50,9 @@ struct SetupJointResult {
   double position_error = 0.0;      ///< m, of the best values: how far the target is short
   double angle_error = 0.0;         ///< rad, of the best values (0 when no axis was asked)
   std::string message;              ///< human-readable summary
-  bool solved() const { return status == Status::kSolved; }
+  bool ok() const { return status == Status::kSolved; }
 };
+const char* ToString(SetupJointResult::Status status);
 
 /// @param state supplies the base pose X_WB and the values of all other joints; not modified.
 /// @throws trocar::Error for bad requests: unknown frame or joint, a joint that is not held or not

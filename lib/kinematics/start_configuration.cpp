@@ -48,7 +48,7 @@ double ProbeMotion(const robot::RobotModel& model, const Eigen::VectorXd& q0, do
   constexpr double kSweep = 0.055, kProbeTurn = 0.3;
   constexpr int kSweepPoints = 240, kIterations = 4;
   robot::RobotState state(model);
-  if (!ForwardKinematics(model, q0, &state).ok) return 0.0;
+  if (!ForwardKinematics(model, q0, &state).ok()) return 0.0;
   const Eigen::Isometry3d X_W0 = FramePose(state, model.tool_frame());
   const Eigen::VectorXd lower = model.lower_limits(), upper = model.upper_limits();
   Matrix6Xd J;
@@ -57,7 +57,7 @@ double ProbeMotion(const robot::RobotModel& model, const Eigen::VectorXd& q0, do
   auto drive = [&](const Eigen::Isometry3d& X_goal, Eigen::VectorXd* q, int iterations) {
     double error = 1e9;
     for (int it = 0; it <= iterations; ++it) {
-      if (!ForwardKinematics(model, *q, &state).ok) return 1e9;
+      if (!ForwardKinematics(model, *q, &state).ok()) return 1e9;
       const Eigen::Isometry3d X = FramePose(state, model.tool_frame());
       const Eigen::AngleAxisd dR(X_goal.linear() * X.linear().transpose());
       Eigen::VectorXd e(6);
@@ -111,12 +111,20 @@ double ProbeMotion(const robot::RobotModel& model, const Eigen::VectorXd& q0, do
 StartQuality AssessStart(const robot::RobotModel& model, const Eigen::VectorXd& q, double length) {
   StartQuality out;
   robot::RobotState state(model);
-  if (!ForwardKinematics(model, q, &state).ok) return out;
+  if (const auto set = ForwardKinematics(model, q, &state); !set.ok()) {
+    out.status = StartQuality::Status::kConfigurationRefused;
+    out.message = set.message;
+    return out;
+  }
   Matrix6Xd J;
   ComputeFrameJacobian(model, state, model.tool_frame(), &J);
   const int n = static_cast<int>(q.size());
   const int rank = std::min(6, n);
-  if (rank == 0) return out;
+  if (rank == 0) {
+    out.status = StartQuality::Status::kNoJoints;
+    out.message = "robot '" + model.name() + "' has no active joints";
+    return out;
+  }
   // Robots with fewer than six joints follow the position only (teleop's default for them).
   const bool position_only = n < 6;
   const int rank_used = position_only ? std::min(3, n) : rank;
@@ -125,10 +133,7 @@ StartQuality AssessStart(const robot::RobotModel& model, const Eigen::VectorXd& 
   Eigen::JacobiSVD<Eigen::MatrixXd> svd(scaled, Eigen::ComputeThinU | Eigen::ComputeThinV);
   const Eigen::VectorXd s = svd.singularValues();
   out.dexterity = s[0] > 0.0 ? s[rank_used - 1] / s[0] : 0.0;
-  if (!(out.dexterity > 1e-9)) {
-    out.ok = true;
-    return out;
-  }
+  if (!(out.dexterity > 1e-9)) return out;
   // Joint travel a typical hand motion needs from here: the pseudo-inverse's rows, for
   // kHandMotion metres and kHandTurn radians in any direction (scaled rows: v and L·ω).
   constexpr double kHandMotion = 0.08, kHandTurn = 0.25;
@@ -149,16 +154,24 @@ StartQuality AssessStart(const robot::RobotModel& model, const Eigen::VectorXd& 
     // Full marks with room for twice the travel each way; none at a limit.
     worst = std::min(worst, std::clamp(margin / (2.0 * travel + 1e-12), 0.0, 1.0));
   }
-  out.ok = true;
   out.score = out.dexterity * worst;
   return out;
+}
+
+const char* ToString(StartQuality::Status status) {
+  switch (status) {
+    case StartQuality::Status::kAssessed: return "assessed";
+    case StartQuality::Status::kConfigurationRefused: return "the configuration is refused";
+    case StartQuality::Status::kNoJoints: return "no active joints";
+  }
+  return "unknown";
 }
 
 std::vector<std::string> StartWarnings(const robot::RobotModel& model, const Eigen::VectorXd& q,
                                        double length) {
   std::vector<std::string> warnings;
   const StartQuality quality = AssessStart(model, q, length);
-  if (!quality.ok) {
+  if (!quality.ok()) {
     warnings.push_back("the start configuration does not assemble (a closure cannot follow)");
     return warnings;
   }
@@ -190,13 +203,13 @@ StartConfiguration ChooseStart(const robot::RobotModel& model, unsigned seed, in
   // a turn of the wrist and a move of the tool weigh alike whatever the robot's size.
   {
     robot::RobotState state(model);
-    if (ForwardKinematics(model, model.neutral_configuration(), &state).ok) {
+    if (ForwardKinematics(model, model.neutral_configuration(), &state).ok()) {
       const double reach = ToolPoseInBase(model, state).translation().norm();
       out.length = std::clamp(0.5 * reach, 0.05, 2.0);
     }
   }
-  if (model.has_home()) {
-    out.q = model.home_configuration();
+  if (model.defaults().has_home()) {
+    out.q = model.defaults().home;
     out.basis = "home from " + (model.source().empty() ? model.name() : model.source());
     out.quality = AssessStart(model, out.q, out.length);
     out.warnings = StartWarnings(model, out.q, out.length);
@@ -208,7 +221,7 @@ StartConfiguration ChooseStart(const robot::RobotModel& model, unsigned seed, in
   std::vector<std::pair<double, Eigen::VectorXd>> finalists;
   auto consider = [&](const Eigen::VectorXd& q) {
     const StartQuality quality = AssessStart(model, q, out.length);
-    if (!quality.ok) return;
+    if (!quality.ok()) return;
     finalists.emplace_back(quality.score, q);
     std::stable_sort(finalists.begin(), finalists.end(),
                      [](const auto& a, const auto& b) { return a.first > b.first; });
@@ -244,7 +257,7 @@ StartConfiguration ChooseStart(const robot::RobotModel& model, unsigned seed, in
           Eigen::VectorXd q = q_best;
           q[i] = std::clamp(q[i] + sign * step[i], lo, hi);
           const StartQuality quality = AssessStart(model, q, out.length);
-          if (quality.ok && quality.score > q_quality.score + 1e-12) {
+          if (quality.ok() && quality.score > q_quality.score + 1e-12) {
             q_best = q;
             q_quality = quality;
             improved = true;

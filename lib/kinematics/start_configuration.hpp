@@ -15,7 +15,14 @@ namespace trocar::kinematics {
 
 /// How good a configuration is to start from.
 struct StartQuality {
-  bool ok = false;            ///< closures assembled and the tool Jacobian computed
+  enum class Status {
+    kAssessed,             ///< closures assembled and the tool Jacobian computed
+    kConfigurationRefused, ///< a closure cannot be assembled at q
+    kNoJoints,             ///< the robot has no active joints
+  };
+  Status status = Status::kAssessed;
+  std::string message;  ///< why, when !ok()
+  bool ok() const { return status == Status::kAssessed; }
   double dexterity = 0.0;     ///< inverse condition number of the tool Jacobian, angular rows
                               ///< scaled by `length` (0 singular, 1 isotropic)
   double limit_margin = 1.0;  ///< smallest distance to a limit over the bounded joints, as a
@@ -25,6 +32,8 @@ struct StartQuality {
   /// pseudo-inverse), full with twice the travel needed, none at a limit.
   double score = 0.0;
 };
+
+const char* ToString(StartQuality::Status status);
 
 /// `length` (m) weighs rotation against translation in the Jacobian (a rotation of 1 rad moves a
 /// point at that distance by `length`).

@@ -116,10 +116,6 @@ Eigen::VectorXd RobotModel::neutral_configuration() const {
   return q;
 }
 
-Eigen::VectorXd RobotModel::home_configuration() const {
-  return home_.size() == num_positions() ? home_ : neutral_configuration();
-}
-
 RobotState::RobotState(const RobotModel& model)
     : q(model.neutral_configuration()),
       joint_values(Eigen::VectorXd::Zero(model.num_dofs())),
@@ -830,16 +826,16 @@ void RobotModelBuilder::SetDefaults(RobotModel* out) const {
     TROCAR_THROW_UNLESS(static_cast<int>(home_->size()) == model.num_positions(),
                         src << ": home: " << home_->size() << " values, expected "
                             << model.num_positions() << " (one per active joint)");
-    model.home_ = Eigen::Map<const Eigen::VectorXd>(home_->data(), model.num_positions());
+    model.defaults_.home = Eigen::Map<const Eigen::VectorXd>(home_->data(), model.num_positions());
     for (int i = 0; i < model.num_positions(); ++i) {
       const Joint& joint = model.joints_[model.active_joints_[i]];
-      TROCAR_THROW_UNLESS(model.home_[i] >= joint.limits.lower && model.home_[i] <= joint.limits.upper,
-                          src << ": home: joint '" << joint.name << "' value " << model.home_[i]
+      TROCAR_THROW_UNLESS(model.defaults_.home[i] >= joint.limits.lower && model.defaults_.home[i] <= joint.limits.upper,
+                          src << ": home: joint '" << joint.name << "' value " << model.defaults_.home[i]
                               << " is outside its limits [" << joint.limits.lower << ", "
                               << joint.limits.upper << "]");
     }
   }
-  model.controller_ = controller_;
+  model.defaults_.controller = controller_;
   auto check_gains = [&](const Eigen::VectorXd& gains, const std::string& field) {
     TROCAR_THROW_UNLESS(gains.size() == 6, src << ": " << field
                                                << ": expected 6 values [wx wy wz vx vy vz], got "
@@ -848,10 +844,10 @@ void RobotModelBuilder::SetDefaults(RobotModel* out) const {
                         src << ": " << field << ": " << FormatVector(gains)
                             << " must be finite and non-negative");
   };
-  if (model.controller_.task_gains.size() != 0) {
-    check_gains(model.controller_.task_gains, "controller.task_gains");
+  if (model.defaults_.controller.task_gains.size() != 0) {
+    check_gains(model.defaults_.controller.task_gains, "controller.task_gains");
   }
-  for (const auto& [name, gains] : model.controller_.gains) {
+  for (const auto& [name, gains] : model.defaults_.controller.gains) {
     check_gains(gains, "controller.gains." + name);
   }
 }

@@ -21,6 +21,7 @@
 #include <Eigen/Geometry>
 
 #include "robot/mesh.hpp"
+#include "robot/robot_defaults.hpp"
 
 namespace trocar::robot {
 
@@ -141,14 +142,6 @@ struct FourBarClosure {
   double change_phase = 0.0;
 };
 
-/// Controller settings carried by a robot description (trocar YAML sidecar `controller:`).
-struct ControllerSettings {
-  /// Gain per task axis [ωx ωy ωz vx vy vz] (1/s) for every controller; empty when unset.
-  Eigen::VectorXd task_gains;
-  /// Gains for one controller by name ("jt", "dls", ...), overriding task_gains for it.
-  std::map<std::string, Eigen::VectorXd> gains;
-};
-
 class RobotModelBuilder;
 
 /// Immutable robot description. Build one with RobotModelBuilder or a loader (load_robot.hpp).
@@ -211,12 +204,10 @@ class RobotModel {
   Eigen::VectorXd acceleration_limits() const;
   /// A configuration inside the limits: 0 where allowed, otherwise the middle of the range.
   Eigen::VectorXd neutral_configuration() const;
-  /// Where sessions start: the sidecar's `home` when given, else the neutral configuration
-  /// (kinematics::ChooseStart picks a better one for robots without a home).
-  Eigen::VectorXd home_configuration() const;
-  bool has_home() const { return home_.size() == num_positions() && num_positions() > 0; }
 
-  const ControllerSettings& controller() const { return controller_; }
+  /// What the description suggests for using the robot (home, controller gains): a part apart
+  /// from the kinematics, which never read it.
+  const RobotDefaults& defaults() const { return defaults_; }
 
  private:
   friend class RobotModelBuilder;
@@ -237,8 +228,7 @@ class RobotModel {
   std::optional<Frame> rcm_;
   std::vector<Frame> frames_;
   std::vector<Frame> link_frames_;  // one per link, at the link's origin
-  ControllerSettings controller_;
-  Eigen::VectorXd home_;
+  RobotDefaults defaults_;
 };
 
 /// Collects a robot description by name and turns it into a validated RobotModel. Loaders (URDF,
@@ -299,6 +289,7 @@ class RobotModelBuilder {
   void SetRcm(FrameSpec rcm) { rcm_ = std::move(rcm); }
   void AddFrame(FrameSpec frame) { frames_.push_back(std::move(frame)); }
   const std::vector<FrameSpec>& frames() const { return frames_; }
+  /// Gains for the model's defaults (checked by Build: six finite, non-negative values each).
   ControllerSettings& controller() { return controller_; }
   /// Active joint values (in q order) where sessions start; checked against the limits.
   void SetHome(std::vector<double> home) { home_ = std::move(home); }

@@ -314,7 +314,7 @@ bool MotionContext::Valid(const Eigen::VectorXd& q, std::string* why) {
     return false;
   }
   const kinematics::ConfigurationResult fk = kinematics::ForwardKinematics(robot, q, &state_);
-  if (!fk.ok) {
+  if (!fk.ok()) {
     if (why) *why = "the closures do not solve: " + fk.message;
     return false;
   }
@@ -333,7 +333,7 @@ bool MotionContext::Valid(const Eigen::VectorXd& q, std::string* why) {
 
 double MotionContext::Clearance(const Eigen::VectorXd& q) {
   const robot::RobotModel& robot = problem_.problem().robot();
-  if (!kinematics::ForwardKinematics(robot, q, &state_).ok) return 0.0;
+  if (!kinematics::ForwardKinematics(robot, q, &state_).ok()) return 0.0;
   checker_->SetRobotState(state_);
   problem_.problem().SetPorts(problem_.placement(), checker_.get());
   const collision::Clearance c = checker_->MinimumDistance();
@@ -451,7 +451,7 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
               std::uniform_real_distribution<double>(space.lower(c), space.upper(c))(rng);
         }
       }
-      if (!kinematics::ForwardKinematics(robot, ik_state.q, &ik_state).ok) continue;
+      if (!kinematics::ForwardKinematics(robot, ik_state.q, &ik_state).ok()) continue;
       const std::string failure = problem.SolveReach(arm_index, problem_.placement(),
                                                      problem.samples()[sample_index], &ik_state);
       if (!failure.empty()) {

@@ -104,7 +104,7 @@ CartPlacementResult PlaceCart(const robot::RobotModel& cart, const CartPlacement
     result.worst_position_error = std::max(result.worst_position_error, solved.position_error);
     result.worst_angle_error = std::max(result.worst_angle_error, solved.angle_error);
     reached = reached && placed;
-    if (placed && !solved.solved()) {
+    if (placed && !solved.ok()) {
       std::ostringstream m;
       m << "frame '" << arm.rcm_frame << "' placed within " << solved.position_error * 1e3
         << " mm; its axis " << solved.angle_error * 180.0 / M_PI
@@ -134,7 +134,7 @@ CartPlacementResult PlaceCart(const robot::RobotModel& cart, const CartPlacement
     }
   }
   const auto fk = kinematics::ForwardKinematics(cart, state->q, state);
-  if (!fk.ok) {
+  if (!fk.ok()) {
     reached = false;
     message << "  " << fk.message << "\n";
   }
@@ -190,7 +190,7 @@ CartPlacementResult PlaceCartAutomatically(const robot::RobotModel& cart,
         best_state = s;
         best_pose = trial.X_WB;
       }
-      if (r.placed()) {
+      if (r.ok()) {
         request->X_WB = trial.X_WB;
         *state = s;
         return r;

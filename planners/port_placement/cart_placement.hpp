@@ -58,7 +58,7 @@ struct CartPlacementResult {
   double worst_position_error = 0.0;  ///< m, over the arms' RCMs
   double worst_angle_error = 0.0;     ///< rad, over the instruments' axes
   int collisions = 0;                 ///< colliding pairs (when a checker was given)
-  bool placed() const { return status == PlacementStatus::kPlaced; }
+  bool ok() const { return status == PlacementStatus::kPlaced; }
 };
 
 /// Default ports: for each arm in order, the middle point of a candidate curve spread over the

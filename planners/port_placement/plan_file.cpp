@@ -309,7 +309,7 @@ robot::RobotState NominalState(const robot::RobotModel& robot, const StoredPlan&
     state.q[robot.joint(j).q_index] = value;
   }
   const auto fk = kinematics::ForwardKinematics(robot, state.q, &state);
-  TROCAR_THROW_UNLESS(fk.ok, where << ": nominal pose: " << fk.message);
+  TROCAR_THROW_UNLESS(fk.ok(), where << ": nominal pose: " << fk.message);
   return state;
 }
 
@@ -327,7 +327,7 @@ void SetWaypoint(const robot::RobotModel& robot, const StoredMotion& motion, std
     q[robot.joint(j).q_index] = motion.waypoints[k][d];
   }
   const auto fk = kinematics::ForwardKinematics(robot, q, state);
-  TROCAR_THROW_UNLESS(fk.ok, "motion of " << motion.arm << " to sample " << motion.sample
+  TROCAR_THROW_UNLESS(fk.ok(), "motion of " << motion.arm << " to sample " << motion.sample
                                           << ", waypoint " << k << ": " << fk.message);
 }
 

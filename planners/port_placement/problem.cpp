@@ -68,7 +68,7 @@ IkOutcome SolveReach(const robot::RobotModel& robot, const PlanArm& arm,
   double damping = 1e-3;
   double previous = std::numeric_limits<double>::infinity();
   for (int it = 0; it <= iterations; ++it) {
-    if (!kinematics::ForwardKinematics(robot, state->q, state).ok) break;
+    if (!kinematics::ForwardKinematics(robot, state->q, state).ok()) break;
     const Eigen::Vector3d p = kinematics::FramePose(*state, tool).translation();
     e.head<3>() = p_aim_W - p;
     kinematics::ComputeFrameJacobian(robot, *state, tool, &J_tool);
@@ -316,9 +316,9 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
     double reach = std::numeric_limits<double>::infinity();
     if (arm.has_rcm() && arm.insertion_q >= 0) {
       robot::RobotState s(*robot_);
-      s.q = robot_->home_configuration();
+      s.q = robot_->defaults().HomeOr(robot_->neutral_configuration());
       s.q[arm.insertion_q] = robot_->joint(robot_->active_joints()[arm.insertion_q]).limits.upper;
-      if (kinematics::ForwardKinematics(*robot_, s.q, &s).ok) {
+      if (kinematics::ForwardKinematics(*robot_, s.q, &s).ok()) {
         reach = (kinematics::FramePose(s, robot_->GetFrame(arm.tool_frame)).translation() -
                  kinematics::FramePose(s, robot_->GetFrame(arm.rcm_frame)).translation())
                     .norm();
@@ -614,7 +614,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
     // the setup joints at their neutral values; later attempts: seeded random values, so that the
     // setup-joint solver lands on another of its redundant solutions).
     state = robot::RobotState(robot);
-    state.q = robot.home_configuration();
+    state.q = robot.defaults().HomeOr(robot.neutral_configuration());
     if (attempt > 0) {
       std::mt19937 rng(options_.seed * 31u + static_cast<unsigned>(attempt));
       for (int d = 0; d < robot.num_dofs(); ++d) {
@@ -637,7 +637,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
     cart_options.max_iterations = full_solver ? 300 : options_.suj_iterations;
     placed = PlaceCart(robot, request, cart_options, &state);
     ev.message = placed.message;
-    if (!placed.placed()) {
+    if (!placed.ok()) {
       if (attempt == 0) {
         ev.status = PlacementStatus::kUnreachable;
         // Below every placed plan, better the nearer the RCMs come to their ports.
@@ -766,7 +766,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
       for (const std::string& frame : arm.view_frames) {
         for (double r : rolls) {
           if (roll >= 0) trial.q[roll] = r;
-          if (!kinematics::ForwardKinematics(robot, trial.q, &trial).ok) continue;
+          if (!kinematics::ForwardKinematics(robot, trial.q, &trial).ok()) continue;
           const int seen = count_seen(trial, frame, view.axis_F);
           if (seen > best) {
             best = seen;

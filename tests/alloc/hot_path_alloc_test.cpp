@@ -118,7 +118,7 @@ TEST(HotPathAllocations, ForwardKinematicsWithClosuresAndJacobians) {
     const long n = AllocationsIn([&] {
       for (const auto& q : qs) {
         const auto result = kinematics::ForwardKinematics(model, q, &state);
-        refused += result.ok ? 0 : 1;
+        refused += result.ok() ? 0 : 1;
         kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &J);
         kinematics::ComputeJacobian(model, state, model.num_links() - 1, Eigen::Vector3d(0.01, 0, 0), &J_point);
       }
@@ -132,7 +132,7 @@ TEST(HotPathAllocations, AClosureThatRefusesUndoesWithoutCopyingTheState) {
   const RobotModel& model = Robot("robots/davinci-classic/psm.yaml");
   ASSERT_FALSE(model.closures().empty());
   RobotState state(model);
-  ASSERT_TRUE(kinematics::ForwardKinematics(model, model.home_configuration(), &state).ok);
+  ASSERT_TRUE(kinematics::ForwardKinematics(model, model.defaults().HomeOr(model.neutral_configuration()), &state).ok());
   // Drive each joint far past its range until a closure refuses (the parallelogram cannot
   // assemble), then check the undo: the state as it was, and no copy of it made (a copy is one
   // allocation per buffer: q, joint values, their gradient, link poses, closure drivers: five).
@@ -141,15 +141,15 @@ TEST(HotPathAllocations, AClosureThatRefusesUndoesWithoutCopyingTheState) {
   bool refused = false;
   for (int i = 0; i < model.num_positions() && !refused; ++i) {
     for (double value : {-40.0, 40.0, 3.0, -3.0}) {
-      Eigen::VectorXd q = model.home_configuration();
+      Eigen::VectorXd q = model.defaults().HomeOr(model.neutral_configuration());
       q[i] = value;
       const Eigen::VectorXd joint_values = state.joint_values;
       const Eigen::VectorXd q_before = state.q;
       kinematics::ConfigurationResult result;
       const long n = AllocationsIn([&] { result = kinematics::SetConfiguration(model, q, &state); });
-      if (result.ok) {
+      if (result.ok()) {
         EXPECT_EQ(n, 0);
-        ASSERT_TRUE(kinematics::ForwardKinematics(model, model.home_configuration(), &state).ok);
+        ASSERT_TRUE(kinematics::ForwardKinematics(model, model.defaults().HomeOr(model.neutral_configuration()), &state).ok());
         continue;
       }
       refused = true;
@@ -166,7 +166,7 @@ Vector6d Gains() { return (Vector6d() << 20, 20, 20, 40, 40, 40).finished(); }
 
 void ExpectControlStepsAllocateNothing(const RobotModel& model, std::unique_ptr<control::Controller> controller,
                                        const std::string& what, bool position_only) {
-  control::ControlLoop loop(model, std::move(controller), model.home_configuration());
+  control::ControlLoop loop(model, std::move(controller), model.defaults().HomeOr(model.neutral_configuration()));
   control::TaskTarget target;
   target.X_WD = loop.ToolPose();
   target.position_only = position_only;
@@ -195,7 +195,7 @@ TEST(HotPathAllocations, AControlStepOfEveryControllerOnEveryRobot) {
   }
   const RobotModel& model = Robot("robots/pa10/pa10_instrument.yaml");
   RobotState state(model);
-  ASSERT_TRUE(kinematics::ForwardKinematics(model, model.home_configuration(), &state).ok);
+  ASSERT_TRUE(kinematics::ForwardKinematics(model, model.defaults().HomeOr(model.neutral_configuration()), &state).ok());
   const int rod = model.GetLink("rod");
   const Eigen::Vector3d p_WR = state.X_WL[rod] * Eigen::Vector3d(0, 0, -0.1);
   for (bool position_only : {false, true}) {

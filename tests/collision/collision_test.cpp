@@ -72,7 +72,7 @@ robot::RobotState PlaceProbes(const robot::RobotModel& model, const Eigen::Vecto
   robot::RobotState state(model);
   Eigen::VectorXd q(6);
   q << a, b;
-  EXPECT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok);
+  EXPECT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok());
   return state;
 }
 
@@ -177,7 +177,7 @@ rcm: {link: holder}
 
 robot::RobotState Pose(const robot::RobotModel& model, double x, double tilt, double insertion) {
   robot::RobotState state(model);
-  EXPECT_TRUE(kinematics::ForwardKinematics(model, Eigen::Vector3d(x, tilt, insertion), &state).ok);
+  EXPECT_TRUE(kinematics::ForwardKinematics(model, Eigen::Vector3d(x, tilt, insertion), &state).ok());
   return state;
 }
 
@@ -297,7 +297,7 @@ robot::RobotState RandomCartState(const robot::RobotModel& cart, std::mt19937& r
       const auto& lim = cart.joint(cart.active_joints()[i]).limits;
       q[i] = std::uniform_real_distribution<double>(lim.lower, lim.upper)(rng);
     }
-    if (kinematics::ForwardKinematics(cart, q, &state).ok) return state;
+    if (kinematics::ForwardKinematics(cart, q, &state).ok()) return state;
   }
 }
 
@@ -374,7 +374,7 @@ TEST(CollisionWorld, ExactMeshQueriesAgreeWithFcl) {
         const auto& lim = s.cart->joint(s.cart->FindJoint(column)).limits;
         kinematics::SetHeldJoint(*s.cart, column, std::uniform_real_distribution<double>(lim.lower, lim.upper)(rng), &state);
       }
-      ASSERT_TRUE(kinematics::ForwardKinematics(*s.cart, state.q, &state).ok);
+      ASSERT_TRUE(kinematics::ForwardKinematics(*s.cart, state.q, &state).ok());
     }
     ours.SetRobotState(state);
     theirs.SetRobotState(state);

@@ -84,7 +84,7 @@ std::unique_ptr<control::Controller> MakeRcm(const RobotModel& model, const Eige
 class ControllerConformance : public ::testing::TestWithParam<ControllerCase> {
  protected:
   const RobotModel& model() const { return GetParam().robot(); }
-  Eigen::VectorXd Home() const { return model().home_configuration(); }
+  Eigen::VectorXd Home() const { return model().defaults().home; }
 };
 
 TEST_P(ControllerConformance, ZeroErrorLeavesTheToolStill) {
@@ -150,7 +150,7 @@ TEST_P(ControllerConformance, ConvergesOnAStep) {
   if (std::string(GetParam().name) != "rcm") robots.push_back(&Psm());
   for (const RobotModel* robot : robots) {
     SCOPED_TRACE(robot->name());
-    const Eigen::VectorXd q0 = robot->home_configuration();
+    const Eigen::VectorXd q0 = robot->defaults().home;
     control::ControlLoop loop(*robot, GetParam().make(*robot, q0), q0);
     TaskTarget target;
     target.X_WD = loop.ToolPose();
@@ -193,14 +193,14 @@ TEST(DampedLeastSquares, StepEqualsTheSvdDefinitionOverRandomAndNearSingularConf
     RobotState state(*model);
     control::ControllerWorkspace ws;
     for (int trial = 0; trial < 200; ++trial) {
-      Eigen::VectorXd q = model->home_configuration();
+      Eigen::VectorXd q = model->defaults().home;
       const double shrink = model == &Pa10() && trial % 2 == 0 ? std::pow(0.5, trial % 20) : 1.0;
       for (int i = 0; i < q.size(); ++i) {
         const double lo = std::max(lower[i], -2.0), hi = std::min(upper[i], 2.0);
         const double u = std::uniform_real_distribution<double>(lo, hi)(rng);
         q[i] = model == &Pa10() ? shrink * u : u;  // PA10 toward q = 0, straight up (singular)
       }
-      if (!kinematics::ForwardKinematics(*model, q, &state).ok) continue;
+      if (!kinematics::ForwardKinematics(*model, q, &state).ok()) continue;
       TaskTarget target;
       target.X_WD = kinematics::FramePose(state, model->tool_frame());
       target.X_WD.translation() += Eigen::Vector3d(0.004, -0.003, 0.002);
@@ -244,7 +244,7 @@ TEST(DampedLeastSquares, StepEqualsTheSvdDefinitionOverRandomAndNearSingularConf
 
 TEST(SoftwareRcm, KeepsTheShaftThroughThePortWhileTheToolMoves) {
   const RobotModel& model = Pa10Instrument();
-  const Eigen::VectorXd q0 = model.home_configuration();
+  const Eigen::VectorXd q0 = model.defaults().home;
   auto rcm = MakeRcm(model, q0);
   const auto* controller = static_cast<const control::SoftwareRcmController*>(rcm.get());
   control::ControlLoop loop(model, std::move(rcm), q0);

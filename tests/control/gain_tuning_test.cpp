@@ -18,15 +18,15 @@ TEST(GainTuning, FindsGainsThatTrackBetterWithoutOvershoot) {
   control::GainTuningOptions options;
   options.duration = 4.0;
   options.max_evaluations = 40;
-  const auto first = control::TuneGains(model, model.home_configuration(), options);
+  const auto first = control::TuneGains(model, model.defaults().home, options);
   EXPECT_LT(first.rms_position_error, 0.5 * first.initial_rms_position_error);
   EXPECT_LE(first.overshoot, options.max_overshoot);
   EXPECT_GT(first.evaluations, 5);
   // Deterministic: the same options give the same gains.
-  const auto second = control::TuneGains(model, model.home_configuration(), options);
+  const auto second = control::TuneGains(model, model.defaults().home, options);
   EXPECT_EQ(first.gains, second.gains);
   options.controller = "pid";
-  EXPECT_THROW(control::TuneGains(model, model.home_configuration(), options), Error);
+  EXPECT_THROW(control::TuneGains(model, model.defaults().home, options), Error);
 }
 
 // Tuned gains go to an overlay beside the robot (issue #18): the user's own files stay byte for
@@ -46,10 +46,10 @@ TEST(GainTuning, SavesIntoAnOverlayNeverTheUsersOwnFile) {
   control::SaveControllerGains(yaml, "dls", other);
   EXPECT_EQ(ReadTextFile(yaml), original);
   const auto model = robot::LoadRobot(yaml);
-  ASSERT_EQ(model.controller().gains.count("jt"), 1u);
-  EXPECT_EQ(model.controller().gains.at("jt"), Eigen::VectorXd(gains));  // exact: 17 digits
-  EXPECT_EQ(model.controller().gains.at("dls"), Eigen::VectorXd(other));
-  EXPECT_EQ(model.controller().task_gains.size(), 6);  // the description's own, untouched
+  ASSERT_EQ(model.defaults().controller.gains.count("jt"), 1u);
+  EXPECT_EQ(model.defaults().controller.gains.at("jt"), Eigen::VectorXd(gains));  // exact: 17 digits
+  EXPECT_EQ(model.defaults().controller.gains.at("dls"), Eigen::VectorXd(other));
+  EXPECT_EQ(model.defaults().controller.task_gains.size(), 6);  // the description's own, untouched
   const std::string text = ReadTextFile(dir + "/pa10.gains.yaml");
   EXPECT_EQ(text.find("jt:"), text.rfind("jt:"));  // one entry, replaced not added
 
@@ -58,7 +58,7 @@ TEST(GainTuning, SavesIntoAnOverlayNeverTheUsersOwnFile) {
   std::filesystem::copy_file(test::SourcePath("robots/pa10/pa10.urdf"), urdf);
   EXPECT_EQ(control::SaveControllerGains(urdf, "dls", gains), dir + "/arm.gains.yaml");
   EXPECT_FALSE(std::filesystem::exists(dir + "/arm.trocar.yaml"));
-  EXPECT_EQ(robot::LoadRobot(urdf).controller().gains.at("dls"), Eigen::VectorXd(gains));
+  EXPECT_EQ(robot::LoadRobot(urdf).defaults().controller.gains.at("dls"), Eigen::VectorXd(gains));
   // A damaged overlay is an error naming it, not ignored.
   std::ofstream(dir + "/arm.gains.yaml") << "gains: {dls: [1, 2]}\n";
   try {

@@ -411,7 +411,7 @@ TEST(IgtlDevice, ASessionHoldsThroughFaultsAndSilenceAndResumesWithoutAJump) {
   IgtlDeviceServer server(AnyPort());
   const auto model = robot::LoadRobot(test::SourcePath("robots/davinci-classic/psm.yaml"));
   control::ControlLoop loop(model, control::MakeController("dls", model, control::Vector6d::Constant(20)),
-                            model.home_configuration());
+                            model.defaults().home);
   NetworkDeviceInput input(&server, "d", 0.05);
   auto pose = [](double x, double y) {
     Eigen::Isometry3d X = Eigen::Isometry3d::Identity();

@@ -160,7 +160,7 @@ struct Psm {
     for (int i = 0; i < model.num_positions(); ++i) p[i] = i;
     return p;
   }
-  void At(const Eigen::VectorXd& q) { ASSERT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok); }
+  void At(const Eigen::VectorXd& q) { ASSERT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok()); }
   Eigen::Vector3d ToolVelocityOf(int k) {
     kinematics::Matrix6Xd J;
     kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &J);
@@ -170,7 +170,7 @@ struct Psm {
 
 TEST(ForceFeedback, NearnessPushesAwayFromTheObstacleGrowingAsTheGapCloses) {
   Psm psm;
-  psm.At(psm.model.home_configuration());
+  psm.At(psm.model.defaults().home);
   control::ForceFeedbackOptions options;
   control::ForceFeedback feedback(psm.model, psm.all(), options);
   std::mt19937 rng(4);
@@ -205,7 +205,7 @@ TEST(ForceFeedback, JointAndInsertionLimitsPushBackAgainstTheMotionTowardThem) {
   control::ForceFeedback feedback(psm.model, psm.all());
   const int insertion = 2, yaw = 0;
   const Eigen::VectorXd lo = psm.model.lower_limits(), hi = psm.model.upper_limits();
-  Eigen::VectorXd q = psm.model.home_configuration();
+  Eigen::VectorXd q = psm.model.defaults().home;
   psm.At(q);
   EXPECT_EQ(feedback.Compute(psm.state, psm.model.tool_frame(), {}).reasons, 0u) << "home is not near a limit";
   // Insertion nearly at its end.
@@ -221,7 +221,7 @@ TEST(ForceFeedback, JointAndInsertionLimitsPushBackAgainstTheMotionTowardThem) {
   psm.At(q);
   EXPECT_LT(feedback.Compute(psm.state, psm.model.tool_frame(), {}).f_W.norm(), near_end);
   // Yaw near its lower limit: resist yawing further down.
-  q = psm.model.home_configuration();
+  q = psm.model.defaults().home;
   q[yaw] = lo[yaw] + 0.005 * (hi[yaw] - lo[yaw]);
   psm.At(q);
   cue = feedback.Compute(psm.state, psm.model.tool_frame(), {});

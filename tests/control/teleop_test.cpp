@@ -228,7 +228,7 @@ TEST_F(DeviceCsv, NanInTheStreamIsDroppedAndMarkedNotAnError) {
   control::CsvReplayInput input(path);
   const auto model = robot::LoadRobot(test::SourcePath("robots/pa10/pa10.yaml"));
   control::ControlLoop loop(model, control::MakeController("dls", model, control::Vector6d::Constant(20)),
-                            model.home_configuration());
+                            model.defaults().home);
   control::TeleopSessionOptions options;
   options.duration = 0.003;
   const auto recorder = control::RunTeleopSession(&loop, &input, options);
@@ -248,7 +248,7 @@ TEST(TeleopSession, StepSettlesAndRunsAreDeterministic) {
   std::vector<control::Recorder> runs;
   for (int run = 0; run < 2; ++run) {
     control::ControlLoop loop(model, control::MakeController("dls", model, control::Vector6d::Constant(20)),
-                              model.home_configuration());
+                              model.defaults().home);
     control::ScriptedInput input(motion);
     runs.push_back(control::RunTeleopSession(&loop, &input, options));
   }

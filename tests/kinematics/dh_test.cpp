@@ -28,7 +28,7 @@ void ExpectTreeMatchesTable(const RobotModel& model, const DhTable& table, unsig
   std::mt19937 rng(seed);
   for (int trial = 0; trial < 1000; ++trial) {
     const Eigen::VectorXd q = test::RandomConfiguration(model, &rng);
-    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok);
+    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok());
     ASSERT_TRUE(CompareMatrices(ToolPoseInBase(model, state).matrix(),
                                 robot::DhToolPose(table, q).matrix(), kTol))
         << "q = " << q.transpose();

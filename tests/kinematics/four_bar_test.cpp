@@ -28,11 +28,11 @@ TEST(FourBar, ParallelogramCouplerStaysParallelToTheGroundLink) {
   const int turret = model.GetLink("turret"), coupler = model.GetLink("coupler");
   const int crank = model.GetLink("crank"), rocker = model.GetLink("rocker");
   const auto& closure = model.closures().at(0);
-  ASSERT_TRUE(ForwardKinematics(model, Eigen::Vector3d(0.4, 0, 0.05), &state).ok);
+  ASSERT_TRUE(ForwardKinematics(model, Eigen::Vector3d(0.4, 0, 0.05), &state).ok());
   const Eigen::Matrix3d R_TC0 =
       state.X_WL[turret].linear().transpose() * state.X_WL[coupler].linear();
   for (double crank_angle = -1.3; crank_angle <= 1.3; crank_angle += 0.005) {
-    ASSERT_TRUE(ForwardKinematics(model, Eigen::Vector3d(0.4, crank_angle, 0.05), &state).ok)
+    ASSERT_TRUE(ForwardKinematics(model, Eigen::Vector3d(0.4, crank_angle, 0.05), &state).ok())
         << crank_angle;
     const Eigen::Matrix3d R_TC =
         state.X_WL[turret].linear().transpose() * state.X_WL[coupler].linear();
@@ -62,18 +62,19 @@ void ExpectSameState(const RobotState& a, const RobotState& b) {
 TEST(FourBar, DrivingBeyondTheRangeIsRefusedAndTheStateIsUnchanged) {
   const RobotModel model = Parallelogram();
   RobotState state(model);
-  ASSERT_TRUE(ForwardKinematics(model, Eigen::Vector3d(0.2, 1.0, 0.1), &state).ok);
+  ASSERT_TRUE(ForwardKinematics(model, Eigen::Vector3d(0.2, 1.0, 0.1), &state).ok());
   const RobotState before = state;
   // The crank meets the ground line at +-pi/2 (change points where the loop could invert).
   for (double bad : {1.5708, 1.6, 2.0, 3.0, -1.5708, -1.6, -2.5}) {
     const auto result = ForwardKinematics(model, Eigen::Vector3d(0.2, bad, 0.1), &state);
-    EXPECT_FALSE(result.ok) << bad;
+    EXPECT_FALSE(result.ok()) << bad;
+    EXPECT_EQ(result.status, kinematics::ConfigurationResult::Status::kClosureRefused) << bad;
     EXPECT_EQ(result.failed_closure, 0);
     EXPECT_NE(result.message.find("pitch_parallelogram"), std::string::npos) << result.message;
     ExpectSameState(state, before);
   }
   // And it still moves on from where it was.
-  EXPECT_TRUE(ForwardKinematics(model, Eigen::Vector3d(0.2, 1.2, 0.1), &state).ok);
+  EXPECT_TRUE(ForwardKinematics(model, Eigen::Vector3d(0.2, 1.2, 0.1), &state).ok());
 }
 
 // A random four-bar in 3-D: random axis direction, random joint frame orientations and axis
@@ -155,7 +156,7 @@ TEST(FourBar, RandomLoopsStayClosedWithTheirLinkLengths) {
       const double driver = direction * step * (2 * M_PI / 400);
       const RobotState before = state;
       const auto result = kinematics::SetConfiguration(model, Eigen::VectorXd::Constant(1, driver), &state);
-      if (!result.ok) {
+      if (!result.ok()) {
         refused = true;
         ++refusals;
         ExpectSameState(state, before);
@@ -170,7 +171,7 @@ TEST(FourBar, RandomLoopsStayClosedWithTheirLinkLengths) {
       const double h = 1e-7;
       const auto plus = kinematics::SolveFourBar(model, c, driver + h, driver, coupler, rocker);
       const auto minus = kinematics::SolveFourBar(model, c, driver - h, driver, coupler, rocker);
-      if (plus.ok && minus.ok) {
+      if (plus.ok() && minus.ok()) {
         const double scale = 1.0 + std::abs(state.dvalues_dq(model.joint(c.coupler).dof_index, 0));
         EXPECT_NEAR(state.dvalues_dq(model.joint(c.coupler).dof_index, 0),
                     (plus.coupler - minus.coupler) / (2 * h), 1e-5 * scale);
@@ -194,8 +195,15 @@ TEST(FourBar, AJumpOverAChangePointIsRefusedEvenWhenTheTargetCouldClose) {
   const auto& c = model.closures().at(0);
   // At 2.0 rad the coupler and rocker circles do meet (the crossed, anti-parallelogram branch),
   // but the crank would have to pass the change point at pi/2 to get there.
-  EXPECT_FALSE(kinematics::SolveFourBar(model, c, 2.0, 0.0, 0.0, 0.0).ok);
-  EXPECT_TRUE(kinematics::SolveFourBar(model, c, 1.45, 0.0, 0.0, 0.0).ok);
+  const auto jump = kinematics::SolveFourBar(model, c, 2.0, 0.0, 0.0, 0.0);
+  EXPECT_FALSE(jump.ok());
+  EXPECT_EQ(jump.status, kinematics::FourBarSolution::Status::kChangePoint) << jump.message;
+  EXPECT_NE(jump.message.find("change point"), std::string::npos) << jump.message;
+  EXPECT_TRUE(kinematics::SolveFourBar(model, c, 1.45, 0.0, 0.0, 0.0).ok());
+  // Exactly at the change point the circles only touch: outside the range, said as such.
+  const auto at = kinematics::SolveFourBar(model, c, M_PI / 2, M_PI / 2, 0.0, 0.0);
+  EXPECT_EQ(at.status, kinematics::FourBarSolution::Status::kOutsideRange) << at.message;
+  EXPECT_STREQ(kinematics::ToString(at.status), "outside the mechanism's range");
 }
 
 }  // namespace

@@ -29,10 +29,10 @@ Eigen::Matrix<double, 6, Eigen::Dynamic> FiniteDifferenceJacobian(const RobotMod
     Eigen::VectorXd qp = q, qm = q;
     qp[k] += kStep;
     qm[k] -= kStep;
-    EXPECT_TRUE(ForwardKinematics(model, q, &plus).ok);  // close loops near q first
-    EXPECT_TRUE(ForwardKinematics(model, q, &minus).ok);
-    EXPECT_TRUE(ForwardKinematics(model, qp, &plus).ok);
-    EXPECT_TRUE(ForwardKinematics(model, qm, &minus).ok);
+    EXPECT_TRUE(ForwardKinematics(model, q, &plus).ok());  // close loops near q first
+    EXPECT_TRUE(ForwardKinematics(model, q, &minus).ok());
+    EXPECT_TRUE(ForwardKinematics(model, qp, &plus).ok());
+    EXPECT_TRUE(ForwardKinematics(model, qm, &minus).ok());
     const Eigen::Isometry3d& Xp = plus.X_WL[link];
     const Eigen::Isometry3d& Xm = minus.X_WL[link];
     const Eigen::AngleAxisd dR(Xp.linear() * Xm.linear().transpose());
@@ -52,7 +52,7 @@ void CheckJacobian(const std::string& file, int trials, unsigned seed) {
   kinematics::Matrix6Xd J;
   for (int trial = 0; trial < trials; ++trial) {
     const Eigen::VectorXd q = test::RandomConfiguration(model, &rng);
-    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok);
+    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok());
     // The tool frame, and a random point on a random link.
     kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &J);
     ASSERT_TRUE(test::CompareMatrices(
@@ -62,7 +62,7 @@ void CheckJacobian(const std::string& file, int trials, unsigned seed) {
         << "tool, q = " << q.transpose();
     const int link = pick_link(rng);
     const Eigen::Vector3d p_LF(offset(rng), offset(rng), offset(rng));
-    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok);
+    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok());
     kinematics::ComputeJacobian(model, state, link, p_LF, &J);
     ASSERT_TRUE(test::CompareMatrices(J, FiniteDifferenceJacobian(model, q, link, p_LF),
                                       kTolerance))
@@ -116,7 +116,7 @@ TEST(Jacobian, AngularPartIsTheToolAngularVelocityForEveryFrame) {
     EXPECT_TRUE(test::CompareMatrices(J1.topRows<3>(), fd.topRows<3>(), kTolerance));
     // And not merely up to sign: the rows would match their negation only if they were zero.
     EXPECT_GT(J1.topRows<3>().norm(), 0.5);
-    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok);
+    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok());
   }
 }
 

@@ -71,7 +71,7 @@ struct OwnCheck {
     }
     state.X_WB = plan.placement.X_WB();
     state.joint_values = plan.evaluation.joint_values;
-    if (!kinematics::ForwardKinematics(problem.robot(), q, &state).ok) {
+    if (!kinematics::ForwardKinematics(problem.robot(), q, &state).ok()) {
       *why = "closure";
       return false;
     }

@@ -413,7 +413,7 @@ TEST(OptimizePorts, ReachedSamplesAreReallyReachedAndCollisionFree) {
       Eigen::VectorXd q = ev.q_nominal;
       for (std::size_t c = 0; c < arm.q_indices.size(); ++c) q[arm.q_indices[c]] = r.q_arm[c];
       EXPECT_TRUE(kinematics::LimitViolations(problem.robot(), q).empty());
-      ASSERT_TRUE(kinematics::ForwardKinematics(problem.robot(), q, &state).ok);
+      ASSERT_TRUE(kinematics::ForwardKinematics(problem.robot(), q, &state).ok());
       const auto& s = problem.samples()[r.sample];
       const Eigen::Vector3d tip =
           kinematics::FramePose(state, problem.robot().GetFrame(arm.tool_frame)).translation();

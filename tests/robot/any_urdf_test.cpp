@@ -43,7 +43,7 @@ TEST(AnyUrdf, EveryLinkIsAFrameByItsName) {
   const robot::RobotModel model = robot::LoadRobot(test::SourcePath("robots/pa10/pa10.urdf"));
   robot::RobotState state(model);
   const Eigen::VectorXd q = (Eigen::VectorXd(7) << 0.1, -0.5, 0.3, 1.2, -0.4, -0.3, 0.1).finished();
-  ASSERT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok);
+  ASSERT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok());
   for (int l = 0; l < model.num_links(); ++l) {
     const robot::Frame& frame = model.GetFrame(model.link(l).name);
     EXPECT_EQ(frame.link, l);
@@ -117,7 +117,7 @@ TEST(AnyUrdf, ASidecarFrameNamedLikeALinkIsAnError) {
 // the same every time; the PA10 as a plain URDF starts stretched straight up at q = 0 otherwise.
 TEST(AnyUrdf, ARobotWithoutAHomeStartsAwayFromLimitsAndSingularities) {
   const robot::RobotModel model = robot::LoadRobot(test::SourcePath("robots/pa10/pa10.urdf"));
-  ASSERT_FALSE(model.has_home());
+  ASSERT_FALSE(model.defaults().has_home());
   const kinematics::StartConfiguration a = kinematics::ChooseStart(model);
   const kinematics::StartConfiguration b = kinematics::ChooseStart(model);
   EXPECT_EQ(a.q, b.q);
@@ -134,7 +134,7 @@ TEST(AnyUrdf, ARobotWithoutAHomeStartsAwayFromLimitsAndSingularities) {
   EXPECT_LT(kinematics::AssessStart(model, Eigen::VectorXd::Zero(7), a.length).dexterity, 0.02);
   // A declared home is kept as it is.
   const robot::RobotModel yaml = robot::LoadRobot(test::SourcePath("robots/pa10/pa10.yaml"));
-  EXPECT_EQ(kinematics::ChooseStart(yaml).q, yaml.home_configuration());
+  EXPECT_EQ(kinematics::ChooseStart(yaml).q, yaml.defaults().home);
 }
 
 }  // namespace

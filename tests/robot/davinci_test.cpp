@@ -73,7 +73,7 @@ void ExpectToolMatchesDvrk(const std::string& file, const DhTable& table, unsign
   const int n = static_cast<int>(table.rows.size());
   for (int trial = 0; trial < 1000; ++trial) {
     const Eigen::VectorXd q = test::RandomConfiguration(model, &rng);
-    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok) << q.transpose();
+    ASSERT_TRUE(ForwardKinematics(model, q, &state).ok()) << q.transpose();
     ASSERT_TRUE(CompareMatrices(kinematics::ToolPoseInBase(model, state).matrix(),
                                 robot::DhToolPose(table, q.head(n)).matrix(), kDhTolerance))
         << "q = " << q.transpose();
@@ -132,7 +132,7 @@ void ExpectRcmFixedOverSweeps(const std::string& file, const std::string& insert
       Eigen::VectorXd q = test::RandomConfiguration(model, &rng);
       for (int step = 0; step <= 200; ++step) {
         q[swept] = lower[swept] + (upper[swept] - lower[swept]) * step / 200.0;
-        ASSERT_TRUE(ForwardKinematics(model, q, &state).ok) << q.transpose();
+        ASSERT_TRUE(ForwardKinematics(model, q, &state).ok()) << q.transpose();
         // The RCM frame itself is the base, fixed; the shaft must pass through it.
         ASSERT_LT(ShaftDistanceFromRcm(model, state, insertion_joint, "rcm"), kRcmTolerance)
             << "joint " << swept << " q = " << q.transpose();
@@ -174,7 +174,7 @@ TEST(DaVinci, ParallelogramLinksAreRealBodiesDrivenByTwoClosures) {
   RobotState state(model);
   Eigen::VectorXd q = Eigen::VectorXd::Zero(7);
   q[1] = 0.6;
-  ASSERT_TRUE(ForwardKinematics(model, q, &state).ok);
+  ASSERT_TRUE(ForwardKinematics(model, q, &state).ok());
   const Eigen::Matrix3d R_yaw = state.X_WL[model.GetLink("yaw_link")].linear();
   EXPECT_TRUE(CompareMatrices(state.X_WL[model.GetLink("pitch_bottom_link")].linear(), R_yaw, 1e-12));
   EXPECT_TRUE(CompareMatrices(
@@ -203,7 +203,7 @@ TEST(DaVinciCart, IsOneDescriptionWithHeldSetupJointsAndActiveArms) {
       state.joint_values[joint.dof_index] =
           std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
     }
-    ASSERT_TRUE(ForwardKinematics(cart, test::RandomConfiguration(cart, &rng), &state).ok);
+    ASSERT_TRUE(ForwardKinematics(cart, test::RandomConfiguration(cart, &rng), &state).ok());
     EXPECT_LT(ShaftDistanceFromRcm(cart, state, "psm1_outer_insertion", "psm1_rcm"), 1e-9);
     EXPECT_LT(ShaftDistanceFromRcm(cart, state, "psm2_outer_insertion", "psm2_rcm"), 1e-9);
     EXPECT_LT(ShaftDistanceFromRcm(cart, state, "ecm_insertion", "ecm_rcm"), 1e-9);
@@ -227,20 +227,20 @@ TEST(SetupJointSolver, PlacesEachRcmWhereRandomSetupJointsPutIt) {
       }
       const Eigen::VectorXd q = test::RandomConfiguration(cart, &rng);
       const auto fk = ForwardKinematics(cart, q, &truth);
-      ASSERT_TRUE(fk.ok) << fk.message;
+      ASSERT_TRUE(fk.ok()) << fk.message;
       const Eigen::Isometry3d X_WR = kinematics::FramePose(truth, rcm);
       kinematics::SetupJointRequest request;
       request.frame = rcm.name;
       request.p_WF = X_WR.translation();
       request.axis_W = X_WR.linear() * -Eigen::Vector3d::UnitZ();
       RobotState start(cart);  // setup joints at their neutral values
-      ASSERT_TRUE(kinematics::SetConfiguration(cart, q, &start).ok);
+      ASSERT_TRUE(kinematics::SetConfiguration(cart, q, &start).ok());
       const auto result = kinematics::SolveSetupJoints(cart, start, request);
-      ASSERT_TRUE(result.solved()) << result.message << " trial " << trial;
+      ASSERT_TRUE(result.ok()) << result.message << " trial " << trial;
       // Check independently: put the values in and run forward kinematics.
       RobotState check = start;
       for (std::size_t i = 0; i < result.joints.size(); ++i) {
-        ASSERT_TRUE(kinematics::SetHeldJoint(cart, result.joints[i], result.values[i], &check).ok);
+        ASSERT_TRUE(kinematics::SetHeldJoint(cart, result.joints[i], result.values[i], &check).ok());
       }
       ForwardKinematics(cart, &check);
       const Eigen::Isometry3d X_WR_found = kinematics::FramePose(check, rcm);
@@ -260,7 +260,7 @@ TEST(SetupJointSolver, ATargetOutOfReachIsUnreachableWithTheDistanceShort) {
   request.p_WF = Eigen::Vector3d(6.0, 0.0, 1.0);  // far beyond the setup joints' reach
   request.axis_W = -Eigen::Vector3d::UnitZ();
   const auto result = kinematics::SolveSetupJoints(cart, state, request);
-  EXPECT_FALSE(result.solved());
+  EXPECT_FALSE(result.ok());
   EXPECT_GT(result.position_error, 3.0);
   EXPECT_LT(result.position_error, 6.0);
   EXPECT_NE(result.message.find("unreachable: frame 'psm1_rcm' stays"), std::string::npos)

@@ -49,7 +49,7 @@ TEST(LoadRobot, EveryBundledRobotLoads) {
     const RobotModel model = LoadRobot(SourcePath(bundled.file));
     EXPECT_EQ(model.num_positions(), bundled.num_positions) << bundled.file;
     RobotState state(model);
-    EXPECT_TRUE(ForwardKinematics(model, model.neutral_configuration(), &state).ok);
+    EXPECT_TRUE(ForwardKinematics(model, model.neutral_configuration(), &state).ok());
   }
 }
 
@@ -68,8 +68,8 @@ TEST(LoadRobot, Pa10UrdfAndDhGiveTheSameToolPoses) {
   std::mt19937 rng(2);
   for (int trial = 0; trial < 1000; ++trial) {
     const Eigen::VectorXd q = test::RandomConfiguration(dh, &rng);
-    ASSERT_TRUE(ForwardKinematics(dh, q, &s_dh).ok);
-    ASSERT_TRUE(ForwardKinematics(urdf, q, &s_urdf).ok);
+    ASSERT_TRUE(ForwardKinematics(dh, q, &s_dh).ok());
+    ASSERT_TRUE(ForwardKinematics(urdf, q, &s_urdf).ok());
     ASSERT_TRUE(CompareMatrices(ToolPoseInBase(dh, s_dh).matrix(),
                                 ToolPoseInBase(urdf, s_urdf).matrix(), kPoseTolerance))
         << "q = " << q.transpose();
@@ -153,7 +153,7 @@ TEST(LoadRobot, SurrolPsmLoadsWithMeshesAndMimicJoints) {
   RobotState state(model);
   std::mt19937 rng(4);
   for (int trial = 0; trial < 200; ++trial) {
-    ASSERT_TRUE(ForwardKinematics(model, test::RandomConfiguration(model, &rng), &state).ok);
+    ASSERT_TRUE(ForwardKinematics(model, test::RandomConfiguration(model, &rng), &state).ok());
     for (int j : model.dof_joints()) {
       const robot::Joint& joint = model.joint(j);
       if (joint.drive != JointDrive::kMimic) continue;
@@ -175,7 +175,7 @@ TEST(LoadRobot, SurrolPsmShaftPassesThroughTheRemoteCentre) {
   RobotState state(model);
   std::mt19937 rng(8);
   for (int trial = 0; trial < 200; ++trial) {
-    ASSERT_TRUE(ForwardKinematics(model, test::RandomConfiguration(model, &rng), &state).ok);
+    ASSERT_TRUE(ForwardKinematics(model, test::RandomConfiguration(model, &rng), &state).ok());
     const robot::Joint& joint = model.joint(insertion_joint);
     const Eigen::Isometry3d& X_WI = state.X_WL[joint.child_link];
     const Eigen::Vector3d axis = X_WI.linear() * joint.axis_J;
@@ -244,7 +244,7 @@ TEST(LoadRobot, SurrolEcmLoads) {
   RobotState state(model);
   std::mt19937 rng(12);
   for (int trial = 0; trial < 100; ++trial) {
-    ASSERT_TRUE(ForwardKinematics(model, test::RandomConfiguration(model, &rng), &state).ok);
+    ASSERT_TRUE(ForwardKinematics(model, test::RandomConfiguration(model, &rng), &state).ok());
   }
 }
 
@@ -260,7 +260,7 @@ TEST(HeldJoints, AreSetBeforeUseAndRefuseValuesOutsideTheirLimits) {
   EXPECT_EQ(model.num_positions(), 6);
   EXPECT_EQ(model.joint(model.GetJoint("S1")).drive, JointDrive::kHeld);
   RobotState state(model);
-  ASSERT_TRUE(kinematics::SetHeldJoint(model, "S1", 0.5, &state).ok);
+  ASSERT_TRUE(kinematics::SetHeldJoint(model, "S1", 0.5, &state).ok());
   ForwardKinematics(model, Eigen::VectorXd::Zero(6), &state);
   const Eigen::Vector3d p = kinematics::FramePose(state, model.tool_frame()).translation();
   EXPECT_NEAR(p.z(), 1.317, 1e-12);

@@ -153,7 +153,7 @@ TEST(Scene, TheRobotIsDrawnWhereItsForwardKinematicsPutsItOverSeededConfiguratio
     state.X_WB = Eigen::Isometry3d::Identity();
     state.X_WB.translation() = Eigen::Vector3d(0, 0, 1.2);
     const Eigen::VectorXd q = test::RandomConfiguration(*psm, &rng);
-    ASSERT_TRUE(kinematics::ForwardKinematics(*psm, q, &state).ok);
+    ASSERT_TRUE(kinematics::ForwardKinematics(*psm, q, &state).ok());
     scene.SetRobotState(state);
     CameraPose camera;
     camera.focal_point = Eigen::Vector3d(0, 0, 1.2);
