@@ -17,6 +17,7 @@
 #include "control/control_loop.hpp"
 #include "control/device_input.hpp"
 #include "control/gain_tuning.hpp"
+#include "control/joint_limits.hpp"
 #include "control/teleop_session.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/start_configuration.hpp"
@@ -358,6 +359,17 @@ int RunTeleop(const TeleopCommandOptions& o) {
   }
   std::shared_ptr<const robot::RobotModel> shared_model = arms.front().model;
   const robot::RobotModel& model = *shared_model;
+  {
+    int held_joints = 0;
+    for (const robot::Joint& j : model.joints()) held_joints += j.drive == robot::JointDrive::kHeld ? 1 : 0;
+    TROCAR_THROW_UNLESS(model.num_positions() > 0,
+                        "robot '" << model.name() << "' (" << (model.source().empty() ? model.name() : model.source())
+                                  << ") has no active joints to drive"
+                                  << (held_joints > 0 ? " (its " + std::to_string(held_joints) +
+                                                            " movable joints are held setup joints, set before use; "
+                                                            "a robot that carries it, like the cart, drives the arm)"
+                                                      : ""));
+  }
   // The robot's home, or one chosen away from limits and singularities; --q0 overrides both.
   kinematics::StartConfiguration start = plan_view ? kinematics::StartConfiguration{} : kinematics::ChooseStart(model);
   Eigen::VectorXd q0 = start.q;
@@ -530,6 +542,35 @@ int RunTeleop(const TeleopCommandOptions& o) {
       }
     }
     channels.push_back(c);
+  }
+  // A known input (scripted or recorded) on one arm: does it ask the joints for more speed than
+  // their limits give, from the start? (The ECM at a 5 cm insertion follows a 1:1 sinusoid at
+  // 2.5 rad/s of yaw where it has 1.) Said before the run, not found in its error afterwards.
+  if (channels.size() == 1 && server == nullptr && keyboard == nullptr) {
+    std::unique_ptr<control::DeviceInput> fresh;
+    if (is_file) {
+      fresh = std::make_unique<control::CsvReplayInput>(o.input);
+    } else {
+      control::ScriptedMotion motion;
+      motion.kind = control::ParseScriptedMotion(o.input);
+      motion.amplitude = o.amplitude;
+      fresh = std::make_unique<control::ScriptedInput>(motion);
+    }
+    const auto V_W = control::ToolVelocities(fresh.get(), o.duration, 0.01, channels.front().mapping);
+    const control::ControlLoop& loop = *loops.front();
+    const control::VelocityDemand demand =
+        control::JointVelocityDemand(*arms.front().model, loop.state(), V_W, position_only);
+    if (demand.share > 1.0) {
+      const robot::Joint& joint = arms.front().model->joint(arms.front().model->active_joints()[demand.joint]);
+      const bool prismatic = joint.type == robot::JointType::kPrismatic;
+      std::ostringstream w;
+      w << std::setprecision(3) << "the input moves the tool at up to " << demand.peak_tool_speed
+        << " m/s; from the start, joint '" << joint.name << "' would need " << demand.rate
+        << (prismatic ? " m/s" : " rad/s") << ", over its velocity limit of "
+        << joint.limits.velocity << (prismatic ? " m/s" : " rad/s")
+        << ": the tool will lag (a smaller --amplitude, a larger --scale, or a start where the joints need less speed)";
+      start.warnings.push_back(w.str());
+    }
   }
   if (!o.record.empty()) {  // fail before the run, not after it
     std::error_code ec;

@@ -166,4 +166,31 @@ void WriteDeviceCsv(const std::string& path, const std::vector<DeviceSample>& sa
   WriteFileAtomically(path, out.str());
 }
 
+std::vector<Eigen::Matrix<double, 6, 1>> ToolVelocities(DeviceInput* input, double duration,
+                                                        double dt, const TeleopOptions& options) {
+  TROCAR_THROW_UNLESS(dt > 0.0 && std::isfinite(duration) && duration >= 0.0,
+                      "ToolVelocities: dt " << dt << ", duration " << duration);
+  std::vector<Eigen::Matrix<double, 6, 1>> out;
+  DeviceSample previous = input->Sample(0.0);
+  const int steps = static_cast<int>(std::floor(duration / dt));
+  out.reserve(static_cast<std::size_t>(std::max(0, steps)));
+  for (int k = 1; k <= steps; ++k) {
+    const DeviceSample sample = input->Sample(k * dt);
+    const bool moving = !previous.clutch && !sample.clutch && previous.operator_present &&
+                        sample.operator_present && sample.X_DH.matrix().allFinite() &&
+                        previous.X_DH.matrix().allFinite();
+    if (moving) {
+      const Eigen::AngleAxisd turn(sample.X_DH.linear() * previous.X_DH.linear().transpose());
+      Eigen::Matrix<double, 6, 1> V;
+      V.head<3>() = options.R_WC * (turn.angle() / dt * turn.axis());
+      V.tail<3>() = options.R_WC * ((sample.X_DH.translation() - previous.X_DH.translation()) /
+                                    (dt * options.scale));
+      if (options.position_only) V.head<3>().setZero();
+      out.push_back(V);
+    }
+    previous = sample;
+  }
+  return out;
+}
+
 }  // namespace trocar::control

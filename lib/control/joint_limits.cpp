@@ -3,6 +3,10 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/SVD>
+
+#include "kinematics/jacobian.hpp"
+
 namespace trocar::control {
 
 double BrakingSpeed(double distance, double acceleration, double dt) {
@@ -67,6 +71,41 @@ LimitReport ApplyJointLimits(const robot::RobotModel& model, const Eigen::Vector
     (*q_next)[i] = std::clamp(q[i] + v * dt, l.lower, l.upper);
   }
   return report;
+}
+
+VelocityDemand JointVelocityDemand(const robot::RobotModel& model, const robot::RobotState& state,
+                                   const std::vector<Eigen::Matrix<double, 6, 1>>& V_W,
+                                   bool position_only) {
+  VelocityDemand out;
+  kinematics::Matrix6Xd J;
+  kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &J);
+  const Eigen::MatrixXd Jr = position_only ? Eigen::MatrixXd(J.bottomRows<3>()) : Eigen::MatrixXd(J);
+  if (Jr.cols() == 0) return out;
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(Jr, Eigen::ComputeThinU | Eigen::ComputeThinV);
+  const Eigen::VectorXd sigma = svd.singularValues();
+  Eigen::VectorXd inverse_sigma = Eigen::VectorXd::Zero(sigma.size());
+  for (int i = 0; i < sigma.size(); ++i) {
+    if (sigma[i] > 1e-6 * sigma[0]) inverse_sigma[i] = 1.0 / sigma[i];
+  }
+  const Eigen::MatrixXd pinv = svd.matrixV() * inverse_sigma.asDiagonal() * svd.matrixU().transpose();
+  const Eigen::VectorXd limits = model.velocity_limits();
+  for (const auto& V : V_W) {
+    const double speed = V.tail<3>().norm();
+    out.peak_tool_speed = std::max(out.peak_tool_speed, speed);
+    const Eigen::VectorXd qdot =
+        position_only ? Eigen::VectorXd(pinv * V.tail<3>()) : Eigen::VectorXd(pinv * V);
+    for (int i = 0; i < qdot.size(); ++i) {
+      if (!std::isfinite(limits[i]) || !(limits[i] > 0.0)) continue;
+      const double share = std::abs(qdot[i]) / limits[i];
+      if (share > out.share) {
+        out.share = share;
+        out.joint = i;
+        out.rate = std::abs(qdot[i]);
+        out.tool_speed = speed;
+      }
+    }
+  }
+  return out;
 }
 
 }  // namespace trocar::control

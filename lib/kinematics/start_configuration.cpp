@@ -215,6 +215,13 @@ StartConfiguration ChooseStart(const robot::RobotModel& model, unsigned seed, in
     out.warnings = StartWarnings(model, out.q, out.length);
     return out;
   }
+  if (n == 0) {  // e.g. a setup-joint arm: every joint held, nothing for a session to drive
+    out.q = Eigen::VectorXd(0);
+    out.basis = "no active joints (nothing to choose)";
+    out.quality.status = StartQuality::Status::kNoJoints;
+    out.quality.message = "robot '" + model.name() + "' has no active joints";
+    return out;
+  }
   std::mt19937 rng(seed);
   // Rank seeded samples by the linear estimate, keep the best few.
   constexpr int kFinalists = 12;

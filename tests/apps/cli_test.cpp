@@ -281,6 +281,39 @@ TEST(TrocarTeleop, PlainUrdfsOfRandomArmsTrackWithDefaultSettings) {
       << stretched.output;
 }
 
+// Every bundled robot with joints to drive follows the thesis' sinusoid with default settings,
+// or says before the run why it cannot: the ECM at its 5 cm home needs 2.5 rad/s of yaw for a 1:1
+// sinusoid where its limit is 1 rad/s, and follows it at 3:1. An arm of setup joints only has
+// nothing to drive and says so.
+TEST(TrocarTeleop, BundledRobotsTrackTheSinusoidOrSayWhyNot) {
+  const char* kWarning = "over its velocity limit";
+  for (const char* robot : {"robots/pa10/pa10.yaml", "robots/pa10/pa10_instrument.yaml",
+                            "robots/davinci-classic/psm.yaml", "robots/davinci-classic/psm_si.yaml",
+                            "robots/davinci-classic/cart.yaml", "robots/prismatic-test/prismatic10.yaml"}) {
+    const CommandRun run = Trocar(std::string("teleop --robot ") + test::SourcePath(robot) + " --input sinusoid");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_LT(RmsPositionErrorMm(run.output), 0.5) << robot << "\n" << run.output;
+    EXPECT_EQ(run.output.find(kWarning), std::string::npos) << robot << "\n" << run.output;
+  }
+  for (const char* ecm : {"robots/davinci-classic/ecm.yaml", "robots/davinci-classic/ecm_30.yaml"}) {
+    const CommandRun fast = Trocar(std::string("teleop --robot ") + test::SourcePath(ecm) + " --input sinusoid");
+    ASSERT_EQ(fast.exit_code, 0) << fast.output;
+    EXPECT_GT(RmsPositionErrorMm(fast.output), 5.0) << fast.output;
+    EXPECT_NE(fast.output.find("joint 'outer_yaw' would need"), std::string::npos) << fast.output;
+    EXPECT_NE(fast.output.find(kWarning), std::string::npos) << fast.output;
+    const CommandRun scaled =
+        Trocar(std::string("teleop --robot ") + test::SourcePath(ecm) + " --input sinusoid --scale 3");
+    EXPECT_LT(RmsPositionErrorMm(scaled.output), 0.5) << scaled.output;
+    EXPECT_EQ(scaled.output.find(kWarning), std::string::npos) << scaled.output;
+  }
+  const CommandRun suj = Trocar("teleop --robot " + test::SourcePath("robots/davinci-classic/suj_psm.yaml") +
+                                " --input sinusoid");
+  EXPECT_EQ(suj.exit_code, 1) << suj.output;
+  EXPECT_NE(suj.output.find("has no active joints to drive (its 6 movable joints are held setup joints"),
+            std::string::npos)
+      << suj.output;
+}
+
 // Jacobian transpose on a robot that gives no gains: tuned on first use (22 mm RMS untuned on the
 // PA10), saved in the overlay beside the robot, read back next time; the URDF is untouched.
 TEST(TrocarTeleop, JacobianTransposeGainsAreTunedOnFirstUseIntoAnOverlay) {

@@ -1,6 +1,7 @@
 #include <functional>
 #include <random>
 
+#include <Eigen/QR>
 #include <Eigen/SVD>
 #include <gtest/gtest.h>
 
@@ -315,6 +316,47 @@ TEST(JointLimits, NoJointEverExceedsItsLimitsUnderAggressiveInput) {
       }
       EXPECT_GT(limited, 100);  // the input really was aggressive
     }
+  }
+}
+
+// What a tool motion asks of the joints' velocity limits: against the least-squares joint rates
+// computed independently (complete orthogonal decomposition) over seeded configurations and
+// velocities of the PA10; the share scales with the motion; a still tool asks nothing.
+TEST(JointLimits, VelocityDemandIsTheLeastSquaresJointRatesShareOfTheLimits) {
+  const RobotModel& model = Pa10();
+  std::mt19937 rng(7);
+  std::normal_distribution<double> normal;
+  const Eigen::VectorXd limits = model.velocity_limits();
+  for (int trial = 0; trial < 50; ++trial) {
+    RobotState state(model);
+    Eigen::VectorXd q = Pa10Start();
+    for (int i = 0; i < q.size(); ++i) q[i] += 0.3 * normal(rng);
+    q = q.cwiseMax(model.lower_limits()).cwiseMin(model.upper_limits());
+    ASSERT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok());
+    std::vector<Vector6d> V(3);
+    for (auto& v : V) v << 0.2 * normal(rng), 0.2 * normal(rng), 0.2 * normal(rng), 0.1 * normal(rng), 0.1 * normal(rng), 0.1 * normal(rng);
+    for (bool position_only : {false, true}) {
+      const control::VelocityDemand demand = control::JointVelocityDemand(model, state, V, position_only);
+      kinematics::Matrix6Xd J;
+      kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &J);
+      const Eigen::MatrixXd Jr = position_only ? Eigen::MatrixXd(J.bottomRows<3>()) : Eigen::MatrixXd(J);
+      const Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> cod(Jr);
+      double worst = 0.0, speed = 0.0;
+      for (const auto& v : V) {
+        speed = std::max(speed, v.tail<3>().norm());
+        const Eigen::VectorXd rates = cod.solve(position_only ? Eigen::VectorXd(v.tail<3>()) : Eigen::VectorXd(v));
+        worst = std::max(worst, (rates.cwiseAbs().array() / limits.array()).maxCoeff());
+      }
+      EXPECT_NEAR(demand.share, worst, 1e-9 * worst) << "trial " << trial;
+      EXPECT_NEAR(demand.rate, demand.share * limits[demand.joint], 1e-12);
+      EXPECT_DOUBLE_EQ(demand.peak_tool_speed, speed);
+      std::vector<Vector6d> doubled = V;
+      for (auto& v : doubled) v *= 2.0;
+      EXPECT_NEAR(control::JointVelocityDemand(model, state, doubled, position_only).share, 2.0 * demand.share,
+                  1e-9 * demand.share);
+    }
+    const std::vector<Vector6d> still(4, Vector6d::Zero());
+    EXPECT_EQ(control::JointVelocityDemand(model, state, still, false).share, 0.0);
   }
 }
 

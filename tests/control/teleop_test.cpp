@@ -171,6 +171,39 @@ TEST(TeleopMapping, TremorFiltersAttenuateTremorAndFollowMotion) {
   }
 }
 
+// A handle moving at a constant velocity and turning at a constant rate about a fixed axis,
+// with the clutch pressed between 0.4 and 0.6 s.
+class SteadyInput final : public control::DeviceInput {
+ public:
+  std::string name() const override { return "steady"; }
+  DeviceSample Sample(double t) override {
+    return trocar::Sample(t, Pose(t * Eigen::Vector3d(0.03, -0.02, 0.01), 0.5 * t, {1, 2, 2}),
+                          t > 0.4 && t < 0.6);
+  }
+};
+
+// The tool velocities a device's motion asks for: the handle's, translation divided by the
+// scale, both turned into the world by the camera frame; clutched samples move nothing.
+TEST(TeleopMapping, ToolVelocitiesAreTheHandlesScaledAndReadInTheCameraFrame) {
+  TeleopOptions options;
+  options.scale = 5.0;
+  options.R_WC = Eigen::AngleAxisd(0.9, Eigen::Vector3d(0.3, -1, 0.5).normalized()).toRotationMatrix();
+  SteadyInput input;
+  const auto V = control::ToolVelocities(&input, 1.0, 0.01, options);
+  // 100 pairs of samples 0.01 s apart; those at 0.41–0.59 s are clutched: the 20 pairs touching
+  // them are left out.
+  EXPECT_EQ(V.size(), 80u);
+  const Eigen::Vector3d v = options.R_WC * Eigen::Vector3d(0.03, -0.02, 0.01) / 5.0;
+  const Eigen::Vector3d w = options.R_WC * (0.5 * Eigen::Vector3d(1, 2, 2).normalized());
+  for (const auto& V_W : V) {
+    EXPECT_LT((V_W.tail<3>() - v).norm(), 1e-12);
+    EXPECT_LT((V_W.head<3>() - w).norm(), 1e-9);
+  }
+  options.position_only = true;
+  SteadyInput again;
+  for (const auto& V_W : control::ToolVelocities(&again, 1.0, 0.01, options)) EXPECT_EQ(V_W.head<3>().norm(), 0.0);
+}
+
 TEST(TeleopMapping, RefusesBadOptions) {
   TeleopOptions options;
   options.scale = 0.0;
