@@ -40,6 +40,9 @@ struct AnatomyOptions {
   /// costotransverse joints lie 25-35 mm from the midline).
   double spine_half_width = 0.026;
   double spine_front = 0.05, spine_back = 0.06;
+  /// A piece of the column under `min_rib_volume`, apart from the rest and wholly more than this
+  /// ahead of the spine's axis, is a vessel-wall calcification, not spine (m).
+  double calcification_ahead = 0.01;
   /// Bone near the posterior midline that fixes the spine's axis: within this of the midline (m).
   double midline_band = 0.025;
   /// ... looked for this far either side of the body's centroid in each slice (m).
