@@ -178,7 +178,8 @@ std::vector<Eigen::Matrix<double, 6, 1>> ToolVelocities(DeviceInput* input, doub
     const DeviceSample sample = input->Sample(k * dt);
     const bool moving = !previous.clutch && !sample.clutch && previous.operator_present &&
                         sample.operator_present && sample.X_DH.matrix().allFinite() &&
-                        previous.X_DH.matrix().allFinite();
+                        previous.X_DH.matrix().allFinite() &&
+                        (sample.X_DH.translation() - previous.X_DH.translation()).norm() <= options.max_jump;
     if (moving) {
       const Eigen::AngleAxisd turn(sample.X_DH.linear() * previous.X_DH.linear().transpose());
       Eigen::Matrix<double, 6, 1> V;

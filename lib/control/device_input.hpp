@@ -22,8 +22,9 @@ class DeviceInput {
 /// The tool velocities (world frame, [ω; v]) a device's motion asks for through a mapping: the
 /// input sampled every `dt` over [0, duration], finite differences of the handle pose, the
 /// translation scaled, both read in the camera frame (options.R_WC); a pair of samples with the
-/// clutch pressed or the operator absent moves nothing. Reads `input` from t = 0 (give it a fresh
-/// input, not the session's).
+/// clutch pressed, the operator absent, a non-finite pose or a jump beyond options.max_jump (all
+/// of which the mapping drops) moves nothing. Reads `input` from t = 0 (give it a fresh input,
+/// not the session's).
 std::vector<Eigen::Matrix<double, 6, 1>> ToolVelocities(DeviceInput* input, double duration,
                                                         double dt, const TeleopOptions& options);
 

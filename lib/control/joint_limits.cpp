@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <cmath>
 
-#include <Eigen/SVD>
-
 #include "kinematics/jacobian.hpp"
 
 namespace trocar::control {
@@ -81,13 +79,8 @@ VelocityDemand JointVelocityDemand(const robot::RobotModel& model, const robot::
   kinematics::ComputeFrameJacobian(model, state, model.tool_frame(), &J);
   const Eigen::MatrixXd Jr = position_only ? Eigen::MatrixXd(J.bottomRows<3>()) : Eigen::MatrixXd(J);
   if (Jr.cols() == 0) return out;
-  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(Jr, Eigen::ComputeThinU | Eigen::ComputeThinV);
-  const Eigen::VectorXd sigma = svd.singularValues();
-  Eigen::VectorXd inverse_sigma = Eigen::VectorXd::Zero(sigma.size());
-  for (int i = 0; i < sigma.size(); ++i) {
-    if (sigma[i] > 1e-6 * sigma[0]) inverse_sigma[i] = 1.0 / sigma[i];
-  }
-  const Eigen::MatrixXd pinv = svd.matrixV() * inverse_sigma.asDiagonal() * svd.matrixU().transpose();
+  const Eigen::MatrixXd pinv =
+      kinematics::PseudoInverse(Eigen::JacobiSVD<Eigen::MatrixXd>(Jr, Eigen::ComputeThinU | Eigen::ComputeThinV), 1e-6);
   const Eigen::VectorXd limits = model.velocity_limits();
   for (const auto& V : V_W) {
     const double speed = V.tail<3>().norm();

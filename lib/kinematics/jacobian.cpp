@@ -73,4 +73,13 @@ void ComputeFrameJacobian(const robot::RobotModel& model, const robot::RobotStat
   ComputeJacobian(model, state, frame.link, frame.X_LF.translation(), J_WF);
 }
 
+Eigen::MatrixXd PseudoInverse(const Eigen::JacobiSVD<Eigen::MatrixXd>& svd, double relative_cutoff) {
+  const Eigen::VectorXd& sigma = svd.singularValues();
+  Eigen::VectorXd inverse = Eigen::VectorXd::Zero(sigma.size());
+  for (int i = 0; i < sigma.size(); ++i) {
+    if (sigma[i] > relative_cutoff * sigma[0]) inverse[i] = 1.0 / sigma[i];
+  }
+  return svd.matrixV() * inverse.asDiagonal() * svd.matrixU().transpose();
+}
+
 }  // namespace trocar::kinematics

@@ -7,6 +7,7 @@
 /// active joints.
 
 #include <Eigen/Core>
+#include <Eigen/SVD>
 
 #include "robot/robot_model.hpp"
 #include "robot/robot_state.hpp"
@@ -23,5 +24,9 @@ void ComputeJacobian(const robot::RobotModel& model, const robot::RobotState& st
 /// Jacobian of a named frame's origin (e.g. the tool frame).
 void ComputeFrameJacobian(const robot::RobotModel& model, const robot::RobotState& state,
                           const robot::Frame& frame, Matrix6Xd* J_WF);
+
+/// The pseudo-inverse V Σ⁺ Uᵀ from a thin SVD (ComputeThinU | ComputeThinV): singular values
+/// at or below `relative_cutoff` × σ_max are taken as lost (0 in Σ⁺).
+Eigen::MatrixXd PseudoInverse(const Eigen::JacobiSVD<Eigen::MatrixXd>& svd, double relative_cutoff);
 
 }  // namespace trocar::kinematics

@@ -137,9 +137,7 @@ StartQuality AssessStart(const robot::RobotModel& model, const Eigen::VectorXd& 
   // Joint travel a typical hand motion needs from here: the pseudo-inverse's rows, for
   // kHandMotion metres and kHandTurn radians in any direction (scaled rows: v and L·ω).
   constexpr double kHandMotion = 0.08, kHandTurn = 0.25;
-  const Eigen::MatrixXd pinv = svd.matrixV().leftCols(rank_used) *
-                               s.head(rank_used).cwiseInverse().asDiagonal() *
-                               svd.matrixU().leftCols(rank_used).transpose();  // of `scaled`
+  const Eigen::MatrixXd pinv = PseudoInverse(svd, 1e-9);  // of `scaled`: all σ kept (dexterity > 1e-9)
   double worst = 1.0;
   out.limit_margin = 0.5;
   for (int i = 0; i < model.num_positions(); ++i) {
