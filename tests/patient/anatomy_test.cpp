@@ -52,7 +52,8 @@ std::string TrocarClassAt(const patient::Segmentation& seg, long v) {
   return "-";
 }
 
-Confusion Compare(const patient::Volume& ct, const patient::Segmentation& seg, const patient::LabelMap& map) {
+Confusion Compare(const patient::Volume& ct, const patient::Segmentation& seg,
+                  const patient::LabelMap& map) {
   const std::vector<int> labels = patient::ResampleLabels(map, ct);
   Confusion c;
   for (long v = 0; v < static_cast<long>(labels.size()); ++v) {
@@ -73,8 +74,10 @@ void Print(const Confusion& c) {
     auto h = c.hu.at(name);
     std::sort(h.begin(), h.end());
     auto pc = [&](double f) { return h[static_cast<std::size_t>(f * (h.size() - 1))]; };
-    std::printf("%-28s %7ld [%4.0f %4.0f %4.0f %4.0f]:", name.c_str(), c.totals.at(name), pc(0.1), pc(0.5), pc(0.9), pc(0.99));
-    for (const auto& [cls, n] : row) std::printf(" %s=%.0f%%", cls.c_str(), 100.0 * n / c.totals.at(name));
+    std::printf("%-28s %7ld [%4.0f %4.0f %4.0f %4.0f]:", name.c_str(), c.totals.at(name), pc(0.1),
+                pc(0.5), pc(0.9), pc(0.99));
+    for (const auto& [cls, n] : row)
+      std::printf(" %s=%.0f%%", cls.c_str(), 100.0 * n / c.totals.at(name));
     std::printf("\n");
   }
 }
@@ -84,9 +87,12 @@ TEST(ShapeAnatomy, ContrastIsNeverBoneAndArmsAreNeverRibsOnLabelledRealCts) {
     const char* ct;
     const char* labels;
   };
-  for (const Case& k : {Case{"ct/totalseg-cta-aorta/ct_cropped.nii.gz", "ct/totalseg-cta-aorta/DERIVED_labels_tsv2ids_on_aorta_crop.nii.gz"},
-                        Case{"ct/totalseg-dicom-j2k/dicom", "ct/totalseg-dicom-j2k/example_seg_dicom.nii.gz"},
-                        Case{"ct/totalseg-abdomen/example_ct.nii.gz", "ct/totalseg-abdomen/example_seg_fast_force_split.nii.gz"}}) {
+  for (const Case& k :
+       {Case{"ct/totalseg-cta-aorta/ct_cropped.nii.gz",
+             "ct/totalseg-cta-aorta/DERIVED_labels_tsv2ids_on_aorta_crop.nii.gz"},
+        Case{"ct/totalseg-dicom-j2k/dicom", "ct/totalseg-dicom-j2k/example_seg_dicom.nii.gz"},
+        Case{"ct/totalseg-abdomen/example_ct.nii.gz",
+             "ct/totalseg-abdomen/example_seg_fast_force_split.nii.gz"}}) {
     const std::string ct_path = test::SharedDataPath(k.ct);
     TROCAR_REQUIRE_SHARED_FILE(ct_path);
     const patient::Volume ct = patient::LoadVolume(ct_path);
@@ -106,9 +112,15 @@ TEST(ShapeAnatomy, ContrastIsNeverBoneAndArmsAreNeverRibsOnLabelledRealCts) {
         if (cls.rfind("rib", 0) == 0) in_ribs += n;
       }
       const double total = static_cast<double>(c.totals.at(name));
-      if (name == "heart") { EXPECT_LT(in_bone / total, 0.01) << k.ct; }
-      if (name == "aorta") { EXPECT_LT(in_bone / total, 0.10) << k.ct; }
-      if (kind == LabelKind::kShoulder) { EXPECT_EQ(in_ribs, 0) << name << " in " << k.ct; }
+      if (name == "heart") {
+        EXPECT_LT(in_bone / total, 0.01) << k.ct;
+      }
+      if (name == "aorta") {
+        EXPECT_LT(in_bone / total, 0.10) << k.ct;
+      }
+      if (kind == LabelKind::kShoulder) {
+        EXPECT_EQ(in_ribs, 0) << name << " in " << k.ct;
+      }
     }
   }
 }
@@ -123,7 +135,8 @@ TEST(ShapeAnatomy, LabelledRibsLieInOneTrocarRibMarrowIncluded) {
   TROCAR_REQUIRE_SHARED_FILE(ct_path);
   const patient::Volume ct = patient::LoadVolume(ct_path);
   const auto seg = patient::Segment(ct);
-  const auto map = patient::LoadLabelMap(test::SharedDataPath("ct/totalseg-dicom-j2k/example_seg_dicom.nii.gz"));
+  const auto map =
+      patient::LoadLabelMap(test::SharedDataPath("ct/totalseg-dicom-j2k/example_seg_dicom.nii.gz"));
   const Confusion c = Compare(ct, seg, map);
   int mostly = 0;
   for (const auto& [name, row] : c.counts) {
@@ -142,13 +155,69 @@ TEST(ShapeAnatomy, LabelledRibsLieInOneTrocarRibMarrowIncluded) {
     }
   }
   EXPECT_GE(mostly, 6);
+  // Within the reference's own accuracy: TotalSegmentator's fast model labels on 3 mm blocks (its
+  // rib runs along a row are 3, 6, 9... voxels of 0.98 mm, never 1 or 2), so its boundary is off
+  // by up to a voxel and a half either way. Counting a labelled voxel next to its trocar rib in
+  // its slice as found, every labelled rib in view lies in one trocar rib of its own side, and no
+  // trocar rib holds two labelled ribs. These slabs cannot be numbered (no end of the rib cage in
+  // view, see ClassifyBones), so the number is not compared.
+  const std::vector<int> ts = patient::ResampleLabels(map, ct);
+  std::map<int, std::map<int, long>> overlap;  // TS label -> trocar label -> voxels
+  for (long v = 0; v < static_cast<long>(ts.size()); ++v) {
+    if (ts[v] != 0 && seg.bones.labels[v] != 0) ++overlap[ts[v]][seg.bones.labels[v]];
+  }
+  std::set<int> best_of_rib;  // a trocar rib holding two labelled ribs (a join) fails
+  for (const auto& [id, name] : map.names) {
+    const auto label = patient::ClassifyLabel(name);
+    if (label.kind != LabelKind::kRib || c.totals.count(name) == 0 || c.totals.at(name) < 300)
+      continue;
+    SCOPED_TRACE(name);
+    int best = 0;
+    long best_n = 0;
+    for (const auto& [l, n] : overlap[id]) {
+      if (n > best_n) {
+        best = l;
+        best_n = n;
+      }
+    }
+    ASSERT_NE(best, 0);
+    EXPECT_TRUE(best_of_rib.insert(best).second) << "two labelled ribs in one trocar rib";
+    bool left = false;
+    for (const auto& r : seg.bones.ribs_left) left = left || r.label == best;
+    EXPECT_EQ(left, label.side > 0) << "the labelled rib lies in a trocar rib of the other side";
+    // Labelled voxels in the trocar rib or next to it in their slice (8-neighbours, 0.98 mm:
+    // within the reference's half block).
+    long found = 0, total = 0;
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          if (ts[ct.Index(i, j, k)] != id) continue;
+          ++total;
+          bool near = false;
+          for (int dj = -1; dj <= 1 && !near; ++dj) {
+            for (int di = -1; di <= 1 && !near; ++di) {
+              const int ii = i + di, jj = j + dj;
+              if (ii < 0 || jj < 0 || ii >= ct.size.x() || jj >= ct.size.y()) continue;
+              near = seg.bones.labels[ct.Index(ii, jj, k)] == best;
+            }
+          }
+          found += near;
+        }
+      }
+    }
+    std::printf("%s: %.1f %% in or next to trocar rib %d\n", name.c_str(), 100.0 * found / total,
+                best);
+    EXPECT_GE(static_cast<double>(found) / total, 0.9);
+  }
   // The vertebrae are spine, never rib (with the axis off, a fifth of T11 was a left "rib").
   for (const auto& [name, row] : c.counts) {
     if (name.rfind("vertebrae", 0) != 0) continue;
     long in_ribs = 0;
     for (const auto& [cls, n] : row) in_ribs += cls.rfind("rib", 0) == 0 ? n : 0;
     EXPECT_LT(static_cast<double>(in_ribs) / c.totals.at(name), 0.01) << name;
-    EXPECT_GT(static_cast<double>(row.count("spine") ? row.at("spine") : 0) / c.totals.at(name), 0.5) << name;
+    EXPECT_GT(static_cast<double>(row.count("spine") ? row.at("spine") : 0) / c.totals.at(name),
+              0.5)
+        << name;
   }
 }
 
@@ -172,8 +241,13 @@ TEST(ShapeAnatomy, PhantomRibsAreFoundAndNotNumberedWithoutAWholeRibCage) {
   EXPECT_FALSE(seg.numbering_left.numbered);
   EXPECT_FALSE(seg.numbering_right.numbered);
   for (auto& s : seg.anatomy) std::printf("%s\n", s.c_str());
-  std::printf("L %zu R %zu sternum %zu spine %zu thr %.0f\n", seg.bones.ribs_left.size(), seg.bones.ribs_right.size(), seg.bones.sternum.size(), seg.bones.spine.size(), seg.bone_threshold);
-  for (int side : {1, -1}) for (auto& c : side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right) std::printf("%d n%d %.1fml c(%.0f %.0f %.0f)\n", side, c.number, c.volume*1e6, c.centroid_P.x()*1e3, c.centroid_P.y()*1e3, c.centroid_P.z()*1e3);
+  std::printf("L %zu R %zu sternum %zu spine %zu thr %.0f\n", seg.bones.ribs_left.size(),
+              seg.bones.ribs_right.size(), seg.bones.sternum.size(), seg.bones.spine.size(),
+              seg.bone_threshold);
+  for (int side : {1, -1})
+    for (auto& c : side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right)
+      std::printf("%d n%d %.1fml c(%.0f %.0f %.0f)\n", side, c.number, c.volume * 1e6,
+                  c.centroid_P.x() * 1e3, c.centroid_P.y() * 1e3, c.centroid_P.z() * 1e3);
   std::printf("%s\n%s\n", seg.numbering_left.basis.c_str(), seg.numbering_right.basis.c_str());
 }
 }  // namespace
@@ -207,7 +281,8 @@ TEST(ShapeAnatomy, RibsCutInTwoByACropFaceAreJoinedIntoTheirOwnRibs) {
     p.rib_drop = 0.03 + 0.01 * (seed % 3);
     const patient::Phantom ph = patient::GeneratePhantom(p);
     patient::Volume ct = ph.ct;
-    const int nx = static_cast<int>(std::floor((0.11 + 0.005 * seed - ct.origin_P.x()) / ct.spacing().x()));
+    const int nx =
+        static_cast<int>(std::floor((0.11 + 0.005 * seed - ct.origin_P.x()) / ct.spacing().x()));
     ct.size.x() = nx;
     ct.values.resize(static_cast<std::size_t>(ct.voxel_count()));
     for (int k = 0; k < ct.size.z(); ++k) {
@@ -217,15 +292,18 @@ TEST(ShapeAnatomy, RibsCutInTwoByACropFaceAreJoinedIntoTheirOwnRibs) {
     }
     const auto seg = patient::Segment(ct);
     bool joined = false;
-    for (const auto& s : seg.anatomy) joined = joined || s.find("left rib pieces joined") != std::string::npos;
+    for (const auto& s : seg.anatomy)
+      joined = joined || s.find("left rib pieces joined") != std::string::npos;
     EXPECT_TRUE(joined);
-    for (const auto& s : seg.anatomy) EXPECT_EQ(s.find("right rib pieces joined"), std::string::npos) << s;
+    for (const auto& s : seg.anatomy)
+      EXPECT_EQ(s.find("right rib pieces joined"), std::string::npos) << s;
     ASSERT_EQ(seg.bones.ribs_left.size(), static_cast<std::size_t>(p.ribs_per_side));
     EXPECT_EQ(seg.bones.ribs_right.size(), static_cast<std::size_t>(p.ribs_per_side));
     // Each trocar left rib against the generated ribs: voxels within 2 rib radii of each.
     std::map<int, std::map<int, long>> near;  // trocar rib → generated rib → voxels
     std::map<int, int> rib_of_label;
-    for (std::size_t r = 0; r < seg.bones.ribs_left.size(); ++r) rib_of_label[seg.bones.ribs_left[r].label] = static_cast<int>(r);
+    for (std::size_t r = 0; r < seg.bones.ribs_left.size(); ++r)
+      rib_of_label[seg.bones.ribs_left[r].label] = static_cast<int>(r);
     for (int k = 0; k < ct.size.z(); ++k) {
       for (int j = 0; j < ct.size.y(); ++j) {
         for (int i = 0; i < nx; ++i) {
@@ -233,14 +311,16 @@ TEST(ShapeAnatomy, RibsCutInTwoByACropFaceAreJoinedIntoTheirOwnRibs) {
           if (it == rib_of_label.end()) continue;
           const Eigen::Vector3d q = ct.PatientPoint(i, j, k);
           for (const auto& truth : ph.truth.ribs) {
-            if (truth.side > 0 && DistanceToPolyline(q, truth.centreline) < 2 * p.rib_radius) ++near[it->second][truth.index];
+            if (truth.side > 0 && DistanceToPolyline(q, truth.centreline) < 2 * p.rib_radius)
+              ++near[it->second][truth.index];
           }
         }
       }
     }
     std::set<int> matched;
     for (int r = 0; r < p.ribs_per_side; ++r) {
-      ASSERT_EQ(near[r].size(), 1u) << "trocar left rib " << r << " holds voxels of " << near[r].size() << " generated ribs";
+      ASSERT_EQ(near[r].size(), 1u)
+          << "trocar left rib " << r << " holds voxels of " << near[r].size() << " generated ribs";
       matched.insert(near[r].begin()->first);
       EXPECT_EQ(near[r].begin()->first, r) << "top to bottom";
     }
@@ -300,7 +380,9 @@ TEST(ShapeAnatomy, AWholePhantomRibCageIsNumberedOneToTwelveOverSeedsAndSizes) {
             EXPECT_FALSE(seg.shoulder.inside[v]);
             const Eigen::Vector3d q = ph.ct.PatientPoint(i, j, k);
             for (const auto& truth : ph.truth.ribs) {
-              if (truth.side != side || DistanceToPolyline(q, truth.centreline) > 1.5 * p.rib_radius) continue;
+              if (truth.side != side ||
+                  DistanceToPolyline(q, truth.centreline) > 1.5 * p.rib_radius)
+                continue;
               (truth.index + 1 == it->second ? right : wrong) += 1;
             }
           }
