@@ -1,9 +1,9 @@
 #include "patient/anatomy.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <cmath>
 #include <iomanip>
 #include <map>
 #include <sstream>
@@ -27,8 +27,10 @@ struct Slices {
   explicit Slices(const Volume& v) {
     double lo = HUGE_VAL, hi = -HUGE_VAL;
     for (int corner = 0; corner < 8; ++corner) {
-      const double z = v.PatientPoint(corner & 1 ? v.size.x() - 1 : 0, corner & 2 ? v.size.y() - 1 : 0,
-                                      corner & 4 ? v.size.z() - 1 : 0).z();
+      const double z =
+          v.PatientPoint(corner & 1 ? v.size.x() - 1 : 0, corner & 2 ? v.size.y() - 1 : 0,
+                         corner & 4 ? v.size.z() - 1 : 0)
+              .z();
       lo = std::min(lo, z);
       hi = std::max(hi, z);
     }
@@ -41,7 +43,9 @@ struct Slices {
     z0 = lo;
     count = static_cast<int>(std::floor((hi - lo) / dz + 1.5));
   }
-  int Of(double z) const { return std::clamp(static_cast<int>(std::lround((z - z0) / dz)), 0, count - 1); }
+  int Of(double z) const {
+    return std::clamp(static_cast<int>(std::lround((z - z0) / dz)), 0, count - 1);
+  }
 };
 
 // Voxels of `bone` a ball of `radius` fits in, grown back by the ball (a morphological opening),
@@ -49,11 +53,13 @@ struct Slices {
 Mask ThickParts(const Volume& ct, const Mask& bone, double radius) {
   const Eigen::Vector3d h = ct.spacing();
   Eigen::Vector3i f;
-  for (int a = 0; a < 3; ++a) f[a] = std::max(1, static_cast<int>(std::lround(0.25 * radius / h[a])));
+  for (int a = 0; a < 3; ++a)
+    f[a] = std::max(1, static_cast<int>(std::lround(0.25 * radius / h[a])));
   Volume coarse;
   coarse.size = (ct.size.array() + f.array() - 1) / f.array();
   coarse.index_to_P = ct.index_to_P * f.cast<double>().asDiagonal();
-  coarse.origin_P = ct.origin_P + ct.index_to_P * (0.5 * (f.cast<double>() - Eigen::Vector3d::Ones()));
+  coarse.origin_P =
+      ct.origin_P + ct.index_to_P * (0.5 * (f.cast<double>() - Eigen::Vector3d::Ones()));
   const long cells = static_cast<long>(coarse.size.x()) * coarse.size.y() * coarse.size.z();
   std::vector<int> count(cells, 0), total(cells, 0);
   // Each fine index's coarse index, per axis (no division per voxel); a coarse slab of f.z fine
@@ -129,7 +135,8 @@ double Median(std::vector<double>* v) {
 SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, const Mask& exclude,
                         const Slices& slices, const AnatomyOptions& o) {
   // The body's front-back extent in each slice: the spine lies in its back 40 %.
-  std::vector<double> y_lo(slices.count, HUGE_VAL), y_hi(slices.count, -HUGE_VAL), x_sum(slices.count, 0.0);
+  std::vector<double> y_lo(slices.count, HUGE_VAL), y_hi(slices.count, -HUGE_VAL),
+      x_sum(slices.count, 0.0);
   std::vector<long> x_n(slices.count, 0);
   const Eigen::Vector3d step_i = ct.index_to_P.col(0);
   for (int k = 0; k < ct.size.z(); ++k) {
@@ -189,7 +196,8 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
     y_min = std::min(y_min, y_lo[s] + 0.6 * (y_hi[s] - y_lo[s]));
     y_max = std::max(y_max, y_hi[s]);
   }
-  const int rows = y_max >= y_min ? static_cast<int>(std::floor((y_max - y_min) / kRowHeight)) + 1 : 0;
+  const int rows =
+      y_max >= y_min ? static_cast<int>(std::floor((y_max - y_min) / kRowHeight)) + 1 : 0;
   std::vector<double> centre(slices.count, 0.0);
   for (int s = 0; s < slices.count; ++s) centre[s] = x_n[s] ? x_sum[s] / x_n[s] : 0.0;
   // Thin bone counts per slice, row (front-back) and column (left-right).
@@ -226,7 +234,8 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
       for (int r = 0; r < rows; ++r) {
         const float* from = &grid[t][static_cast<std::size_t>(r) * bins];
         float* to = &h[static_cast<std::size_t>(r) * bins];
-        for (int b = std::max(0, -shift); b < std::min(bins, bins - shift); ++b) to[b + shift] += from[b];
+        for (int b = std::max(0, -shift); b < std::min(bins, bins - shift); ++b)
+          to[b + shift] += from[b];
       }
     }
     // Mirror about the half-bin position m/2: columns a and m − a meet (rows without bone skipped).
@@ -305,7 +314,9 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
   for (int s = 0; s < slices.count; ++s) {
     if (a.known[s]) continue;
     for (int d = 1; d <= fill_reach; ++d) {
-      const int t = s - d >= 0 && a.known[s - d] ? s - d : (s + d < slices.count && a.known[s + d] ? s + d : -1);
+      const int t = s - d >= 0 && a.known[s - d]
+                        ? s - d
+                        : (s + d < slices.count && a.known[s + d] ? s + d : -1);
       if (t < 0) continue;
       a.x[s] = a.x[t];
       a.y[s] = a.y[t];
@@ -320,7 +331,8 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
 bool InColumn(const SpineAxis& a, int s, const Eigen::Vector3d& p, const AnatomyOptions& o) {
   if (!a.known[s]) return false;
   const double dy = p.y() - a.y[s];
-  return std::abs(p.x() - a.x[s]) <= o.spine_half_width && dy >= -o.spine_front && dy <= o.spine_back;
+  return std::abs(p.x() - a.x[s]) <= o.spine_half_width && dy >= -o.spine_front &&
+         dy <= o.spine_back;
 }
 
 // Grows labelled voxels into unlabelled ones that pass `accept`, breadth first, at most `steps`
@@ -386,7 +398,8 @@ Mask FindVessels(const Volume& ct, const Mask& body, const Mask& bone, const Sli
   const Mask thick = ThickParts(ct, pool, o.vessel_core_radius);
   std::vector<int> labels;
   const auto blobs = ConnectedComponents(ct, thick, &labels);
-  const int steps = std::max(1, static_cast<int>(std::lround(o.vessel_core_radius / ct.spacing().minCoeff())));
+  const int steps =
+      std::max(1, static_cast<int>(std::lround(o.vessel_core_radius / ct.spacing().minCoeff())));
   // Rims grow through blood, never into cortical bone (a rib or the sternum against the heart).
   const double cortex_level = ct.hounsfield ? o.cortical_hu : HUGE_VAL;
   Grow(ct, &labels, steps,
@@ -398,7 +411,8 @@ Mask FindVessels(const Volume& ct, const Mask& body, const Mask& bone, const Sli
     for (long v = 0; v < static_cast<long>(labels.size()); ++v) rimmed.inside[v] = labels[v] != 0;
     *axis = FindSpineAxis(ct, body, bone, rimmed, slices, o);
   }
-  std::vector<long> in_column(blobs.size() + 1, 0), size(blobs.size() + 1, 0), cortical(blobs.size() + 1, 0);
+  std::vector<long> in_column(blobs.size() + 1, 0), size(blobs.size() + 1, 0),
+      cortical(blobs.size() + 1, 0);
   const double cortex = ct.hounsfield ? o.cortical_hu : o.raw_cortical;
   // The shell test needs the cortex in the blob: grow the bone blobs' rims once more through it.
   Grow(ct, &labels, 2, [&](long n) { return pool.inside[n] && ct.values[n] > cortex_level; });
@@ -433,7 +447,8 @@ Mask Above(const Volume& ct, const Mask& body, double threshold) {
   Mask m;
   m.size = ct.size;
   m.inside.resize(ct.values.size());
-  for (std::size_t i = 0; i < m.inside.size(); ++i) m.inside[i] = body.inside[i] && ct.values[i] > threshold;
+  for (std::size_t i = 0; i < m.inside.size(); ++i)
+    m.inside[i] = body.inside[i] && ct.values[i] > threshold;
   return m;
 }
 
@@ -447,13 +462,15 @@ double SideAngle(const Eigen::Vector2d& d, int side) {
   return a;
 }
 int ProfileBin(double angle) {
-  return std::clamp(static_cast<int>((angle + 0.5 * M_PI) / (2.0 * M_PI) * kProfileBins), 0, kProfileBins - 1);
+  return std::clamp(static_cast<int>((angle + 0.5 * M_PI) / (2.0 * M_PI) * kProfileBins), 0,
+                    kProfileBins - 1);
 }
 double BinAngle(double b) { return (b + 0.5) * 2.0 * M_PI / kProfileBins - 0.5 * M_PI; }
 
 struct RibProfile {
   std::vector<long> n = std::vector<long>(kProfileBins, 0);
-  std::vector<double> z = std::vector<double>(kProfileBins, 0.0), r = std::vector<double>(kProfileBins, 0.0);
+  std::vector<double> z = std::vector<double>(kProfileBins, 0.0),
+                      r = std::vector<double>(kProfileBins, 0.0);
   int first = kProfileBins, last = -1;
   bool Has(int b) const { return b >= 0 && b < kProfileBins && n[b] >= 2; }
   void Finish() {
@@ -470,7 +487,8 @@ struct RibProfile {
   // ones when `from_last`); with fewer than three, their mean.
   Eigen::Vector2d At(double b, bool from_last) const {
     std::vector<int> used;
-    for (int t = from_last ? last : first; t >= first && t <= last && used.size() < 6; t += from_last ? -1 : 1) {
+    for (int t = from_last ? last : first; t >= first && t <= last && used.size() < 6;
+         t += from_last ? -1 : 1) {
       if (Has(t)) used.push_back(t);
     }
     Eigen::Vector2d mean = Eigen::Vector2d::Zero();
@@ -499,8 +517,9 @@ struct RibProfile {
 // carried on by their own course, meet: heights within `rib_join_pitch` of the side's rib pitch,
 // radii within `rib_join_radius`. The best matches join first; a piece joins at most one piece at
 // each end. Labels of joined pieces are rewritten to the first piece's.
-void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const AnatomyOptions& o, std::vector<int>* labels,
-                   std::vector<Component>* left, std::vector<Component>* right, std::vector<std::string>* report) {
+void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const AnatomyOptions& o,
+                   std::vector<int>* labels, std::vector<Component>* left,
+                   std::vector<Component>* right, std::vector<std::string>* report) {
   int max_label = 0;
   for (const auto* ribs : {left, right}) {
     for (const Component& c : *ribs) max_label = std::max(max_label, c.label);
@@ -533,7 +552,8 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
   for (RibProfile& f : profile) f.Finish();
   auto in_scan = [&](const Eigen::Vector3d& p) {
     const Eigen::Vector3d ijk = ct.IndexOf(p);
-    return (ijk.array() >= -0.5).all() && (ijk.array() <= ct.size.cast<double>().array() - 0.5).all();
+    return (ijk.array() >= -0.5).all() &&
+           (ijk.array() <= ct.size.cast<double>().array() - 0.5).all();
   };
   for (int side : {+1, -1}) {
     std::vector<Component>& ribs = *(side > 0 ? left : right);
@@ -576,11 +596,13 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
           const double z = (1 - t) * P.At(P.last, true).x() + t * Q.At(Q.first, false).x();
           const double radius = (1 - t) * P.At(P.last, true).y() + t * Q.At(Q.first, false).y();
           const double angle = BinAngle(b);
-          const Eigen::Vector2d xy = centre + radius * Eigen::Vector2d(side * std::sin(angle), std::cos(angle));
+          const Eigen::Vector2d xy =
+              centre + radius * Eigen::Vector2d(side * std::sin(angle), std::cos(angle));
           if (!in_scan(Eigen::Vector3d(xy.x(), xy.y(), z))) continue;
           in_view += 2.0 * M_PI / kProfileBins;
           for (int r = 0; r < n; ++r) {
-            blocked = blocked || (r != a && r != c && prof(r).Has(b) && std::abs(prof(r).z[b] - z) < tolerance);
+            blocked = blocked || (r != a && r != c && prof(r).Has(b) &&
+                                  std::abs(prof(r).z[b] - z) < tolerance);
           }
         }
         if (blocked || in_view > o.rib_break_angle + 1e-9) continue;
@@ -588,7 +610,9 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
       }
     }
     std::sort(joins.begin(), joins.end(), [](const Join& x, const Join& y) {
-      return x.score != y.score ? x.score < y.score : std::make_pair(x.before, x.after) < std::make_pair(y.before, y.after);
+      return x.score != y.score
+                 ? x.score < y.score
+                 : std::make_pair(x.before, x.after) < std::make_pair(y.before, y.after);
     });
     std::vector<int> next(n, -1), previous(n, -1);
     for (const Join& j : joins) {
@@ -622,8 +646,9 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
     }
     ribs = std::move(kept);
     std::ostringstream s;
-    s << (side > 0 ? "left" : "right") << " rib pieces joined across a crop face or a break: " << joined
-      << " (rib pitch " << std::fixed << std::setprecision(0) << pitch * 1e3 << " mm)";
+    s << (side > 0 ? "left" : "right")
+      << " rib pieces joined across a crop face or a break: " << joined << " (rib pitch "
+      << std::fixed << std::setprecision(0) << pitch * 1e3 << " mm)";
     report->push_back(s.str());
   }
 }
@@ -631,15 +656,18 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
 // A rib is a cortical tube; its marrow lies below the bone threshold. In each slice, a hole a
 // rib's cross-section encloses (4-connected voxels inside the body and above `floor`, bounded by
 // that rib alone, at most `max_area` m²) is that rib's.
-long FillRibMarrow(const Volume& ct, const Mask& body, const std::vector<std::uint8_t>& is_rib, double floor,
-                   double max_area, std::vector<int>* labels, Mask* bone) {
+long FillRibMarrow(const Volume& ct, const Mask& body, const std::vector<std::uint8_t>& is_rib,
+                   double floor, double max_area, std::vector<int>* labels, Mask* bone) {
   const int axis = AxialAxis(ct);
   const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
   const long stride[3] = {1, ct.size.x(), static_cast<long>(ct.size.x()) * ct.size.y()};
   const int nu = ct.size[u], nw = ct.size[w];
   const double cell = ct.index_to_P.col(u).norm() * ct.index_to_P.col(w).norm();
   const long cap = std::max<long>(1, static_cast<long>(max_area / cell));
-  auto rib_at = [&](long v) { const int l = (*labels)[v]; return l > 0 && l < static_cast<int>(is_rib.size()) && is_rib[l] ? l : 0; };
+  auto rib_at = [&](long v) {
+    const int l = (*labels)[v];
+    return l > 0 && l < static_cast<int>(is_rib.size()) && is_rib[l] ? l : 0;
+  };
   // stamp: the slice a voxel of the plane was last reached in; open: it belongs to no hole (a
   // flood from it reached the slice's edge, the outside, air, other bone or the area cap). A
   // flood stops as soon as it is open, so the lungs beside the ribs are not flooded whole.
@@ -672,7 +700,8 @@ long FillRibMarrow(const Volume& ct, const Mask& body, const std::vector<std::ui
             stack.pop_back();
             region.emplace_back(p, q);
             const long v = at(p, q);
-            if (!body.inside[v] || ct.values[v] <= floor || static_cast<long>(region.size()) > cap) hole = false;
+            if (!body.inside[v] || ct.values[v] <= floor || static_cast<long>(region.size()) > cap)
+              hole = false;
             for (int e = 0; e < 4 && hole; ++e) {
               const int p1 = p + da[e], q1 = q + db[e];
               if (p1 < 0 || q1 < 0 || p1 >= nu || q1 >= nw) {
@@ -717,7 +746,8 @@ long FillRibMarrow(const Volume& ct, const Mask& body, const std::vector<std::ui
 
 }  // namespace
 
-void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o, double min_bone_volume) {
+void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
+                   double min_bone_volume) {
   const Slices slices(ct);
   Eigen::Vector2d centre = 0.5 * (seg->body_min_P + seg->body_max_P).head<2>();
   const double half_width = 0.5 * (seg->body_max_P.x() - seg->body_min_P.x());
@@ -760,8 +790,8 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
     seg->contrast = blood >= std::max<double>(voxels_min_vessel, o.contrast_bone_ratio * other);
     if (!seg->contrast) {
       std::ostringstream s;
-      s << "no contrast-filled blood pool (" << Ml(blood * voxel_volume) << " of bright blobs off the bone): bone threshold "
-        << t << " HU";
+      s << "no contrast-filled blood pool (" << Ml(blood * voxel_volume)
+        << " of bright blobs off the bone): bone threshold " << t << " HU";
       seg->anatomy.push_back(s.str());
       seg->bone_threshold = t;
       bone = Above(ct, seg->body, t);
@@ -810,7 +840,8 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   for (const Component& c : pieces) {
     if (c.volume < min_bone_volume) continue;
     // A fragment: the stubs the column leaves of a rib's neck or a process' tip.
-    if ((c.volume < o.min_rib_volume || (c.max_P - c.min_P).norm() < o.min_rib_length) && column_voxels[c.label] == 0) {
+    if ((c.volume < o.min_rib_volume || (c.max_P - c.min_P).norm() < o.min_rib_length) &&
+        column_voxels[c.label] == 0) {
       continue;
     }
     const int s = slices.Of(c.centroid_P.z());
@@ -836,8 +867,10 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   }
 
   if (calcified_volume > 0.0) {
-    seg->anatomy.push_back("small bone pieces in front of the vertebral bodies, apart from them (vessel-wall "
-                           "calcifications): " + Ml(calcified_volume) + ", kept out of the spine");
+    seg->anatomy.push_back(
+        "small bone pieces in front of the vertebral bodies, apart from them (vessel-wall "
+        "calcifications): " +
+        Ml(calcified_volume) + ", kept out of the spine");
   }
 
   // 3. Along the rays from the body's axis the rib cage is one layer: bone inside it (vessel-wall
@@ -901,10 +934,12 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       for_each_candidate([&](int l, int cell, double r) {
         if (owner[cell] == l) return;
         layer.shared[l] += 1.0;
-        if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap) layer.fraction[l] += 1.0;
+        if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap)
+          layer.fraction[l] += 1.0;
       });
       for (const Component& c : pieces) {
-        layer.of_shared[c.label] = layer.shared[c.label] > 0.0 ? layer.fraction[c.label] / layer.shared[c.label] : 0.0;
+        layer.of_shared[c.label] =
+            layer.shared[c.label] > 0.0 ? layer.fraction[c.label] / layer.shared[c.label] : 0.0;
         layer.fraction[c.label] /= static_cast<double>(c.voxels);
         layer.shared[c.label] /= static_cast<double>(c.voxels);
       }
@@ -952,8 +987,9 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       if (kind[c.label] == 4) shoulder_volume += c.volume;
     }
     if (inner_volume > 0.0) {
-      seg->anatomy.push_back("bone inside the rib cage (not rib; calcifications, bits beside the spine): " +
-                             Ml(inner_volume));
+      seg->anatomy.push_back(
+          "bone inside the rib cage (not rib; calcifications, bits beside the spine): " +
+          Ml(inner_volume));
     }
     if (shoulder_volume > 0.0) {
       seg->anatomy.push_back("bone outside the rib cage (shoulder girdle, arms): " +
@@ -971,11 +1007,13 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
         parts.labels[v] = -l;  // kept, not grown from
       }
     }
-    const int steps = std::max(1, static_cast<int>(std::lround(o.grow_distance / ct.spacing().head<2>().mean())));
+    const int steps =
+        std::max(1, static_cast<int>(std::lround(o.grow_distance / ct.spacing().head<2>().mean())));
     std::vector<int> grown = parts.labels;
     for (int& l : grown) l = l > 0 ? l : 0;
     Grow(ct, &grown, steps, [&](long n) {
-      return parts.labels[n] == 0 && seg->body.inside[n] && !seg->vessels.inside[n] && ct.values[n] > grow;
+      return parts.labels[n] == 0 && seg->body.inside[n] && !seg->vessels.inside[n] &&
+             ct.values[n] > grow;
     });
     for (long v = 0; v < static_cast<long>(grown.size()); ++v) {
       if (parts.labels[v] == 0 && grown[v] != 0) {
@@ -995,8 +1033,11 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   if (ct.hounsfield && o.marrow_max_area > 0.0) {
     std::vector<std::uint8_t> is_rib(pieces.size() + 1, 0);
     for (const Component& c : pieces) is_rib[c.label] = kind[c.label] == 1;
-    const long filled = FillRibMarrow(ct, seg->body, is_rib, o.marrow_floor_hu, o.marrow_max_area, &parts.labels, &bone);
-    if (filled > 0) seg->anatomy.push_back("rib marrow enclosed by the cortex: " + Ml(filled * voxel_volume) + ", taken into the ribs");
+    const long filled = FillRibMarrow(ct, seg->body, is_rib, o.marrow_floor_hu, o.marrow_max_area,
+                                      &parts.labels, &bone);
+    if (filled > 0)
+      seg->anatomy.push_back("rib marrow enclosed by the cortex: " + Ml(filled * voxel_volume) +
+                             ", taken into the ribs");
   }
 
   // Component statistics after growth.
@@ -1034,12 +1075,14 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       case 1: {
         // A rib is long and slender: a lump (a sacral wing, a transverse process) is not.
         const double length = (c.max_P - c.min_P).norm();
-        if (c.volume > o.lump_volume && length * length * length < o.min_rib_elongation * c.volume) {
+        if (c.volume > o.lump_volume &&
+            length * length * length < o.min_rib_elongation * c.volume) {
           lump_volume += c.volume;
           break;
         }
-        (c.centroid_P.x() > (axis.any ? axis.x[slices.Of(c.centroid_P.z())] : centre.x()) ? parts.ribs_left
-                                                                                          : parts.ribs_right)
+        (c.centroid_P.x() > (axis.any ? axis.x[slices.Of(c.centroid_P.z())] : centre.x())
+             ? parts.ribs_left
+             : parts.ribs_right)
             .push_back(c);
         break;
       }
@@ -1054,12 +1097,16 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
     }
   }
   if (lump_volume > 0.0) {
-    seg->anatomy.push_back("bone lumps off the midline, not slender like a rib (transverse processes, the sacrum's "
-                           "wings, a scapula's edge): " + Ml(lump_volume));
+    seg->anatomy.push_back(
+        "bone lumps off the midline, not slender like a rib (transverse processes, the sacrum's "
+        "wings, a scapula's edge): " +
+        Ml(lump_volume));
   }
   // 5. Pieces of one rib (cut by a crop face, or broken) joined.
   JoinRibPieces(ct, centre, o, &parts.labels, &parts.ribs_left, &parts.ribs_right, &seg->anatomy);
-  auto by_height = [](const Component& a, const Component& b) { return a.centroid_P.z() > b.centroid_P.z(); };
+  auto by_height = [](const Component& a, const Component& b) {
+    return a.centroid_P.z() > b.centroid_P.z();
+  };
   std::sort(parts.ribs_left.begin(), parts.ribs_left.end(), by_height);
   std::sort(parts.ribs_right.begin(), parts.ribs_right.end(), by_height);
 
@@ -1067,8 +1114,10 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   //    its bottom is (the spine going on below the lowest rib); both must agree.
   double scan_top = -HUGE_VAL, scan_bottom = HUGE_VAL;
   for (int corner = 0; corner < 8; ++corner) {
-    const double z = ct.PatientPoint(corner & 1 ? ct.size.x() - 1 : 0, corner & 2 ? ct.size.y() - 1 : 0,
-                                     corner & 4 ? ct.size.z() - 1 : 0).z();
+    const double z =
+        ct.PatientPoint(corner & 1 ? ct.size.x() - 1 : 0, corner & 2 ? ct.size.y() - 1 : 0,
+                        corner & 4 ? ct.size.z() - 1 : 0)
+            .z();
     scan_top = std::max(scan_top, z);
     scan_bottom = std::min(scan_bottom, z);
   }
@@ -1095,7 +1144,8 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
     }
     const bool top_in_view = scan_top - rib_top >= o.top_margin;
     const bool bottom_in_view = rib_bottom - scan_bottom >= o.bottom_spine &&
-                                spine_bottom <= rib_bottom - o.bottom_spine && bottom.min_P.z() <= rib_bottom + 1e-9;
+                                spine_bottom <= rib_bottom - o.bottom_spine &&
+                                bottom.min_P.z() <= rib_bottom + 1e-9;
     // Rib 1 meets the manubrium: the top rib's front end reaches the sternum's top.
     const bool meets_manubrium = !parts.sternum.empty() && top.min_P.z() <= sternum_top + 0.01 &&
                                  std::abs(top.max_P.z() - sternum_top) < 0.04;
@@ -1107,22 +1157,26 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
         n.confidence = 0.95;
         why << "12 " << name << " ribs between the top of the rib cage and the lumbar spine";
       } else {
-        why << count << " " << name << " rib pieces between the top of the rib cage and the lumbar spine, not 12 "
+        why << count << " " << name
+            << " rib pieces between the top of the rib cage and the lumbar spine, not 12 "
             << "(ribs broken into pieces or joined): not numbered";
       }
     } else if (top_in_view && meets_manubrium) {
       first = 1;
       n.confidence = 0.8;
-      why << "from the top of the rib cage (the highest " << name << " rib is rib 1, meeting the manubrium)";
+      why << "from the top of the rib cage (the highest " << name
+          << " rib is rib 1, meeting the manubrium)";
     } else if (top_in_view) {
       why << "the top of the rib cage is in the scan but the highest " << name
           << " rib does not meet the manubrium (rib 1 not confirmed): not numbered";
     } else if (bottom_in_view) {
       why << "only the bottom of the rib cage is in the scan: counting up from the lowest " << name
-          << " piece is not trusted (transverse processes and the pelvis can pass for ribs, and 11 pairs occur): "
+          << " piece is not trusted (transverse processes and the pelvis can pass for ribs, and 11 "
+             "pairs occur): "
              "not numbered";
     } else {
-      why << "neither the top of the rib cage nor its bottom (with the lumbar spine) is in the scan: "
+      why << "neither the top of the rib cage nor its bottom (with the lumbar spine) is in the "
+             "scan: "
              "the "
           << name << " ribs are not numbered";
     }
