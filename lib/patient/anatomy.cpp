@@ -335,6 +335,47 @@ bool InColumn(const SpineAxis& a, int s, const Eigen::Vector3d& p, const Anatomy
          dy <= o.spine_back;
 }
 
+// Whether no enhanced blood or organ shows: under `enhanced_share` of the body between
+// `unenhanced_max_hu` and the bone threshold, more than two voxels from bone (a bone's partial-
+// volume edge reads between the two as well). Reported either way.
+bool Unenhanced(const Volume& ct, const Mask& body, double bone_threshold, const AnatomyOptions& o,
+                std::vector<std::string>* report) {
+  if (o.unenhanced_max_hu >= bone_threshold) return false;
+  const int nx = ct.size.x(), ny = ct.size.y(), nz = ct.size.z();
+  long inside = 0, between = 0;
+  for (int k = 0; k < nz; ++k) {
+    for (int j = 0; j < ny; ++j) {
+      for (int i = 0; i < nx; ++i) {
+        const long v = ct.Index(i, j, k);
+        if (!body.inside[v]) continue;
+        ++inside;
+        const float h = ct.values[v];
+        if (h < o.unenhanced_max_hu || h >= bone_threshold) continue;
+        bool near_bone = false;
+        for (int c = std::max(0, k - 2); c <= std::min(nz - 1, k + 2) && !near_bone; ++c) {
+          for (int b = std::max(0, j - 2); b <= std::min(ny - 1, j + 2) && !near_bone; ++b) {
+            for (int a = std::max(0, i - 2); a <= std::min(nx - 1, i + 2) && !near_bone; ++a) {
+              near_bone = ct.values[ct.Index(a, b, c)] >= bone_threshold;
+            }
+          }
+        }
+        between += !near_bone;
+      }
+    }
+  }
+  const double share =
+      inside > 0 ? static_cast<double>(between) / static_cast<double>(inside) : 1.0;
+  const bool plain = share < o.enhanced_share;
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(2) << share * 100 << " % of the body reads "
+    << o.unenhanced_max_hu << "-" << bone_threshold << " HU away from bone: "
+    << (plain ? "unenhanced, bone grown into its partial-volume stretches above "
+              : "enhanced blood or organs, bone grown only near its cortex, above ")
+    << (plain ? o.unenhanced_max_hu : o.grow_hu) << " HU";
+  report->push_back(s.str());
+  return plain;
+}
+
 // Grows labelled voxels into unlabelled ones that pass `accept`, breadth first, at most `steps`
 // voxels away (26-neighbours); each grown voxel takes the label it was reached from.
 template <typename Accept>
@@ -568,7 +609,8 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
       }
       std::sort(zs.begin(), zs.end());
       for (std::size_t t = 1; t < zs.size(); ++t) {
-        if (zs[t] - zs[t - 1] > 0.004) steps.push_back(zs[t] - zs[t - 1]);
+        if (zs[t] - zs[t - 1] > 0.004 && zs[t] - zs[t - 1] < o.max_rib_pitch)
+          steps.push_back(zs[t] - zs[t - 1]);
       }
     }
     const double pitch = steps.empty() ? 0.025 : Median(&steps);
@@ -998,8 +1040,11 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   }
 
   // 4. Grow ribs, sternum and spine from their bright cortex into the marrow and rim.
-  const double grow = ct.hounsfield ? o.grow_hu : o.raw_grow;
-  if (grow > 0.0 && o.grow_distance > 0.0) {
+  const bool plain = ct.hounsfield && !seg->contrast &&
+                     Unenhanced(ct, seg->body, seg->bone_threshold, o, &seg->anatomy);
+  const double grow = !ct.hounsfield ? o.raw_grow : plain ? o.unenhanced_max_hu : o.grow_hu;
+  const double grow_distance = plain ? o.plain_grow_distance : o.grow_distance;
+  if (grow > 0.0 && grow_distance > 0.0) {
     for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
       const int l = parts.labels[v];
       if (l != 0 && (kind[l] == 0 || kind[l] == 4)) {
@@ -1008,7 +1053,7 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       }
     }
     const int steps =
-        std::max(1, static_cast<int>(std::lround(o.grow_distance / ct.spacing().head<2>().mean())));
+        std::max(1, static_cast<int>(std::lround(grow_distance / ct.spacing().head<2>().mean())));
     std::vector<int> grown = parts.labels;
     for (int& l : grown) l = l > 0 ? l : 0;
     Grow(ct, &grown, steps, [&](long n) {
@@ -1104,6 +1149,48 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   }
   // 5. Pieces of one rib (cut by a crop face, or broken) joined.
   JoinRibPieces(ct, centre, o, &parts.labels, &parts.ribs_left, &parts.ribs_right, &seg->anatomy);
+  // 5b. One stack of ribs: pieces far above or below the stack of most ribs are not ribs.
+  {
+    struct Span {
+      double lo, hi, volume;
+      int pieces;
+    };
+    std::vector<Span> spans;
+    for (const auto* ribs : {&parts.ribs_left, &parts.ribs_right}) {
+      for (const Component& c : *ribs) spans.push_back({c.min_P.z(), c.max_P.z(), c.volume, 1});
+    }
+    std::sort(spans.begin(), spans.end(), [](const Span& a, const Span& b) { return a.lo < b.lo; });
+    Span best{0.0, 0.0, -1.0, 0};
+    for (std::size_t a = 0; a < spans.size();) {
+      Span stack = spans[a];
+      std::size_t b = a + 1;
+      for (; b < spans.size() && spans[b].lo <= stack.hi + o.rib_stack_gap; ++b) {
+        stack.hi = std::max(stack.hi, spans[b].hi);
+        stack.volume += spans[b].volume;
+        ++stack.pieces;
+      }
+      if (std::make_pair(stack.pieces, stack.volume) > std::make_pair(best.pieces, best.volume))
+        best = stack;
+      a = b;
+    }
+    double apart = 0.0;
+    for (auto* ribs : {&parts.ribs_left, &parts.ribs_right}) {
+      ribs->erase(std::remove_if(ribs->begin(), ribs->end(),
+                                 [&](const Component& c) {
+                                   const bool out =
+                                       c.max_P.z() < best.lo - 1e-9 || c.min_P.z() > best.hi + 1e-9;
+                                   if (out) apart += c.volume;
+                                   return out;
+                                 }),
+                  ribs->end());
+    }
+    if (apart > 0.0) {
+      seg->anatomy.push_back("rib-like bone apart from the stack of ribs (more than " +
+                             std::to_string(static_cast<int>(std::lround(o.rib_stack_gap * 1e3))) +
+                             " mm above or below it: a femur, the sacrum, lumbar processes): " +
+                             Ml(apart) + ", not ribs");
+    }
+  }
   auto by_height = [](const Component& a, const Component& b) {
     return a.centroid_P.z() > b.centroid_P.z();
   };

@@ -70,6 +70,14 @@ struct AnatomyOptions {
   /// within `grow_distance` (m) of the bright bone.
   double grow_hu = 180.0, raw_grow = 0.0;  // above enhanced blood in a venous phase
   double grow_distance = 0.004;
+  /// Unenhanced soft tissue stays under `unenhanced_max_hu` (muscle, liver and blood read
+  /// 40-80 HU). A scan is unenhanced when under `enhanced_share` of the body lies between it and
+  /// the bone threshold more than two voxels from bone (enhanced blood and organs do: 1.5 % of a
+  /// venous-phase body, 2.5 % of an arterial one, 0.08 % of a plain scan). In an unenhanced scan
+  /// bone grows into voxels above `unenhanced_max_hu` as far as `plain_grow_distance` (m) along
+  /// it: hysteresis, keeping a rib's stretch whose partial-volume cortex stays below the bone
+  /// threshold in coarse voxels when it joins bone above it.
+  double unenhanced_max_hu = 130.0, enhanced_share = 0.005, plain_grow_distance = 0.05;
   /// Rib marrow, below the bone threshold: in each slice, a hole a rib's cross-section encloses
   /// (above `marrow_floor_hu`, at most `marrow_max_area` m², bounded by that rib alone) is the
   /// rib's (HU volumes; 0 = not filled).
@@ -87,9 +95,18 @@ struct AnatomyOptions {
   /// would run outside the scan (a crop face), when their ends line up: heights within
   /// `rib_join_pitch` of the rib pitch (the height between neighbouring ribs) and radii within
   /// `rib_join_radius` (m).
+  /// The pitch is the median height between pieces one above the other at the same angle, of
+  /// those under `max_rib_pitch` (m; an adult's ribs lie 2-4 cm apart along the chest wall: a
+  /// larger step is between a rib and other bone, a hip or a femur); 25 mm when none is.
   double rib_break_angle = 15.0 * M_PI / 180.0;
+  double max_rib_pitch = 0.05;
   double rib_join_pitch = 0.35;
   double rib_join_radius = 0.03;
+  /// The rib cage is one stack: each rib spans heights overlapping the next one's (a rib falls
+  /// 5-10 cm from its head to its front end, its neighbours lie 2-4 cm apart). Rib-like pieces
+  /// more than `rib_stack_gap` (m) above or below the stack of most pieces (then most volume) are
+  /// other bone (a femur, the sacrum, lumbar processes in an abdominal scan), not ribs.
+  double rib_stack_gap = 0.04;
   /// Numbering: the top of the rib cage is in view when the scan reaches this far above the
   /// highest rib; the bottom when the spine continues this far below the lowest rib (m).
   double top_margin = 0.015, bottom_spine = 0.03;
