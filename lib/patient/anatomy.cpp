@@ -857,6 +857,10 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
     seg->contrast_volume = count * voxel_volume;
   }
 
+  // Enhanced or not (bone grows differently; bright pieces without a cortex can be contrast).
+  const bool plain = ct.hounsfield && !seg->contrast &&
+                     Unenhanced(ct, seg->body, seg->bone_threshold, o, &seg->anatomy);
+
   // 2. Pieces: the spine's column and the rest, never joined (ribs are cut from the vertebrae at
   //    the column's edge).
   std::vector<std::uint8_t> region(bone.inside.size(), 0);
@@ -872,13 +876,31 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   }
   const auto pieces = ConnectedComponents(ct, bone, &parts.labels, &region);
   std::vector<int> kind(pieces.size() + 1, 0);  // 0 none, 1 rib, 2 sternum, 3 spine, 4 shoulder
-  std::vector<long> column_voxels(pieces.size() + 1, 0);
+  std::vector<long> column_voxels(pieces.size() + 1, 0), cortical_voxels(pieces.size() + 1, 0);
+  const double cortex_hu = ct.hounsfield ? o.cortical_hu : HUGE_VAL;
   for (long v = 0; v < static_cast<long>(region.size()); ++v) {
     if (parts.labels[v] != 0 && region[v] == 2) ++column_voxels[parts.labels[v]];
+    if (parts.labels[v] != 0 && ct.values[v] > cortex_hu) ++cortical_voxels[parts.labels[v]];
   }
   Release(&thick_bone.inside);
   Release(&region);
-  double calcified_volume = 0.0;
+  // The body's front and back along the midline, per slice (±2 cm of the spine's line): the
+  // sternum lies in the front wall.
+  std::vector<double> wall_front(slices.count, HUGE_VAL), wall_back(slices.count, -HUGE_VAL);
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        if (!seg->body.inside[ct.Index(i, j, k)]) continue;
+        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+        const int s = slices.Of(p.z());
+        const double mid_x = axis.known[s] ? axis.x[s] : centre.x();
+        if (std::abs(p.x() - mid_x) > 0.02) continue;
+        wall_front[s] = std::min(wall_front[s], p.y());
+        wall_back[s] = std::max(wall_back[s], p.y());
+      }
+    }
+  }
+  double calcified_volume = 0.0, mediastinal_volume = 0.0;
   for (const Component& c : pieces) {
     if (c.volume < min_bone_volume) continue;
     // A fragment: the stubs the column leaves of a rib's neck or a process' tip.
@@ -892,8 +914,13 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       // wall (a centimetre ahead of the axis), is no vertebra: a calcified vessel wall (the
       // aorta lies against the vertebral bodies' front and left), kept out of the bone's
       // structures.
+      // So is a larger one without a cortex (under `cortical_fraction` above `cortical_hu`) in an
+      // enhanced scan: the contrast in an aorta too narrow to be found as a pool, pressed against
+      // the vertebrae (in a plain one, coarse voxels blur a vertebral body's cortex below it).
       const bool ahead = axis.known[s] && c.max_P.y() < axis.y[s] - o.calcification_ahead;
-      kind[c.label] = c.volume < o.min_rib_volume && ahead ? 0 : 3;
+      const bool shell = !ct.hounsfield || cortical_voxels[c.label] >
+                                               o.cortical_fraction * static_cast<double>(c.voxels);
+      kind[c.label] = ahead && (c.volume < o.min_rib_volume || (!plain && !shell)) ? 0 : 3;
       if (kind[c.label] == 0) calcified_volume += c.volume;
       continue;
     }
@@ -903,15 +930,29 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
                          std::abs(c.centroid_P.x() - mid_x) < o.sternum_lateral * half_width;
     if (midline) {
       kind[c.label] = c.centroid_P.y() < front ? 2 : 3;
+      // In front of the spine but behind the front wall: the mediastinum, where bright means
+      // contrast in a vessel too narrow to be found as a pool (a dissected aorta's true lumen)
+      // or a calcification, never the sternum.
+      if (kind[c.label] == 2 && wall_front[s] < wall_back[s] &&
+          c.centroid_P.y() > wall_front[s] + o.sternum_wall * (wall_back[s] - wall_front[s])) {
+        kind[c.label] = 0;
+        mediastinal_volume += c.volume;
+      }
     } else {
       kind[c.label] = 1;
     }
   }
 
+  if (mediastinal_volume > 0.0) {
+    seg->anatomy.push_back(
+        "bright pieces in the mediastinum, behind the front wall and ahead of the spine (narrow "
+        "contrast-filled vessels, calcifications): " +
+        Ml(mediastinal_volume) + ", not sternum");
+  }
   if (calcified_volume > 0.0) {
     seg->anatomy.push_back(
-        "small bone pieces in front of the vertebral bodies, apart from them (vessel-wall "
-        "calcifications): " +
+        "bone-bright pieces in front of the vertebral bodies, apart from them (vessel-wall "
+        "calcifications, small or without a cortex: contrast in a narrow aorta): " +
         Ml(calcified_volume) + ", kept out of the spine");
   }
 
@@ -1040,8 +1081,6 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   }
 
   // 4. Grow ribs, sternum and spine from their bright cortex into the marrow and rim.
-  const bool plain = ct.hounsfield && !seg->contrast &&
-                     Unenhanced(ct, seg->body, seg->bone_threshold, o, &seg->anatomy);
   const double grow = !ct.hounsfield ? o.raw_grow : plain ? o.unenhanced_max_hu : o.grow_hu;
   const double grow_distance = plain ? o.plain_grow_distance : o.grow_distance;
   if (grow > 0.0 && grow_distance > 0.0) {

@@ -65,6 +65,10 @@ struct AnatomyOptions {
   /// Pieces whose centre is within this fraction of the half body width of the midline, in
   /// front of the spine, are sternum.
   double sternum_lateral = 0.12;
+  /// ... and whose centre lies in the front `sternum_wall` of the body's depth at the midline in
+  /// its slice (the front wall); behind it, in the mediastinum, a bright piece is a narrow
+  /// contrast-filled vessel or a calcification, kept out of the bone's structures.
+  double sternum_wall = 0.3;
   /// Ribs, sternum and spine grown from their bright cortex into the marrow and the partial-
   /// volume rim: neighbouring voxels above this (HU; raw volumes: `raw_grow`, 0 = no growth)
   /// within `grow_distance` (m) of the bright bone.
