@@ -887,16 +887,19 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
   // The body's front and back along the midline, per slice (±2 cm of the spine's line): the
   // sternum lies in the front wall.
   std::vector<double> wall_front(slices.count, HUGE_VAL), wall_back(slices.count, -HUGE_VAL);
-  for (int k = 0; k < ct.size.z(); ++k) {
-    for (int j = 0; j < ct.size.y(); ++j) {
-      for (int i = 0; i < ct.size.x(); ++i) {
-        if (!seg->body.inside[ct.Index(i, j, k)]) continue;
-        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
-        const int s = slices.Of(p.z());
-        const double mid_x = axis.known[s] ? axis.x[s] : centre.x();
-        if (std::abs(p.x() - mid_x) > 0.02) continue;
-        wall_front[s] = std::min(wall_front[s], p.y());
-        wall_back[s] = std::max(wall_back[s], p.y());
+  {
+    const Eigen::Vector3d step_i = ct.index_to_P.col(0);
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        const std::uint8_t* row = &seg->body.inside[ct.Index(0, j, k)];
+        Eigen::Vector3d p = ct.PatientPoint(0, j, k);
+        for (int i = 0; i < ct.size.x(); ++i, p += step_i) {
+          if (!row[i]) continue;
+          const int s = slices.Of(p.z());
+          if (std::abs(p.x() - (axis.known[s] ? axis.x[s] : centre.x())) > 0.02) continue;
+          wall_front[s] = std::min(wall_front[s], p.y());
+          wall_back[s] = std::max(wall_back[s], p.y());
+        }
       }
     }
   }
