@@ -368,7 +368,8 @@ bool Unenhanced(const Volume& ct, const Mask& body, double bone_threshold, const
   const bool plain = share < o.enhanced_share;
   std::ostringstream s;
   s << std::fixed << std::setprecision(2) << share * 100 << " % of the body reads "
-    << o.unenhanced_max_hu << "-" << bone_threshold << " HU away from bone: "
+    << std::setprecision(0) << o.unenhanced_max_hu << "-" << bone_threshold
+    << " HU away from bone: "
     << (plain ? "unenhanced, bone grown into its partial-volume stretches above "
               : "enhanced blood or organs, bone grown only near its cortex, above ")
     << (plain ? o.unenhanced_max_hu : o.grow_hu) << " HU";
