@@ -935,8 +935,8 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
     if (midline) {
       kind[c.label] = c.centroid_P.y() < front ? 2 : 3;
       // In front of the spine but behind the front wall: the mediastinum, where bright means
-      // contrast in a vessel too narrow to be found as a pool (a dissected aorta's true lumen)
-      // or a calcification, never the sternum.
+      // contrast in a vessel too narrow to be found as a pool (a narrow stretch of a dissected
+      // aorta) or a calcification, never the sternum.
       if (kind[c.label] == 2 && wall_front[s] < wall_back[s] &&
           c.centroid_P.y() > wall_front[s] + o.sternum_wall * (wall_back[s] - wall_front[s])) {
         kind[c.label] = 0;

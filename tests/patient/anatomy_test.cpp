@@ -121,7 +121,7 @@ TEST(ShapeAnatomy, ContrastIsNeverBoneAndArmsAreNeverRibsOnLabelledRealCts) {
       if (kind == LabelKind::kShoulder) {
         EXPECT_EQ(in_ribs, 0) << name << " in " << k.ct;
       }
-      // The contrast CT's sternum holds no vessel (a dissected aorta's narrow true lumen, behind
+      // The contrast CT's sternum holds no vessel (a narrow stretch of the dissected aorta, behind
       // the front wall, had been "sternum": 5 % of the aorta), and its aorta is not bone at all.
       if (std::string(k.ct).find("cta-aorta") != std::string::npos &&
           (kind == LabelKind::kVessel || kind == LabelKind::kHeart)) {
