@@ -539,3 +539,58 @@ TEST(ShapeAnatomy, EnhancementIsMeasuredNotTakenFromTheContrastPool) {
 
 }  // namespace
 }  // namespace trocar
+
+namespace trocar {
+namespace {
+
+// The rib cage is one stack: a slender bone far below the ribs (a femur in an abdominal scan) is
+// no rib. The phantom with a 10 cm bone rod standing 7 cm below its lowest rib keeps its nine
+// ribs a side and the rod in none of them; with the stack rule off the rod is taken for a rib.
+TEST(ShapeAnatomy, ASlenderBoneFarBelowTheStackOfRibsIsNoRib) {
+  patient::PhantomParameters p;
+  p.voxel_size = 0.003;
+  p.length = 0.50;
+  patient::Phantom ph = patient::GeneratePhantom(p);
+  patient::Volume& ct = ph.ct;
+  double rib_bottom = HUGE_VAL;
+  for (const auto& rib : ph.truth.ribs) {
+    for (const auto& q : rib.centreline) rib_bottom = std::min(rib_bottom, q.z());
+  }
+  const double rod_top = rib_bottom - 0.07, rod_bottom = rod_top - 0.10;
+  ASSERT_GT(rod_bottom, ct.PatientPoint(0, 0, 0).z() + 0.01);
+  std::vector<long> rod;
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const Eigen::Vector3d q = ct.PatientPoint(i, j, k);
+        if (q.z() < rod_bottom || q.z() > rod_top || std::hypot(q.x() - 0.09, q.y()) > 0.009)
+          continue;
+        ct.values[ct.Index(i, j, k)] = patient::PhantomHu::kBone;
+        rod.push_back(ct.Index(i, j, k));
+      }
+    }
+  }
+  ASSERT_GT(rod.size(), 500u);
+  for (const bool stack_rule : {true, false}) {
+    SCOPED_TRACE(stack_rule);
+    patient::SegmentationOptions options;
+    if (!stack_rule) options.anatomy.rib_stack_gap = 10.0;
+    const auto seg = patient::Segment(ct, options);
+    std::set<int> rib_labels;
+    for (const auto* ribs : {&seg.bones.ribs_left, &seg.bones.ribs_right}) {
+      for (const auto& c : *ribs) rib_labels.insert(c.label);
+    }
+    long rod_in_ribs = 0;
+    for (const long v : rod) rod_in_ribs += rib_labels.count(seg.bones.labels[v]);
+    if (stack_rule) {
+      EXPECT_EQ(seg.bones.ribs_left.size(), 9u);
+      EXPECT_EQ(seg.bones.ribs_right.size(), 9u);
+      EXPECT_EQ(rod_in_ribs, 0);
+    } else {
+      EXPECT_GT(rod_in_ribs, static_cast<long>(rod.size() / 2));
+    }
+  }
+}
+
+}  // namespace
+}  // namespace trocar
