@@ -1,11 +1,12 @@
 #include "patient/intercostal.hpp"
 
-#include <cmath>
 #include <algorithm>
+#include <cmath>
 #include <map>
 #include <utility>
 
 #include "common/error.hpp"
+#include "patient/segmentation.hpp"
 
 namespace trocar::patient {
 
@@ -112,6 +113,246 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
     };
     std::stable_sort(side_spaces.begin(), side_spaces.end(),
                      [&](const IntercostalSpace& a, const IntercostalSpace& c) { return mean_z(a) > mean_z(c); });
+    for (auto& space : side_spaces) spaces.push_back(std::move(space));
+  }
+  return spaces;
+}
+
+namespace {
+
+// A voxel lookup by patient point, nearest voxel; -1 outside the grid.
+struct Lookup {
+  const Volume& ct;
+  Eigen::Matrix3d P_to_index;
+  explicit Lookup(const Volume& v) : ct(v), P_to_index(v.index_to_P.inverse()) {}
+  long operator()(const Eigen::Vector3d& p) const {
+    const Eigen::Vector3d ijk = P_to_index * (p - ct.origin_P);
+    const long i = std::lround(ijk.x()), j = std::lround(ijk.y()), k = std::lround(ijk.z());
+    if (i < 0 || j < 0 || k < 0 || i >= ct.size.x() || j >= ct.size.y() || k >= ct.size.z())
+      return -1;
+    return ct.Index(static_cast<int>(i), static_cast<int>(j), static_cast<int>(k));
+  }
+};
+
+}  // namespace
+
+std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
+                                                           const Segmentation& seg,
+                                                           const IntercostalOptions& o,
+                                                           LayerChart* chart) {
+  TROCAR_THROW_UNLESS(o.bin > 0 && o.to_angle > o.from_angle,
+                      "intercostal spaces: bad angle range");
+  TROCAR_THROW_UNLESS(seg.body_max_P.x() > seg.body_min_P.x(), ct.source << ": empty body mask");
+  const Eigen::Vector2d axis = seg.axis_P;
+  const Lookup voxel(ct);
+  // Depth under the skin: the distance to the nearest voxel outside the body.
+  std::vector<float> depth2;
+  {
+    Mask outside;
+    outside.size = ct.size;
+    outside.inside.resize(seg.body.inside.size());
+    for (std::size_t v = 0; v < outside.inside.size(); ++v) outside.inside[v] = !seg.body.inside[v];
+    depth2 = SquaredDistanceToMask(ct, outside);
+  }
+  const float max_depth2 = static_cast<float>(o.layer_depth * o.layer_depth);
+  auto in_wall = [&](long v) { return v >= 0 && seg.body.inside[v] && depth2[v] <= max_depth2; };
+  // The chart's rows: heights from the body's top down, one voxel apart along the slices' axis.
+  const double dz = ct.index_to_P.col(AxialAxis(ct)).norm();
+  const int rows =
+      std::max(1, static_cast<int>(std::floor((seg.body_max_P.z() - seg.body_min_P.z()) / dz)) + 1);
+  auto row_z = [&](int row) { return seg.body_max_P.z() - row * dz; };
+  const int cols = static_cast<int>(std::ceil(M_PI / o.bin));  // 0 at the back to π at the front
+  const double dr = 0.5 * ct.spacing().minCoeff();
+  double max_r = 0.0;
+  for (double x : {seg.body_min_P.x(), seg.body_max_P.x()}) {
+    for (double y : {seg.body_min_P.y(), seg.body_max_P.y()})
+      max_r = std::max(max_r, (Eigen::Vector2d(x, y) - axis).norm());
+  }
+  auto direction = [&](int side, int col) {
+    const double angle = (col + 0.5) * o.bin;
+    return Eigen::Vector2d(side * std::sin(angle), std::cos(angle));
+  };
+  // The floor: `layer_floor_fraction` of the way from the wall's soft tissue to the bone
+  // threshold.
+  double floor = o.layer_floor;
+  if (floor <= 0.0) {
+    std::vector<float> soft;
+    for (std::size_t v = 0; v < depth2.size(); v += 7) {
+      if (in_wall(static_cast<long>(v)) && ct.values[v] > seg.body_threshold &&
+          ct.values[v] < seg.bone_threshold)
+        soft.push_back(ct.values[v]);
+    }
+    TROCAR_THROW_UNLESS(!soft.empty(), ct.source
+                                           << ": no soft tissue in the chest wall (body threshold "
+                                           << seg.body_threshold << ", bone threshold "
+                                           << seg.bone_threshold << ")");
+    std::nth_element(soft.begin(), soft.begin() + soft.size() / 2, soft.end());
+    const double tissue = soft[soft.size() / 2];
+    floor = tissue + o.layer_floor_fraction * (seg.bone_threshold - tissue);
+  }
+  if (chart != nullptr) {
+    *chart = LayerChart{};
+    chart->floor = floor;
+    chart->top_z = row_z(0);
+    chart->dz = dz;
+    chart->bin = o.bin;
+    chart->rows = rows;
+    chart->cols = cols;
+  }
+
+  std::vector<IntercostalSpace> spaces;
+  for (int side : {+1, -1}) {
+    if ((side > 0 && !o.left) || (side < 0 && !o.right)) continue;
+    // The innermost rib-bright voxel in the wall along each ray.
+    std::vector<double> inner(static_cast<std::size_t>(rows) * cols, NAN);
+    for (int row = 0; row < rows; ++row) {
+      const double z = row_z(row);
+      for (int col = 0; col < cols; ++col) {
+        const Eigen::Vector2d d = direction(side, col);
+        for (double r = 0.0; r <= max_r; r += dr) {
+          const long v = voxel(Eigen::Vector3d(axis.x() + r * d.x(), axis.y() + r * d.y(), z));
+          if (in_wall(v) && ct.values[v] >= floor) {
+            inner[row * cols + col] = r;
+            break;
+          }
+        }
+      }
+    }
+    // The layer's surface: the lower quartile of the innermost radii around (the ribs are the
+    // innermost layer; between them the ray meets what lies outside, a shoulder blade or muscle).
+    const int wa = std::max(1, static_cast<int>(std::lround(o.layer_smooth_angle / o.bin)));
+    const int wz = std::max(1, static_cast<int>(std::lround(o.layer_smooth_height / dz)));
+    std::vector<double> surface(inner.size(), NAN);
+    std::vector<double> near;
+    for (int row = 0; row < rows; ++row) {
+      for (int col = 0; col < cols; ++col) {
+        near.clear();
+        for (int r2 = std::max(0, row - wz); r2 <= std::min(rows - 1, row + wz); ++r2) {
+          for (int c2 = std::max(0, col - wa); c2 <= std::min(cols - 1, col + wa); ++c2) {
+            if (!std::isnan(inner[r2 * cols + c2])) near.push_back(inner[r2 * cols + c2]);
+          }
+        }
+        if (near.size() < 3) continue;
+        std::nth_element(near.begin(), near.begin() + near.size() / 4, near.end());
+        surface[row * cols + col] = near[near.size() / 4];
+      }
+    }
+    // Rib or not, per chart cell: any voxel of the band reaching the floor.
+    std::vector<std::uint8_t> rib(inner.size(), 0);
+    for (int row = 0; row < rows; ++row) {
+      const double z = row_z(row);
+      for (int col = 0; col < cols; ++col) {
+        const double s = surface[row * cols + col];
+        if (std::isnan(s)) continue;
+        const Eigen::Vector2d d = direction(side, col);
+        for (double r = std::max(0.0, s - o.layer_inside); r <= s + o.layer_outside; r += dr) {
+          const long v = voxel(Eigen::Vector3d(axis.x() + r * d.x(), axis.y() + r * d.y(), z));
+          if (in_wall(v) && ct.values[v] >= floor) {
+            rib[row * cols + col] = 1;
+            break;
+          }
+        }
+      }
+    }
+    if (chart != nullptr) (side > 0 ? chart->rib_left : chart->rib_right) = rib;
+    // Per angle, the dark runs between two rib runs; linked across neighbouring angles (their
+    // rows overlapping) into curves.
+    struct Run {
+      int top, bottom;  // rows, inclusive
+    };
+    struct Chain {
+      IntercostalSpace space;
+      Run last{0, 0};
+      int last_col = 0;
+    };
+    std::vector<Chain> chains;
+    const int col_from = static_cast<int>(std::ceil(o.from_angle / o.bin - 0.5));
+    const int col_to = std::min(cols - 1, static_cast<int>(std::floor(o.to_angle / o.bin - 0.5)));
+    for (int col = std::max(0, col_from); col <= col_to; ++col) {
+      // A space lies between two ribs: rib runs no taller than `layer_max_rib`, a dark run no
+      // taller than `layer_max_gap` (taller bright runs are organs in the layer's band, below the
+      // rib cage or against it; taller dark ones are no space between neighbouring ribs).
+      std::vector<Run> runs;
+      int row = 0;
+      while (row < rows && !rib[row * cols + col]) ++row;  // above the first rib
+      while (row < rows) {
+        const int rib_top = row;
+        while (row < rows && rib[row * cols + col]) ++row;
+        const bool slender = (row - rib_top) * dz <= o.layer_max_rib;
+        const int top = row;
+        while (row < rows && !rib[row * cols + col]) ++row;
+        int rib_bottom = row;
+        while (rib_bottom < rows && rib[rib_bottom * cols + col]) ++rib_bottom;
+        const bool below = row < rows && (rib_bottom - row) * dz <= o.layer_max_rib;
+        if (slender && below && row > top && (row - top) * dz <= o.layer_max_gap)
+          runs.push_back({top, row - 1});
+      }
+      const Eigen::Vector2d d = direction(side, col);
+      std::vector<std::uint8_t> taken(chains.size(), 0);
+      for (const Run& run : runs) {
+        const double gap = (run.bottom - run.top + 1) * dz;
+        if (gap < o.min_gap) continue;
+        const int mid = (run.top + run.bottom) / 2;
+        const double z = 0.5 * (row_z(run.top) + row_z(run.bottom));
+        double radius = surface[mid * cols + col];
+        if (std::isnan(radius)) continue;
+        // Out to the skin within the chest wall's reach (an arm against the chest: no port).
+        Eigen::Vector3d skin(axis.x() + radius * d.x(), axis.y() + radius * d.y(), z);
+        const long at = voxel(skin);
+        if (at < 0 || !seg.body.inside[at]) continue;
+        bool out = false;
+        for (double r = radius; r <= radius + o.max_wall_depth; r += dr) {
+          const Eigen::Vector3d q(axis.x() + r * d.x(), axis.y() + r * d.y(), z);
+          const long v = voxel(q);
+          if (v < 0 || !seg.body.inside[v]) {
+            out = true;
+            break;
+          }
+          skin = q;
+        }
+        if (!out) continue;
+        // The chain this run continues: the one ending at the last angle or the one before, whose
+        // rows overlap most.
+        int best = -1, best_overlap = 0;
+        for (std::size_t c = 0; c < chains.size(); ++c) {
+          if (taken[c] || col - chains[c].last_col > 2) continue;
+          const int overlap = std::min(run.bottom, chains[c].last.bottom) -
+                              std::max(run.top, chains[c].last.top) + 1;
+          if (overlap > best_overlap) {
+            best_overlap = overlap;
+            best = static_cast<int>(c);
+          }
+        }
+        if (best < 0) {
+          chains.emplace_back();
+          chains.back().space.side = side;
+          chains.back().space.upper_rib = chains.back().space.lower_rib = -1;
+          taken.push_back(0);
+          best = static_cast<int>(chains.size()) - 1;
+        }
+        Chain& chain = chains[best];
+        taken[best] = 1;
+        chain.last = run;
+        chain.last_col = col;
+        chain.space.skin.push_back(skin);
+        chain.space.depth.emplace_back(axis.x() + radius * d.x(), axis.y() + radius * d.y(), z);
+        chain.space.gap.push_back(gap);
+      }
+    }
+    std::vector<IntercostalSpace> side_spaces;
+    for (Chain& chain : chains) {
+      if (static_cast<int>(chain.space.skin.size()) >= o.min_points)
+        side_spaces.push_back(std::move(chain.space));
+    }
+    auto mean_z = [](const IntercostalSpace& s) {
+      double z = 0.0;
+      for (const auto& p : s.depth) z += p.z();
+      return z / static_cast<double>(s.depth.size());
+    };
+    std::stable_sort(side_spaces.begin(), side_spaces.end(),
+                     [&](const IntercostalSpace& a, const IntercostalSpace& c) {
+                       return mean_z(a) > mean_z(c);
+                     });
     for (auto& space : side_spaces) spaces.push_back(std::move(space));
   }
   return spaces;

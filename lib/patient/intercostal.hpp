@@ -4,6 +4,7 @@
 /// axis, the middle of the gap between each rib and the next one below it there, carried out to
 /// the skin; the run of angles between the same two ribs gives a port candidate curve.
 
+#include <cstdint>
 #include <vector>
 
 #include "patient/phantom.hpp"
@@ -25,6 +26,25 @@ struct IntercostalOptions {
   int min_points = 5;
   bool left = true;
   bool right = false;
+  /// The rib cage's layer (FindIntercostalSpacesInLayer, for windowed volumes): bone-bright
+  /// voxels no deeper than `layer_depth` under the skin (m), the innermost of them along each ray
+  /// (the ribs lie on the lungs; a shoulder blade or an arm lies outside them) smoothed over
+  /// `layer_smooth_angle` (rad) and `layer_smooth_height` (m) either side, and the band from
+  /// `layer_inside` inside that surface to `layer_outside` outside it (m).
+  double layer_depth = 0.045;
+  double layer_smooth_angle = 10.0 * M_PI / 180.0, layer_smooth_height = 0.02;
+  double layer_inside = 0.004, layer_outside = 0.010;
+  /// A rib in the layer is at least this bright (the volume's units); 0: `layer_floor_fraction`
+  /// of the way from the chest wall's soft tissue (the median of the wall's voxels between the
+  /// body and bone thresholds) to the bone threshold. A rib's cross-section partly filling a
+  /// voxel reads there; 0.4 is where the plain-CT hysteresis floor lies in HU (130 HU, from
+  /// muscle's 50 to the 250 HU bone threshold; AnatomyOptions::unenhanced_max_hu).
+  double layer_floor = 0.0;
+  double layer_floor_fraction = 0.4;
+  /// A rib's run along a column of the chart is at most this tall, a space between two ribs at
+  /// most `layer_max_gap` (m): taller bright runs are organs in the band (the liver below the rib
+  /// cage, the heart against it), taller dark ones no space between neighbouring ribs.
+  double layer_max_rib = 0.025, layer_max_gap = 0.035;
 };
 
 struct IntercostalSpace {
@@ -40,5 +60,26 @@ struct IntercostalSpace {
 /// @throws trocar::Error naming the volume when a side asked for has fewer than two ribs.
 std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segmentation& seg,
                                                     const IntercostalOptions& options = {});
+
+/// The chart of the rib cage's layer per side: rows are heights from `top_z` down by `dz`, columns
+/// angles about the body's axis from the back (column c at (c + ½)·bin, to π at the front).
+struct LayerChart {
+  double floor = 0.0;  ///< the rib floor used (the volume's units)
+  double top_z = 0.0, dz = 0.0, bin = 0.0;
+  int rows = 0, cols = 0;
+  std::vector<std::uint8_t> rib_left, rib_right;  ///< row * cols + col: 1 where the layer is rib
+};
+
+/// Spaces found in a chart of the rib cage's layer, not between rib components: for windowed
+/// (8-bit) volumes, where most of a rib's cross-section lies below the bone threshold and the
+/// components are fragments. At each height and angle about the body's axis the layer is rib
+/// when any voxel in its band reaches the floor; at each angle the dark runs between two rib
+/// runs are spaces, linked across neighbouring angles into curves. `upper_rib` and `lower_rib`
+/// are −1 (no rib component bounds them). Spaces of a side come top to bottom.
+/// @throws trocar::Error naming the volume when the body is empty.
+std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
+                                                           const Segmentation& seg,
+                                                           const IntercostalOptions& options = {},
+                                                           LayerChart* chart = nullptr);
 
 }  // namespace trocar::patient
