@@ -66,13 +66,22 @@ CaseSpec ReadCase(const std::string& case_dir) {
   }
   if (root["thresholds"]) {
     const YAML::Node t = root["thresholds"];
-    y.ExpectMap(t, "thresholds", {"body", "bone"});
+    y.ExpectMap(t, "thresholds", {"body", "bone", "rib"});
     // In the CT's own units: set both the HU and the raw fields, whichever the CT turns out to be.
     if (t["body"]) c.seg.body_hu = c.seg.raw_body = y.Number(t["body"], "thresholds.body");
     if (t["bone"]) c.seg.bone_hu = c.seg.raw_bone = y.Number(t["bone"], "thresholds.bone");
     TROCAR_THROW_UNLESS(c.seg.body_hu < c.seg.bone_hu && c.seg.raw_body < c.seg.raw_bone,
                         y.Where(t, "thresholds")
                             << ": the body threshold must be below the bone threshold");
+    // A windowed volume's rib floor (the chart of the rib cage's layer); measured when not given.
+    if (t["rib"]) {
+      c.intercostal.layer_floor = y.Number(t["rib"], "thresholds.rib");
+      TROCAR_THROW_UNLESS(
+          c.intercostal.layer_floor > c.seg.raw_body && c.intercostal.layer_floor < c.seg.raw_bone,
+          y.Where(t["rib"], "thresholds.rib")
+              << ": " << c.intercostal.layer_floor << " must lie between the body threshold ("
+              << c.seg.raw_body << ") and the bone threshold (" << c.seg.raw_bone << ")");
+    }
   }
   if (root["bones"]) {
     // How bone is sorted into ribs, sternum and spine: by shape and place (the default), or by

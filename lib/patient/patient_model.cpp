@@ -389,12 +389,27 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
       // Named from the ribs' anatomical numbers (a label map's, or the numbering of
       // ClassifyBones with its confidence); spaces between ribs that are not numbered are
       // called gap-L1, gap-L2, ... from the top: an order, never an anatomical name.
+      // A windowed volume (raw units, no label map) has its spaces from the chart of the rib
+      // cage's layer: its ribs' cross-sections are mostly below the bone threshold, and the
+      // components between which spaces are otherwise found are fragments.
       int unnamed[2] = {0, 0};
-      for (const auto& space : FindIntercostalSpaces(ct, seg, c.intercostal)) {
+      const bool layer = !ct.hounsfield && !have_labels;
+      LayerChart chart;
+      const auto spaces = layer ? FindIntercostalSpacesInLayer(ct, seg, c.intercostal, &chart)
+                                : FindIntercostalSpaces(ct, seg, c.intercostal);
+      if (layer) {
+        std::ostringstream s;
+        s << "intercostal spaces: from the rib cage's layer (a windowed volume: ribs at or above "
+          << std::fixed << std::setprecision(1) << chart.floor << " within " << std::setprecision(0)
+          << c.intercostal.layer_depth * 1e3 << " mm of the skin); not numbered";
+        report.checks.push_back(s.str());
+      }
+      for (const auto& space : spaces) {
         const auto& ribs = space.side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
         const RibNumbering& numbering = space.side > 0 ? seg.numbering_left : seg.numbering_right;
         const std::string side = space.side > 0 ? "L" : "R";
-        const int upper = ribs[space.upper_rib].number, lower = ribs[space.lower_rib].number;
+        const int upper = space.upper_rib >= 0 ? ribs[space.upper_rib].number : 0;
+        const int lower = space.lower_rib >= 0 ? ribs[space.lower_rib].number : 0;
         PortCandidate candidate;
         candidate.skin = space.skin;
         if (upper > 0 && lower == upper + 1) {
@@ -413,8 +428,12 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
           continue;  // numbered ribs not consecutive (one not labelled or not found): no name fits
         } else {
           candidate.name = "gap-" + side + std::to_string(++unnamed[space.side > 0 ? 0 : 1]);
-          candidate.source = "intercostal (ribs not numbered: " +
-                             (numbering.basis.empty() ? std::string("no numbering") : numbering.basis) + ")";
+          candidate.source =
+              layer
+                  ? std::string("intercostal (rib cage layer of a windowed volume: not numbered)")
+                  : "intercostal (ribs not numbered: " +
+                        (numbering.basis.empty() ? std::string("no numbering") : numbering.basis) +
+                        ")";
         }
         auto same = std::find_if(m.port_candidates.begin(), m.port_candidates.end(),
                                  [&](const PortCandidate& p) { return p.name == candidate.name; });
