@@ -72,6 +72,9 @@ TriangleMesh ExtractSurface(const Volume& grid, const Mask& mask, const std::str
   Eigen::Vector3d coarse_spacing;
   vtkSmartPointer<vtkPolyData> poly;
   long contoured = 0;
+  // A thin or scattered mask can average and blur away below the contour level on a coarse grid:
+  // then it is contoured at full resolution, and at last without the blur.
+  bool use_blur = options.blur_sigma_voxels > 0.0, fallback = false;
   for (int attempt = 0;; ++attempt) {
     // Coarse voxel (I, J, K) covers fine voxels offset + factor * (I, J, K) + [0, factor) and
     // holds the fraction of them inside the mask.
@@ -102,7 +105,7 @@ TriangleMesh ExtractSurface(const Volume& grid, const Mask& mask, const std::str
     image->GetPointData()->SetScalars(scalars);
 
     auto contour = vtkSmartPointer<vtkFlyingEdges3D>::New();
-    if (options.blur_sigma_voxels > 0.0) {
+    if (use_blur) {
       auto blur = vtkSmartPointer<vtkImageGaussianSmooth>::New();
       blur->SetInputData(image);
       blur->SetDimensionality(3);
@@ -122,8 +125,18 @@ TriangleMesh ExtractSurface(const Volume& grid, const Mask& mask, const std::str
     contour->Update();
     poly = contour->GetOutput();
     contoured = poly->GetNumberOfPolys();
+    if (contoured == 0 && factor != Eigen::Vector3i::Ones()) {
+      factor = Eigen::Vector3i::Ones();
+      fallback = true;
+      continue;
+    }
+    if (contoured == 0 && use_blur) {
+      use_blur = false;
+      fallback = true;
+      continue;
+    }
     TROCAR_THROW_UNLESS(contoured > 0, name << ": contouring the mask gave no triangles");
-    if (!coarsen || attempt == 2 || contoured <= 1.5 * wanted) break;
+    if (!coarsen || fallback || attempt >= 2 || contoured <= 1.5 * wanted) break;
     h = coarse_spacing.maxCoeff() * std::sqrt(static_cast<double>(contoured) / wanted);
     const Eigen::Vector3i next = factor_for(h).cwiseMax(factor);
     if (next == factor) break;
