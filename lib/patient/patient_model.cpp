@@ -389,20 +389,33 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
       // Named from the ribs' anatomical numbers (a label map's, or the numbering of
       // ClassifyBones with its confidence); spaces between ribs that are not numbered are
       // called gap-L1, gap-L2, ... from the top: an order, never an anatomical name.
-      // A windowed volume (raw units, no label map) has its spaces from the chart of the rib
-      // cage's layer: its ribs' cross-sections are mostly below the bone threshold, and the
-      // components between which spaces are otherwise found are fragments.
+      // A side of a windowed volume (raw units, no label map) whose ribs are not numbered has
+      // its spaces from the chart of the rib cage's layer: its ribs' cross-sections are mostly
+      // below the bone threshold, and the components between which spaces are otherwise found
+      // are fragments. Numbered ribs keep their named spaces.
       int unnamed[2] = {0, 0};
-      const bool layer = !ct.hounsfield && !have_labels;
-      LayerChart chart;
-      const auto spaces = layer ? FindIntercostalSpacesInLayer(ct, seg, c.intercostal, &chart)
-                                : FindIntercostalSpaces(ct, seg, c.intercostal);
-      if (layer) {
-        std::ostringstream s;
-        s << "intercostal spaces: from the rib cage's layer (a windowed volume: ribs at or above "
-          << std::fixed << std::setprecision(1) << chart.floor << " within " << std::setprecision(0)
-          << c.intercostal.layer_depth * 1e3 << " mm of the skin); not numbered";
-        report.checks.push_back(s.str());
+      std::vector<IntercostalSpace> spaces;
+      bool any_layer = false;
+      for (int side : {+1, -1}) {
+        if (!(side > 0 ? c.intercostal.left : c.intercostal.right)) continue;
+        IntercostalOptions one = c.intercostal;
+        one.left = side > 0;
+        one.right = side < 0;
+        const RibNumbering& numbering = side > 0 ? seg.numbering_left : seg.numbering_right;
+        const bool layer = !ct.hounsfield && !have_labels && !numbering.numbered;
+        LayerChart chart;
+        auto found = layer ? FindIntercostalSpacesInLayer(ct, seg, one, &chart)
+                           : FindIntercostalSpaces(ct, seg, one);
+        if (layer && !any_layer) {
+          std::ostringstream s;
+          s << "intercostal spaces: from the rib cage's layer (a windowed volume whose ribs are "
+               "not numbered: ribs at or above "
+            << std::fixed << std::setprecision(1) << chart.floor << " within "
+            << std::setprecision(0) << c.intercostal.layer_depth * 1e3 << " mm of the skin)";
+          report.checks.push_back(s.str());
+          any_layer = true;
+        }
+        for (auto& space : found) spaces.push_back(std::move(space));
       }
       for (const auto& space : spaces) {
         const auto& ribs = space.side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
@@ -429,7 +442,7 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
         } else {
           candidate.name = "gap-" + side + std::to_string(++unnamed[space.side > 0 ? 0 : 1]);
           candidate.source =
-              layer
+              space.upper_rib < 0
                   ? std::string("intercostal (rib cage layer of a windowed volume: not numbered)")
                   : "intercostal (ribs not numbered: " +
                         (numbering.basis.empty() ? std::string("no numbering") : numbering.basis) +

@@ -683,3 +683,50 @@ TEST(ShapeAnatomy, SpacesInTheLayerOfWindowedPhantomsLieOnTheGeneratedSpaces) {
 
 }  // namespace
 }  // namespace trocar
+
+namespace trocar {
+namespace {
+
+// A windowed volume whose ribs hold together at the bone threshold keeps its numbered spaces: the
+// whole windowed phantom rib cage (ribs at 255) is numbered from its ribs on both sides, and its
+// spaces are named from those numbers and lie on the generated ones; the layer's unnumbered
+// spaces are for sides whose ribs are not numbered.
+TEST(ShapeAnatomy, AWindowedVolumeWithNumberedRibsKeepsItsNamedSpaces) {
+  patient::PhantomParameters p;
+  p.seed = 6;
+  p.body_width = 0.34;
+  p.rib_spacing = 0.028;
+  p.voxel_size = 0.003;
+  p.length = 0.15 + 1.04 * 11 * p.rib_spacing;
+  p.ribs_per_side = 12;
+  p.wall_thickness = 0.02;
+  // No arms beside the chest: a windowed volume's body is filled to its convex hull per slice (fat
+  // clipped to air breaks its outline), which bridges an arm and the chest.
+  p.ribs_reach_spine = true;
+  patient::Phantom ph = patient::GeneratePhantom(p);
+  // A 1000-wide window at 300 HU: contrast blood (280 HU) reads 122, bone (750 HU) 242.
+  for (float& v : ph.ct.values) v = std::clamp((v + 200.0f) / 1000.0f * 255.0f, 0.0f, 255.0f);
+  const std::string dir = testing::TempDir() + "/trocar-windowed-cage";
+  std::filesystem::remove_all(dir);
+  patient::WritePhantomCase(ph, dir);
+  std::ofstream(dir + "/patient.yaml")
+      << "name: windowed\nct: ct.nrrd\nunits: raw\nthresholds: {body: 15, bone: 166}\n"
+      << "heart: {contrast: false}\nintercostal: {left: true, right: true}\n"
+      << "surfaces: {skin: 3000, ribs: 4000}\n";
+  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  std::map<char, int> named;
+  for (const auto& c : m.port_candidates) {
+    SCOPED_TRACE(c.name);
+    ASSERT_EQ(c.name.rfind("ICS-", 0), 0u) << c.source;
+    const int side = c.name[4] == 'L' ? +1 : -1;
+    const int number = std::stoi(c.name.substr(5));
+    ++named[c.name[4]];
+    const auto& truth = ph.truth.intercostal_spaces[(side > 0 ? 0 : 11) + number - 1];
+    for (const auto& q : c.skin) EXPECT_LT(DistanceToLine(q, truth), 3 * p.voxel_size);
+  }
+  EXPECT_GE(named['L'], 9);
+  EXPECT_GE(named['R'], 9);
+}
+
+}  // namespace
+}  // namespace trocar
