@@ -132,15 +132,27 @@ void FillConvexPerSlice(const Volume& v, Mask* mask) {
     }
     hull.resize(k - 1);
     if (hull.size() < 3) continue;
+    // Row by row: a convex polygon meets a row in one interval, from the edges crossing it (the
+    // hull's vertices are whole voxel indices; points on its boundary are inside).
     for (int b = 0; b < v.size[w]; ++b) {
-      for (int a = 0; a < v.size[u]; ++a) {
-        const Eigen::Vector2d p(a, b);
-        bool inside = true;
-        for (std::size_t e = 0; e < hull.size() && inside; ++e) {
-          inside = cross(hull[e], hull[(e + 1) % hull.size()], p) >= -1e-9;
+      double lo = HUGE_VAL, hi = -HUGE_VAL;
+      for (std::size_t e = 0; e < hull.size(); ++e) {
+        const Eigen::Vector2d& p = hull[e];
+        const Eigen::Vector2d& q = hull[(e + 1) % hull.size()];
+        if (b < std::min(p.y(), q.y()) || b > std::max(p.y(), q.y())) continue;
+        if (p.y() == q.y()) {
+          lo = std::min({lo, p.x(), q.x()});
+          hi = std::max({hi, p.x(), q.x()});
+          continue;
         }
-        if (inside) mask->inside[at(a, b)] = 1;
+        const double x = p.x() + (q.x() - p.x()) * (b - p.y()) / (q.y() - p.y());
+        lo = std::min(lo, x);
+        hi = std::max(hi, x);
       }
+      if (lo > hi) continue;
+      const int from = std::max(0, static_cast<int>(std::ceil(lo - 1e-9)));
+      const int to = std::min(v.size[u] - 1, static_cast<int>(std::floor(hi + 1e-9)));
+      for (int a = from; a <= to; ++a) mask->inside[at(a, b)] = 1;
     }
   }
 }
