@@ -242,6 +242,7 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
                            "orientation.check is false)");
     }
     // What the bone sorting found, and on what the ribs' numbers rest (or why there are none).
+    if (!seg.body_fill.empty()) report.checks.push_back("body: " + seg.body_fill);
     for (const auto& a : seg.anatomy) report.checks.push_back("bones: " + a);
     if (!have_labels) {
       for (int side : {+1, -1}) {

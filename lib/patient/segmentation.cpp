@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iomanip>
+#include <sstream>
 
 #include "common/error.hpp"
 
@@ -268,7 +270,23 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
   std::vector<int>().swap(labels);  // 4 bytes a voxel: not held while the bone is labelled
   std::vector<std::uint8_t>().swap(above.inside);
   if (ct.hounsfield ? o.body_convex_fill : o.raw_body_convex_fill) {
+    // The convex fill, unless the outline held (filling the holes closes the lungs in): then an
+    // arm beside the chest is not bridged to it.
+    Mask holes = s.body;
+    FillHolesPerSlice(ct, &holes);
     FillConvexPerSlice(ct, &s.body);
+    const double share = static_cast<double>(holes.count()) / static_cast<double>(s.body.count());
+    std::ostringstream why;
+    why << std::fixed << std::setprecision(0) << "filling each slice's holes gives "
+        << 100.0 * share << " % of the convex fill's volume";
+    if (share >= o.convex_fill_below) {
+      s.body = std::move(holes);
+      why << ": the outline held, holes filled (an arm beside the chest stays apart)";
+    } else {
+      why << ": the outline is broken (fat at the value of air), each slice filled to its convex "
+             "hull";
+    }
+    s.body_fill = why.str();
   } else {
     FillHolesPerSlice(ct, &s.body);
   }

@@ -57,6 +57,10 @@ struct SegmentationOptions {
   /// stays broken).
   bool body_convex_fill = false;
   bool raw_body_convex_fill = true;
+  /// ... unless the outline held: when filling each slice's holes gives at least this share of
+  /// the convex fill's volume, the holes' fill is kept (its concavities are real: an arm beside
+  /// the chest, the back). A broken outline leaves the lungs open to the outside (LIDC2: 27 %).
+  double convex_fill_below = 0.6;
   /// Bone components smaller than this are noise (m³).
   double min_bone_volume = 0.3e-6;
   /// Bone sorted by shape and place (ClassifyBones, anatomy.hpp): contrast kept out of the bone,
@@ -94,6 +98,7 @@ struct Segmentation {
   RibNumbering numbering_left, numbering_right;
   std::vector<std::string> anatomy;  ///< what the sorting found, in words
   double body_threshold = 0.0, bone_threshold = 0.0;  ///< as used, in the volume's units
+  std::string body_fill;  ///< how the body's slices were filled, and why
 };
 
 /// Segments body and bone, and sorts the bone into anatomy by shape and place (ClassifyBones):

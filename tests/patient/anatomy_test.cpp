@@ -700,9 +700,10 @@ TEST(ShapeAnatomy, AWindowedVolumeWithNumberedRibsKeepsItsNamedSpaces) {
   p.length = 0.15 + 1.04 * 11 * p.rib_spacing;
   p.ribs_per_side = 12;
   p.wall_thickness = 0.02;
-  // No arms beside the chest: a windowed volume's body is filled to its convex hull per slice (fat
-  // clipped to air breaks its outline), which bridges an arm and the chest.
-  p.ribs_reach_spine = true;
+  // Arms beside the chest: the outline held (fat reads above the body threshold), so the body is
+  // not filled to its convex hull, which would bridge an arm and the chest and put the spaces'
+  // skin points on that bridge.
+  p.ribs_reach_spine = p.shoulders = true;
   patient::Phantom ph = patient::GeneratePhantom(p);
   // A 1000-wide window at 300 HU: contrast blood (280 HU) reads 122, bone (750 HU) 242.
   for (float& v : ph.ct.values) v = std::clamp((v + 200.0f) / 1000.0f * 255.0f, 0.0f, 255.0f);

@@ -150,6 +150,7 @@ TEST(Segmentation, WindowedBodyIsTheConvexHullOfEachSlice) {
     o.raw_body = 40;
     o.raw_bone = 160;
     o.raw_body_closing = 0.0;
+    o.convex_fill_below = 1.01;  // always the convex fill (the choice is tested below)
     o.shape_anatomy = false;
     // No bone: Segment stops there with an error, after the body; the body is what is tested.
     for (int i = 0; i < 3; ++i)
@@ -198,6 +199,51 @@ TEST(Segmentation, WindowedBodyIsTheConvexHullOfEachSlice) {
     }
     EXPECT_EQ(differ, 0);
     EXPECT_GT(filled, 0);  // the notches were filled: a hole fill would not pass
+  }
+}
+
+// Which fill a windowed body gets: a wheel whose rim is broken (a skin line with a gap, fat at the
+// value of air inside it, a core joined by one spoke) leaves its inside open to the outside, and is
+// filled to its convex hull; a body whose outline holds (the same wheel with its rim closed, and
+// a notch between an "arm" and the "chest") keeps its holes' fill, the notch left out.
+TEST(Segmentation, WindowedBodyIsFilledToItsHullOnlyWhereTheOutlineIsBroken) {
+  for (const bool broken : {true, false}) {
+    SCOPED_TRACE(broken);
+    patient::Volume ct;
+    ct.size = Eigen::Vector3i(60, 60, 5);
+    ct.index_to_P = Eigen::Vector3d(0.003, 0.003, 0.003).asDiagonal();
+    ct.hounsfield = false;
+    ct.values.assign(ct.voxel_count(), 0.0f);
+    long notch = -1;
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const double r = std::hypot(i - 30.0, j - 30.0);
+          const double a = std::atan2(j - 30.0, i - 30.0);
+          const bool rim = r >= 22 && r <= 24 && !(broken && std::abs(a) < 0.3);
+          const bool core = r <= 8;
+          const bool spoke = std::abs(j - 30.0) <= 1 && i < 30 && r <= 23;
+          // A notch in the rim's outside (between an arm and the chest), open outward.
+          const bool arm =
+              r > 24 && r <= 28 && std::abs(a - M_PI / 2) < 0.6 && std::abs(a - M_PI / 2) > 0.15;
+          if (rim || core || spoke || arm || (!broken && r <= 24 && std::abs(a - M_PI / 2) < 0.6))
+            ct.values[ct.Index(i, j, k)] = 100.0f;
+          if (k == 2 && i == 30 && j == 55) notch = ct.Index(i, j, k);
+        }
+      }
+    }
+    ct.values[ct.Index(30, 30, 2)] = 200.0f;  // a little bone, so that Segment goes on
+    patient::SegmentationOptions o;
+    o.raw_body = 40;
+    o.raw_bone = 160;
+    o.raw_body_closing = 0.0;
+    o.shape_anatomy = false;
+    const patient::Segmentation seg = patient::Segment(ct, o);
+    const long between = ct.Index(30 + 15, 30, 2);  // inside the rim, outside the core
+    EXPECT_EQ(seg.body.inside[between], 1);         // filled either way
+    EXPECT_EQ(seg.body.inside[notch], broken ? 1 : 0) << seg.body_fill;
+    EXPECT_NE(seg.body_fill.find(broken ? "convex hull" : "holes filled"), std::string::npos)
+        << seg.body_fill;
   }
 }
 
