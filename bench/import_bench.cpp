@@ -2,10 +2,12 @@
 // its own child process so that its peak memory (max RSS) is its own; the surface stage alone
 // beside the total. Targets (issue 17): a 512×512×300 chest CT cold under 15 s and under 2 GB
 // peak on 2 cores, cached under 1 s; (issue 5) LIDC2 under 20 s cold.
-//   import_bench                      LIDC2, the bundled phantom and a 512×512×300 phantom
+//   import_bench                      LIDC2, the bundled phantom, a 512×512×300 phantom and the
+//                                     same as an 8-bit window
 //   import_bench CASE_DIR [REPS=3]    one case
 // The 512×512×300 case is generated once into out/bench/phantom-512x512x300 (a 38 cm field of
-// view, 0.74 mm in plane, 1.2 mm slices: clinical spacing).
+// view, 0.74 mm in plane, 1.2 mm slices: clinical spacing); its windowed copy (a 400-wide window
+// at 40 HU to 0-255, `units: raw`, spaces from the rib cage's layer) into out/bench/windowed-512.
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -14,6 +16,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <string>
 #include <vector>
@@ -21,6 +24,7 @@
 #include "common/error.hpp"
 #include "patient/patient_model.hpp"
 #include "patient/phantom.hpp"
+#include "patient/volume.hpp"
 
 namespace {
 
@@ -115,6 +119,29 @@ std::string ClinicalPhantomCase() {
   return dir;
 }
 
+// The clinical phantom's CT as an 8-bit window (400 wide at 40 HU), `units: raw`, without
+// annotated spaces: the windowed path (convex body fill, the rib cage's layer), generated once.
+std::string WindowedClinicalCase(const std::string& clinical) {
+  const std::string dir = std::string(TROCAR_SOURCE_DIR) + "/out/bench/windowed-512";
+  if (!std::filesystem::exists(dir + "/patient.yaml")) {
+    trocar::patient::Volume ct = trocar::patient::LoadVolume(clinical + "/ct.nrrd");
+    for (float& v : ct.values) v = std::clamp((v + 160.0f) / 400.0f * 255.0f, 0.0f, 255.0f);
+    ct.hounsfield = false;
+    std::filesystem::create_directories(dir + "/markups");
+    trocar::patient::WriteNrrd(ct, dir + "/ct.nrrd");
+    std::filesystem::copy_file(clinical + "/markups/LAD.mrk.json", dir + "/markups/LAD.mrk.json",
+                               std::filesystem::copy_options::overwrite_existing);
+    std::ofstream(dir + "/patient.yaml.tmp")
+        << "name: windowed-512\nct: ct.nrrd\nunits: raw\nthresholds: {body: 20, bone: 200}\n"
+        << "heart: {contrast: false}\n"
+        << "targets:\n  - {name: LAD, markups: markups/LAD.mrk.json, surface: skin}\n"
+        << "intercostal: {left: true}\n";
+    std::filesystem::rename(dir + "/patient.yaml.tmp", dir + "/patient.yaml");
+    std::printf("generated %s from %s\n", dir.c_str(), clinical.c_str());
+  }
+  return dir;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -123,7 +150,9 @@ int main(int argc, char** argv) {
     const std::string source = TROCAR_SOURCE_DIR;
     bool ok = Bench(source + "/patients/lidc2", 3);
     ok = Bench(source + "/patients/phantom-default", 3) && ok;
-    ok = Bench(ClinicalPhantomCase(), 3) && ok;
+    const std::string clinical = ClinicalPhantomCase();
+    ok = Bench(clinical, 3) && ok;
+    ok = Bench(WindowedClinicalCase(clinical), 3) && ok;
     std::printf("targets: 512x512x300 cold < 15 s and < 2048 MiB, cached < 1 s; LIDC2 cold < 20 s\n");
     return ok ? 0 : 1;
   } catch (const std::exception& e) {
