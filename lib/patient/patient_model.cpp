@@ -165,6 +165,11 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
   m.name = c.name;
   m.case_dir = case_dir;
   report.warnings.insert(report.warnings.end(), ct.warnings.begin(), ct.warnings.end());
+  if (ct.hounsfield && c.intercostal.layer_floor > 0.0) {
+    report.warnings.push_back(
+        "thresholds.rib is for windowed volumes (units: raw); this CT is in Hounsfield units, its "
+        "spaces are found between its ribs: not used");
+  }
   m.ct_source = c.ct;
   m.table = c.table;
   m.left_side_up = c.left_side_up;

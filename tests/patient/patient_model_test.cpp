@@ -290,6 +290,18 @@ TEST(PatientModel, BadCaseFilesNameTheFileAndField) {
   ExpectImportError(d7, "coordinateSystem");
 }
 
+// A rib floor given for a CT in Hounsfield units has no use there (the spaces are found between its
+// rib components): said, not silently ignored.
+TEST(PatientModel, ARibFloorForAHounsfieldCtIsReportedUnused) {
+  const patient::ImportedPatient imported = patient::ImportCase(
+      MakeCase("rib-hu", "thresholds: {body: -400, bone: 450, rib: 200}\n"), {false, false});
+  bool said = false;
+  for (const std::string& w : imported.report.warnings)
+    said = said || w.find("thresholds.rib") != std::string::npos;
+  EXPECT_TRUE(said);
+  EXPECT_FALSE(imported.model->port_candidates.empty());
+}
+
 TEST(PatientModel, BundledDefaultCaseFileIsValid) {
   // The bundled case generates its phantom on first use; here into a copy, so the source tree
   // stays clean.
