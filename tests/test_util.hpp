@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -15,6 +16,7 @@
 #include <sstream>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 #include <gtest/gtest.h>
@@ -55,6 +57,17 @@ inline int FreePort() {
 
 inline std::string SourcePath(const std::string& relative) {
   return std::string(TROCAR_SOURCE_DIR) + "/" + relative;
+}
+
+/// Distance (m) from p to the polyline through `c`'s points.
+inline double DistanceToPolyline(const Eigen::Vector3d& p, const std::vector<Eigen::Vector3d>& c) {
+  double best = HUGE_VAL;
+  for (std::size_t s = 0; s + 1 < c.size(); ++s) {
+    const Eigen::Vector3d d = c[s + 1] - c[s];
+    const double t = std::clamp((p - c[s]).dot(d) / d.squaredNorm(), 0.0, 1.0);
+    best = std::min(best, (c[s] + t * d - p).norm());
+  }
+  return best;
 }
 
 inline std::string SharedDataPath(const std::string& relative) {

@@ -318,16 +318,7 @@ TEST(ShapeAnatomy, PhantomRibsAreFoundAndNotNumberedWithoutAWholeRibCage) {
 namespace trocar {
 namespace {
 
-// Distance from p to a polyline (m).
-double DistanceToPolyline(const Eigen::Vector3d& p, const patient::Curve& c) {
-  double best = HUGE_VAL;
-  for (std::size_t s = 0; s + 1 < c.size(); ++s) {
-    const Eigen::Vector3d d = c[s + 1] - c[s];
-    const double t = std::clamp((p - c[s]).dot(d) / d.squaredNorm(), 0.0, 1.0);
-    best = std::min(best, (c[s] + t * d - p).norm());
-  }
-  return best;
-}
+using test::DistanceToPolyline;
 
 // A field of view that cuts the left chest wall cuts each left rib in two (its back and its front
 // piece, the middle outside the scan). The pieces are joined into one rib each: nine left ribs,
@@ -612,16 +603,6 @@ TEST(ShapeAnatomy, ASlenderBoneFarBelowTheStackOfRibsIsNoRib) {
 namespace trocar {
 namespace {
 
-double DistanceToLine(const Eigen::Vector3d& p, const patient::Curve& c) {
-  double best = HUGE_VAL;
-  for (std::size_t i = 0; i + 1 < c.size(); ++i) {
-    const Eigen::Vector3d u = c[i + 1] - c[i];
-    const double t = std::clamp((p - c[i]).dot(u) / u.squaredNorm(), 0.0, 1.0);
-    best = std::min(best, (c[i] + t * u - p).norm());
-  }
-  return best;
-}
-
 // The rib cage's layer on windowed phantoms (HU mapped to 8 bits as a 400-wide window at 40 HU,
 // the units raw): over seeds and sizes, each space found lies on one generated space of its side
 // (median distance under one and a half voxels), no generated space is found twice, and at least
@@ -665,7 +646,8 @@ TEST(ShapeAnatomy, SpacesInTheLayerOfWindowedPhantomsLieOnTheGeneratedSpaces) {
       for (int n = 0; n < static_cast<int>(ph.truth.intercostal_spaces.size()); ++n) {
         if (ph.truth.intercostal_side[n] != s.side) continue;
         std::vector<double> d;
-        for (const auto& q : s.skin) d.push_back(DistanceToLine(q, ph.truth.intercostal_spaces[n]));
+        for (const auto& q : s.skin)
+          d.push_back(DistanceToPolyline(q, ph.truth.intercostal_spaces[n]));
         std::sort(d.begin(), d.end());
         if (d[d.size() / 2] < best_d) {
           best_d = d[d.size() / 2];
@@ -723,7 +705,7 @@ TEST(ShapeAnatomy, AWindowedVolumeWithNumberedRibsKeepsItsNamedSpaces) {
     const int number = std::stoi(c.name.substr(5));
     ++named[c.name[4]];
     const auto& truth = ph.truth.intercostal_spaces[(side > 0 ? 0 : 11) + number - 1];
-    for (const auto& q : c.skin) EXPECT_LT(DistanceToLine(q, truth), 3 * p.voxel_size);
+    for (const auto& q : c.skin) EXPECT_LT(DistanceToPolyline(q, truth), 3 * p.voxel_size);
   }
   EXPECT_GE(named['L'], 9);
   EXPECT_GE(named['R'], 9);

@@ -432,13 +432,7 @@ std::pair<double, int> MedianDistanceWithinSpan(const std::vector<Eigen::Vector3
   std::vector<double> d;
   for (const Eigen::Vector3d& p : space) {
     if (angle(p) < lo || angle(p) > hi) continue;
-    double best = HUGE_VAL;
-    for (std::size_t i = 0; i + 1 < curve.size(); ++i) {
-      const Eigen::Vector3d u = curve[i + 1] - curve[i];
-      const double t = std::clamp((p - curve[i]).dot(u) / u.squaredNorm(), 0.0, 1.0);
-      best = std::min(best, (curve[i] + t * u - p).norm());
-    }
-    d.push_back(best);
+    d.push_back(test::DistanceToPolyline(p, curve));
   }
   if (d.empty()) return {HUGE_VAL, 0};
   std::sort(d.begin(), d.end());
