@@ -3,12 +3,53 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <optional>
 #include <utility>
 
 #include "common/error.hpp"
 #include "patient/segmentation.hpp"
 
 namespace trocar::patient {
+
+namespace {
+
+// A voxel lookup by patient point, nearest voxel; -1 outside the grid.
+struct Lookup {
+  const Volume& ct;
+  Eigen::Matrix3d P_to_index;
+  explicit Lookup(const Volume& v) : ct(v), P_to_index(v.index_to_P.inverse()) {}
+  long operator()(const Eigen::Vector3d& p) const {
+    const Eigen::Vector3d ijk = P_to_index * (p - ct.origin_P);
+    const long i = std::lround(ijk.x()), j = std::lround(ijk.y()), k = std::lround(ijk.z());
+    if (i < 0 || j < 0 || k < 0 || i >= ct.size.x() || j >= ct.size.y() || k >= ct.size.z())
+      return -1;
+    return ct.Index(static_cast<int>(i), static_cast<int>(j), static_cast<int>(k));
+  }
+};
+
+// The skin over a space: out from `radius` along the ray from the body's axis in direction `d`
+// at height z, the last point inside the body, in steps of `step`. None when the ray starts
+// outside the body, or when it stays in the body further than `max_wall_depth` beyond `radius`
+// (it runs into an arm lying against the chest: no port there).
+std::optional<Eigen::Vector3d> SkinAlongRay(const Lookup& voxel, const Mask& body,
+                                            const Eigen::Vector2d& axis, const Eigen::Vector2d& d,
+                                            double z, double radius, double max_wall_depth,
+                                            double step) {
+  auto inside = [&](const Eigen::Vector3d& p) {
+    const long v = voxel(p);
+    return v >= 0 && body.inside[v] != 0;
+  };
+  Eigen::Vector3d skin(axis.x() + radius * d.x(), axis.y() + radius * d.y(), z);
+  if (!inside(skin)) return std::nullopt;
+  for (double r = radius; r <= radius + max_wall_depth; r += step) {
+    const Eigen::Vector3d q(axis.x() + r * d.x(), axis.y() + r * d.y(), z);
+    if (!inside(q)) return skin;
+    skin = q;
+  }
+  return std::nullopt;
+}
+
+}  // namespace
 
 std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segmentation& seg,
                                                     const IntercostalOptions& o) {
@@ -49,13 +90,7 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
       radius[cell] += d.norm();
       ++count[cell];
     }
-    auto inside_body = [&](const Eigen::Vector3d& p) {
-      const Eigen::Vector3d ijk = ct.IndexOf(p);
-      const Eigen::Vector3i q(static_cast<int>(std::lround(ijk.x())), static_cast<int>(std::lround(ijk.y())),
-                              static_cast<int>(std::lround(ijk.z())));
-      if ((q.array() < 0).any() || (q.array() >= ct.size.array()).any()) return false;
-      return seg.body.inside[ct.Index(q.x(), q.y(), q.z())] != 0;
-    };
+    const Lookup voxel(ct);
     const double step = 0.5 * ct.spacing().minCoeff();
     // In each bin, the ribs there from top to bottom: each one and the next below it bound a
     // space. Pieces of one rib (not joined) and ribs that end (the first, the lowest) are taken
@@ -77,26 +112,15 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
         const double z = 0.5 * (z_lo[upper] + z_hi[lower]);
         const double rib_radius = 0.5 * (radius[upper] / count[upper] + radius[lower] / count[lower]);
         const Eigen::Vector2d direction(side * std::sin(angle), std::cos(angle));
-        // Out along the ray to the skin: the last point inside the body.
-        Eigen::Vector3d skin(axis.x() + rib_radius * direction.x(), axis.y() + rib_radius * direction.y(), z);
-        if (!inside_body(skin)) continue;
-        // Out to the skin within the chest wall's reach: a ray that stays in the body further
-        // runs into an arm lying against the chest (no port there).
-        bool out = false;
-        for (double d = rib_radius; d <= rib_radius + o.max_wall_depth; d += step) {
-          const Eigen::Vector3d q(axis.x() + d * direction.x(), axis.y() + d * direction.y(), z);
-          if (!inside_body(q)) {
-            out = true;
-            break;
-          }
-          skin = q;
-        }
-        if (!out) continue;
+        // Out to the skin within the chest wall's reach (an arm against the chest: no port).
+        const std::optional<Eigen::Vector3d> skin =
+            SkinAlongRay(voxel, seg.body, axis, direction, z, rib_radius, o.max_wall_depth, step);
+        if (!skin) continue;
         IntercostalSpace& space = found[{here[t], here[t + 1]}];
         space.side = side;
         space.upper_rib = here[t];
         space.lower_rib = here[t + 1];
-        space.skin.push_back(skin);
+        space.skin.push_back(*skin);
         space.depth.emplace_back(axis.x() + rib_radius * direction.x(), axis.y() + rib_radius * direction.y(), z);
         space.gap.push_back(gap);
       }
@@ -117,24 +141,6 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
   }
   return spaces;
 }
-
-namespace {
-
-// A voxel lookup by patient point, nearest voxel; -1 outside the grid.
-struct Lookup {
-  const Volume& ct;
-  Eigen::Matrix3d P_to_index;
-  explicit Lookup(const Volume& v) : ct(v), P_to_index(v.index_to_P.inverse()) {}
-  long operator()(const Eigen::Vector3d& p) const {
-    const Eigen::Vector3d ijk = P_to_index * (p - ct.origin_P);
-    const long i = std::lround(ijk.x()), j = std::lround(ijk.y()), k = std::lround(ijk.z());
-    if (i < 0 || j < 0 || k < 0 || i >= ct.size.x() || j >= ct.size.y() || k >= ct.size.z())
-      return -1;
-    return ct.Index(static_cast<int>(i), static_cast<int>(j), static_cast<int>(k));
-  }
-};
-
-}  // namespace
 
 std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
                                                            const Segmentation& seg,
@@ -294,23 +300,12 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
         if (gap < o.min_gap) continue;
         const int mid = (run.top + run.bottom) / 2;
         const double z = 0.5 * (row_z(run.top) + row_z(run.bottom));
-        double radius = surface[mid * cols + col];
+        const double radius = surface[mid * cols + col];
         if (std::isnan(radius)) continue;
         // Out to the skin within the chest wall's reach (an arm against the chest: no port).
-        Eigen::Vector3d skin(axis.x() + radius * d.x(), axis.y() + radius * d.y(), z);
-        const long at = voxel(skin);
-        if (at < 0 || !seg.body.inside[at]) continue;
-        bool out = false;
-        for (double r = radius; r <= radius + o.max_wall_depth; r += dr) {
-          const Eigen::Vector3d q(axis.x() + r * d.x(), axis.y() + r * d.y(), z);
-          const long v = voxel(q);
-          if (v < 0 || !seg.body.inside[v]) {
-            out = true;
-            break;
-          }
-          skin = q;
-        }
-        if (!out) continue;
+        const std::optional<Eigen::Vector3d> skin =
+            SkinAlongRay(voxel, seg.body, axis, d, z, radius, o.max_wall_depth, dr);
+        if (!skin) continue;
         // The chain this run continues: the one ending at the last angle or the one before, whose
         // rows overlap most.
         int best = -1, best_overlap = 0;
@@ -334,7 +329,7 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
         taken[best] = 1;
         chain.last = run;
         chain.last_col = col;
-        chain.space.skin.push_back(skin);
+        chain.space.skin.push_back(*skin);
         chain.space.depth.emplace_back(axis.x() + radius * d.x(), axis.y() + radius * d.y(), z);
         chain.space.gap.push_back(gap);
       }
