@@ -246,6 +246,17 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
       report.warnings.push_back("orientation: the anatomy disagrees with the header (not checked, "
                            "orientation.check is false)");
     }
+    if (o.heart_misplaced) {
+      const std::string from = !c.heart_mask.empty() ? "heart.mask " + c.heart_mask
+                               : have_labels && labelled.heart.count() > 0 ? "the label map"
+                               : !heart_note.empty() ? std::string("the mediastinum approximation")
+                                                     : std::string("a contrast-filled blood pool");
+      report.warnings.push_back(
+          "heart: the heart from " + from +
+          " lies behind the lungs' centre, the spine at the back: it is probably no heart (in an "
+          "abdominal scan, contrast in a kidney or the bowel); plans avoid it as the heart. Give "
+          "heart.mask or a label map, or heart: {contrast: false} for a scan without the heart");
+    }
     // What the bone sorting found, and on what the ribs' numbers rest (or why there are none).
     if (!seg.body_fill.empty()) report.checks.push_back("body: " + seg.body_fill);
     for (const auto& a : seg.anatomy) report.checks.push_back("bones: " + a);

@@ -83,13 +83,24 @@ OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, con
     // The heart lies in front of the lungs' centre (against the front chest wall).
     const double ahead = lung_c.y() - heart_c.y();
     const int vote = ahead >= 0.01 ? +1 : ahead <= -0.01 ? -1 : 0;
+    // A heart behind the lungs while the spine lies at the back as the header says is no heart
+    // where a heart lies (contrast in a kidney or the bowel of an abdominal scan, taken for the
+    // chambers): the header is not judged by it, left-right included. The other disagreement
+    // (the midline bone in front, the heart in front too) leaves front-back undecided: in a crop
+    // that cuts the spine off, the midline bone is the sternum and the heart is right.
+    out.heart_misplaced = out.anterior_posterior > 0 && vote < 0;
     std::ostringstream s;
-    s << "heart: " << std::lround(std::abs(ahead) * 1e3) << " mm " << (ahead >= 0 ? "in front of" : "behind")
-      << " the lungs' centre"
-      << (vote > 0 ? " (front-back as the header says)" : vote < 0 ? " (behind: front-back flipped)" : " (undecided)");
+    s << "heart: " << std::lround(std::abs(ahead) * 1e3) << " mm "
+      << (ahead >= 0 ? "in front of" : "behind") << " the lungs' centre"
+      << (out.heart_misplaced ? " (behind, the spine at the back: not a heart where a heart lies, "
+                                "not used to judge the header)"
+          : vote > 0          ? " (front-back as the header says)"
+          : vote < 0          ? " (behind: front-back flipped)"
+                              : " (undecided)");
     out.findings.push_back(s.str());
-    if (out.anterior_posterior == 0) out.anterior_posterior = vote;
-    if (out.anterior_posterior != vote && vote != 0) out.anterior_posterior = 0;  // cues disagree
+    if (out.anterior_posterior == 0) out.anterior_posterior = vote;  // the spine undecided
+    if (out.anterior_posterior != vote && vote != 0 && !out.heart_misplaced)
+      out.anterior_posterior = 0;  // cues disagree
   }
 
   // Head-foot: a rib runs down from its back end to its front end (the rib cage's slope), so
@@ -148,7 +159,7 @@ OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, con
     out.findings.push_back("ribs: fewer than 3 rib-like lateral bone pieces (head-foot undecided)");
   }
   // Left-right: the heart lies left of the midline (LPS +x); labelled left ribs on the left.
-  if (with_heart) {
+  if (with_heart && !out.heart_misplaced) {
     const double left = heart_c.x() - centre.x();
     if (left >= 0.01) out.left_right = +1;
     if (left <= -0.01) out.left_right = -1;

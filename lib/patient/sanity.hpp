@@ -23,6 +23,9 @@ struct OrientationCheck {
   int left_right = 0;          ///< from the heart: left of the midline (LPS +x)
   /// What was measured, one line per axis ("spine behind the centre: 94% of midline bone").
   std::vector<std::string> findings;
+  /// The heart lies behind the lungs' centre while the spine lies at the back as the header says:
+  /// it is not where a heart lies (not used to judge the header; the import warns).
+  bool heart_misplaced = false;
   bool flipped() const { return anterior_posterior < 0 || superior_inferior < 0 || left_right < 0; }
 };
 

@@ -10,6 +10,7 @@
 #include "patient/markups.hpp"
 #include "patient/patient_model.hpp"
 #include "patient/phantom.hpp"
+#include "patient/segmentation.hpp"
 #include "patient/volume.hpp"
 #include "test_util.hpp"
 
@@ -88,6 +89,94 @@ TEST(Orientation, FlippedOrMirroredHeadersAreReportedOverSeeds) {
   bool warned = false;
   for (const auto& w : mirrored_report.warnings) warned = warned || w.find("orientation") != std::string::npos;
   EXPECT_TRUE(warned);
+}
+
+// A "heart" behind the lungs while the spine lies at the back (contrast in a kidney taken for the
+// chambers) does not judge the header: no "mirrored" from it, left-right left to other cues. The
+// same ball in front of the lungs, right of the midline, is still a mirrored header: the rule
+// drops only the heart the spine contradicts.
+TEST(Orientation, AHeartTheSpineContradictsDoesNotJudgeTheHeader) {
+  for (unsigned seed : {1u, 2u, 3u}) {
+    SCOPED_TRACE(seed);
+    patient::PhantomParameters p;
+    p.seed = seed;
+    p.voxel_size = 0.004;
+    const patient::Volume ct = patient::GeneratePhantom(p).ct;
+    const patient::Segmentation seg = patient::Segment(ct);
+    const Eigen::Vector3d centre = 0.5 * (seg.body_min_P + seg.body_max_P);
+    // The lungs' centre: air inside the body, as the check measures it.
+    Eigen::Vector3d lung_c = Eigen::Vector3d::Zero();
+    long lung_n = 0;
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const long n = ct.Index(i, j, k);
+          if (!seg.body.inside[n] || ct.values[n] > seg.body_threshold) continue;
+          lung_c += ct.PatientPoint(i, j, k);
+          ++lung_n;
+        }
+      }
+    }
+    ASSERT_GT(lung_n, 1000);
+    lung_c /= static_cast<double>(lung_n);
+    // A 3 cm ball 7 cm right of the midline, 4 cm behind (LPS +y) or in front of the lungs' centre.
+    auto ball = [&](double dy) {
+      patient::Mask m;
+      m.size = ct.size;
+      m.inside.assign(ct.values.size(), 0);
+      const Eigen::Vector3d c(centre.x() - 0.07, lung_c.y() + dy, lung_c.z());
+      for (int k = 0; k < ct.size.z(); ++k) {
+        for (int j = 0; j < ct.size.y(); ++j) {
+          for (int i = 0; i < ct.size.x(); ++i)
+            m.inside[ct.Index(i, j, k)] = (ct.PatientPoint(i, j, k) - c).norm() < 0.03;
+        }
+      }
+      return m;
+    };
+    const patient::Mask behind = ball(+0.04), in_front = ball(-0.04);
+    const patient::OrientationCheck kidney = patient::CheckOrientation(ct, seg, &behind);
+    EXPECT_EQ(kidney.anterior_posterior, +1);  // the spine decides, as the header says
+    EXPECT_TRUE(kidney.heart_misplaced);
+    EXPECT_NE(kidney.left_right, -1);  // undecided, or the ribs' sides
+    EXPECT_FALSE(kidney.flipped());
+    bool said = false;
+    for (const auto& f : kidney.findings) {
+      said = said || f.find("not a heart where a heart lies") != std::string::npos;
+      EXPECT_EQ(f.find("heart: centre"), std::string::npos) << f;  // no left-right from it
+    }
+    EXPECT_TRUE(said);
+    const patient::OrientationCheck mirrored = patient::CheckOrientation(ct, seg, &in_front);
+    EXPECT_FALSE(mirrored.heart_misplaced);
+    EXPECT_EQ(mirrored.left_right, -1);
+    EXPECT_TRUE(mirrored.flipped());
+  }
+}
+
+// The abdominal CT, imported as a user would without hand settings: its only "blood pool" is
+// contrast in the right kidney (66 ml, 8 cm right of the midline, behind the lung bases), which
+// had made the import fail with "a mirrored header". The header is right; the import goes through
+// and warns that its heart is probably none.
+TEST(Orientation, AnAbdominalScanWhoseContrastIsTakenForTheHeartImportsWithAWarning) {
+  const std::string ct_path = test::SharedDataPath("ct/totalseg-abdomen/example_ct.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(ct_path);
+  const std::string dir = testing::TempDir() + "/trocar-abdomen-heart";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::ofstream(JoinPath(dir, "patient.yaml"))
+      << "ct: " << ct_path << "\nintercostal: {left: true, right: true}\n"
+      << "surfaces: {skin: 3000, ribs: 4000, heart: 2000, spine: 2000}\n";
+  const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
+  bool warned = false;
+  for (const auto& w : imported.report.warnings) {
+    warned =
+        warned || w.rfind("heart: the heart from a contrast-filled blood pool lies behind", 0) == 0;
+    EXPECT_EQ(w.find("orientation"), std::string::npos) << w;
+  }
+  EXPECT_TRUE(warned);
+  for (const auto& c : imported.report.checks) {
+    EXPECT_EQ(c.find("mirrored"), std::string::npos) << c;
+    EXPECT_EQ(c.find("flipped"), std::string::npos) << c;
+  }
 }
 
 // A scan whose field of view cuts the body's left side: the crop face is named, and no port
