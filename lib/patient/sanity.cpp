@@ -19,6 +19,9 @@ std::string Percent(double fraction) {
 OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, const Mask* heart) {
   OrientationCheck out;
   const Eigen::Vector3d centre = 0.5 * (seg.body_min_P + seg.body_max_P);
+  // The body's midline: its axis (Segmentation::axis_P), at the spine when a crop face or an arm
+  // pulls the body's box aside (a heart-centred cardiac field of view).
+  const double midline_x = seg.axis_P.x();
   const Eigen::Vector3d half = 0.5 * (seg.body_max_P - seg.body_min_P);
 
   // The heart's centroid, and the lungs' (air inside the body) centroid and head-foot extent.
@@ -62,7 +65,7 @@ OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, con
         const long n = ct.Index(i, j, k);
         if (!seg.bone.inside[n]) continue;
         const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
-        if (std::abs(p.x() - centre.x()) > 0.15 * half.x()) continue;
+        if (std::abs(p.x() - midline_x) > 0.15 * half.x()) continue;
         (p.y() > centre.y() ? behind : in_front) += 1;
       }
     }
@@ -160,7 +163,7 @@ OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, con
   }
   // Left-right: the heart lies left of the midline (LPS +x); labelled left ribs on the left.
   if (with_heart && !out.heart_misplaced) {
-    const double left = heart_c.x() - centre.x();
+    const double left = heart_c.x() - midline_x;
     if (left >= 0.01) out.left_right = +1;
     if (left <= -0.01) out.left_right = -1;
     std::ostringstream s;

@@ -2,6 +2,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <optional>
 
 #include <gtest/gtest.h>
 
@@ -176,6 +177,33 @@ TEST(Orientation, AnAbdominalScanWhoseContrastIsTakenForTheHeartImportsWithAWarn
   for (const auto& c : imported.report.checks) {
     EXPECT_EQ(c.find("mirrored"), std::string::npos) << c;
     EXPECT_EQ(c.find("flipped"), std::string::npos) << c;
+  }
+}
+
+// A cardiac field of view: the contrast CT cropped around the heart, cut on every side. The box's
+// centre lies near the heart (7 mm from its centre), so against it the heart decided nothing and a
+// mirrored header went unreported. Against the body's axis (at the spine when the box is pulled
+// aside) the heart lies left as it should, and the mirrored header is reported.
+TEST(Orientation, TotalSegmentatorCtaCropMirroredIsReportedAgainstTheSpinesMidline) {
+  const std::string ct_path = test::SharedDataPath("ct/totalseg-cta-aorta/ct_cropped.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(ct_path);
+  patient::Volume ct = patient::LoadVolume(ct_path);
+  for (const double flip : {+1.0, -1.0}) {
+    SCOPED_TRACE(flip);
+    if (flip < 0) {
+      const Eigen::Matrix3d M = Eigen::Vector3d(-1, 1, 1).asDiagonal();
+      ct.index_to_P = M * ct.index_to_P;
+      ct.origin_P = M * ct.origin_P;
+    }
+    const patient::Segmentation seg = patient::Segment(ct);
+    const std::optional<patient::Mask> heart = patient::TrySegmentHeartFromContrast(ct, seg, {});
+    ASSERT_TRUE(heart.has_value());
+    const patient::OrientationCheck o = patient::CheckOrientation(ct, seg, &*heart);
+    std::string findings;
+    for (const auto& f : o.findings) findings += f + "\n";
+    EXPECT_EQ(o.left_right, flip > 0 ? +1 : -1) << findings;
+    EXPECT_EQ(o.flipped(), flip < 0) << findings;
+    EXPECT_FALSE(o.heart_misplaced) << findings;
   }
 }
 
