@@ -247,15 +247,21 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
                            "orientation.check is false)");
     }
     if (o.heart_misplaced) {
+      // A heart the user gave is checked, not second-guessed; a found one is probably none.
+      const bool given = !c.heart_mask.empty() || (have_labels && labelled.heart.count() > 0);
       const std::string from = !c.heart_mask.empty() ? "heart.mask " + c.heart_mask
-                               : have_labels && labelled.heart.count() > 0 ? "the label map"
+                               : given               ? "the label map " + c.labels
                                : !heart_note.empty() ? std::string("the mediastinum approximation")
                                                      : std::string("a contrast-filled blood pool");
       report.warnings.push_back(
           "heart: the heart from " + from +
-          " lies behind the lungs' centre, the spine at the back: it is probably no heart (in an "
-          "abdominal scan, contrast in a kidney or the bowel); plans avoid it as the heart. Give "
-          "heart.mask or a label map, or heart: {contrast: false} for a scan without the heart");
+          " lies behind the lungs' centre, the spine at the back" +
+          (given ? std::string(": check that it belongs to this CT and lies as its header says; it "
+                               "did not judge the header")
+                 : std::string(": it is probably no heart (in an abdominal scan, contrast in a "
+                               "kidney or the bowel); plans avoid it as the heart. Give heart.mask "
+                               "or a label map, or heart: {contrast: false} for a scan without the "
+                               "heart")));
     }
     // What the bone sorting found, and on what the ribs' numbers rest (or why there are none).
     if (!seg.body_fill.empty()) report.checks.push_back("body: " + seg.body_fill);

@@ -154,7 +154,7 @@ TEST(Orientation, AHeartTheSpineContradictsDoesNotJudgeTheHeader) {
 }
 
 // The abdominal CT, imported as a user would without hand settings: its only "blood pool" is
-// contrast in the right kidney (66 ml, 8 cm right of the midline, behind the lung bases), which
+// contrast in the right kidney (66 ml, 8 cm right of the midline, below the lung bases), which
 // had made the import fail with "a mirrored header". The header is right; the import goes through
 // and warns that its heart is probably none.
 TEST(Orientation, AnAbdominalScanWhoseContrastIsTakenForTheHeartImportsWithAWarning) {
@@ -178,6 +178,24 @@ TEST(Orientation, AnAbdominalScanWhoseContrastIsTakenForTheHeartImportsWithAWarn
     EXPECT_EQ(c.find("mirrored"), std::string::npos) << c;
     EXPECT_EQ(c.find("flipped"), std::string::npos) << c;
   }
+  // The same pool given as heart.mask: the user's mask is checked, not called "no heart".
+  patient::Volume ct = patient::LoadVolume(ct_path);
+  const std::optional<patient::Mask> pool =
+      patient::TrySegmentHeartFromContrast(ct, patient::Segment(ct), {});
+  ASSERT_TRUE(pool.has_value());
+  for (std::size_t n = 0; n < ct.values.size(); ++n) ct.values[n] = pool->inside[n] ? 1.0f : 0.0f;
+  patient::WriteNrrd(ct, JoinPath(dir, "pool.nrrd"));
+  std::ofstream(JoinPath(dir, "patient.yaml"))
+      << "ct: " << ct_path << "\nheart: {mask: pool.nrrd}\nintercostal: {left: true, right: true}\n"
+      << "surfaces: {skin: 3000, ribs: 4000, heart: 2000, spine: 2000}\n";
+  const patient::ImportedPatient given = patient::ImportCase(dir, {false, false});
+  bool checked = false;
+  for (const auto& w : given.report.warnings) {
+    if (w.rfind("heart: the heart from heart.mask", 0) != 0) continue;
+    checked = w.find("check that it belongs to this CT") != std::string::npos;
+    EXPECT_EQ(w.find("probably no heart"), std::string::npos) << w;
+  }
+  EXPECT_TRUE(checked);
 }
 
 // A cardiac field of view: the contrast CT cropped around the heart, cut on every side. The box's
