@@ -437,11 +437,12 @@ Mask FindVessels(const Volume& ct, const Mask& body, const Mask& bone, const Sli
     }
   }
   const Mask& pool = blood > 0.0 ? bright : bone;
-  const Mask thick = ThickParts(ct, pool, o.vessel_core_radius);
+  const double core_radius = ct.hounsfield ? o.vessel_core_radius : o.raw_vessel_core_radius;
+  const Mask thick = ThickParts(ct, pool, core_radius);
   std::vector<int> labels;
   const auto blobs = ConnectedComponents(ct, thick, &labels);
   const int steps =
-      std::max(1, static_cast<int>(std::lround(o.vessel_core_radius / ct.spacing().minCoeff())));
+      std::max(1, static_cast<int>(std::lround(core_radius / ct.spacing().minCoeff())));
   // Rims grow through blood, never into cortical bone (a rib or the sternum against the heart).
   const double cortex_level = ct.hounsfield ? o.cortical_hu : HUGE_VAL;
   Grow(ct, &labels, steps,
@@ -787,10 +788,9 @@ long FillRibMarrow(const Volume& ct, const Mask& body, const std::vector<std::ui
   return filled;
 }
 
-}  // namespace
-
-void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
-                   double min_bone_volume) {
+// One sorting of the bone (ClassifyBones: with the vessel core of `o`).
+void ClassifyBonesOnce(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
+                       double min_bone_volume) {
   const Slices slices(ct);
   Eigen::Vector2d centre = 0.5 * (seg->body_min_P + seg->body_max_P).head<2>();
   const double half_width = 0.5 * (seg->body_max_P.x() - seg->body_min_P.x());
@@ -1319,6 +1319,53 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
     }
   }
   parts.numbered = seg->numbering_left.numbered || seg->numbering_right.numbered;
+}
+
+}  // namespace
+
+void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
+                   double min_bone_volume) {
+  const double thin = o.raw_cortex_core_radius;
+  if (ct.hounsfield || thin <= 0.0 || thin >= o.raw_vessel_core_radius) {
+    ClassifyBonesOnce(ct, seg, o, min_bone_volume);
+    return;
+  }
+  // A windowed volume: how its ribs read at the bone threshold decides how thick contrast is.
+  // Sorted once with the default vessel core; when the ribs found hold a ball of `thin` almost
+  // nowhere, only their cortex reaches the threshold (the marrow lies below it), so bone-bright
+  // blobs that do hold one, off the spine's column, are no rib-like bone but contrast (an
+  // injection's undiluted contrast in the arm's veins, the superior vena cava, the right heart):
+  // sorted again with the thinner core.
+  Segmentation as_read = *seg;
+  ClassifyBonesOnce(ct, seg, o, min_bone_volume);
+  std::vector<std::uint8_t> is_rib(
+      seg->bones.labels.empty()
+          ? 1
+          : *std::max_element(seg->bones.labels.begin(), seg->bones.labels.end()) + 1,
+      0);
+  for (const auto* side : {&seg->bones.ribs_left, &seg->bones.ribs_right}) {
+    for (const Component& c : *side) is_rib[c.label] = 1;
+  }
+  const Mask thick = ThickParts(ct, seg->bone, thin);
+  long rib_voxels = 0, thick_voxels = 0;
+  for (long v = 0; v < static_cast<long>(seg->bones.labels.size()); ++v) {
+    const int l = seg->bones.labels[v];
+    if (l <= 0 || !is_rib[l]) continue;
+    ++rib_voxels;
+    thick_voxels += thick.inside[v];
+  }
+  if (rib_voxels == 0) return;
+  const double share = static_cast<double>(thick_voxels) / static_cast<double>(rib_voxels);
+  if (share >= o.raw_cortex_rib_share) return;
+  *seg = std::move(as_read);
+  AnatomyOptions cortex = o;
+  cortex.raw_vessel_core_radius = thin;
+  ClassifyBonesOnce(ct, seg, cortex, min_bone_volume);
+  std::ostringstream why;
+  why << "the ribs read as their cortex only (" << std::fixed << std::setprecision(1)
+      << 100.0 * share << " % of their voxels hold a " << std::setprecision(1) << thin * 1e3
+      << " mm ball): bone-bright blobs that hold one, off the spine, are contrast-filled vessels";
+  seg->anatomy.insert(seg->anatomy.begin(), why.str());
 }
 
 }  // namespace trocar::patient

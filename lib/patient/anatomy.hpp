@@ -22,6 +22,16 @@ struct AnatomyOptions {
   /// contrast-filled heart chamber or vessel: ribs, sternum, collarbones and shoulder blades are
   /// thinner (m).
   double vessel_core_radius = 0.007;
+  /// ... in a windowed (raw) volume; and the thinner core used there instead when the ribs, as
+  /// sorted with it, hold a ball of that radius in under `raw_cortex_rib_share` of their voxels
+  /// (0: never): then only a bone's cortex reaches the bone threshold (the marrow lies below
+  /// it), a few millimetres of cortex are the thickest bone off the spine's column, and the
+  /// undiluted contrast of an injection (the arm's veins, the superior vena cava, the right
+  /// heart: LIDC2's "sternum" before) is thinner than 7 mm in places. A window wide enough that
+  /// ribs read solid (the phantom's: 77-91 % of their voxels hold one) keeps 7 mm.
+  double raw_vessel_core_radius = 0.007;
+  double raw_cortex_core_radius = 0.0035;
+  double raw_cortex_rib_share = 0.05;
   /// A scan without contrast (no blood pool of at least `contrast_min_volume` m³ and
   /// `contrast_bone_ratio` of the bone's volume) takes its bone threshold from the first of these
   /// (HU) instead: thin ribs and coarse slices' partial-volume bone stay in.

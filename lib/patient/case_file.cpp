@@ -21,7 +21,8 @@ CaseSpec ReadCase(const std::string& case_dir) {
   const YAML::Node& root = y.root();
   y.ExpectMap(root, "patient.yaml",
               {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
-               "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation", "bones"});  // plan: read by trocar plan
+               "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation",
+               "bones", "vessels"});  // plan: read by trocar plan
   c.name = root["name"] ? y.String(root["name"], "name")
                         : std::filesystem::path(case_dir).filename().string();
   c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
@@ -90,6 +91,21 @@ CaseSpec ReadCase(const std::string& case_dir) {
     TROCAR_THROW_UNLESS(b == "shape" || b == "place", y.Where(root["bones"], "bones")
                                                           << ": '" << b << "' (expected shape or place)");
     c.seg.shape_anatomy = b == "shape";
+  }
+  if (root["vessels"]) {
+    // Bone-bright blobs a ball of this radius fits in, off the spine's column, are
+    // contrast-filled vessels and heart chambers, not bone (AnatomyOptions::vessel_core_radius);
+    // given, it is not chosen from how the ribs read.
+    const YAML::Node v = root["vessels"];
+    y.ExpectMap(v, "vessels", {"core_radius"});
+    if (v["core_radius"]) {
+      const double r = y.Number(v["core_radius"], "vessels.core_radius");
+      TROCAR_THROW_UNLESS(r >= 0.001 && r <= 0.02, y.Where(v["core_radius"], "vessels.core_radius")
+                                                       << ": " << r
+                                                       << " m (expected 0.001-0.02 m)");
+      c.seg.anatomy.vessel_core_radius = c.seg.anatomy.raw_vessel_core_radius = r;
+      c.seg.anatomy.raw_cortex_core_radius = 0.0;  // as given, not chosen from the ribs
+    }
   }
   if (root["heart"]) {
     const YAML::Node h = root["heart"];

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -711,5 +712,231 @@ TEST(ShapeAnatomy, AWindowedVolumeWithNumberedRibsKeepsItsNamedSpaces) {
   EXPECT_GE(named['R'], 9);
 }
 
+// LIDC2 (8-bit window): the undiluted contrast of the injection (the right arm's veins, the
+// superior vena cava, the right heart) reads brighter than the bone threshold, thinner than the
+// 7 mm vessel core in places, and was its "sternum": the vein with the right collarbone it
+// touches (33 ml, reaching 16 cm right of the midline) and the right ventricle's contrast
+// (30 ml). Its ribs read as their cortex only (1.3 % of their voxels hold a 3.5 mm ball), so the
+// import sorts again with a 3.5 mm core: the centres of three of those vessels, read off the
+// slices (voxel indices), carry no bone label, no sternum piece lies more than 3 cm off the
+// midline, and the ribs and the spine keep their volume. Without that second sorting
+// (raw_cortex_core_radius 0), the old result.
+TEST(ShapeAnatomy, Lidc2InjectedContrastIsVesselsNotSternum) {
+  const std::string path = test::SharedDataPath("ct/lidc2/ct.nhdr");
+  TROCAR_REQUIRE_SHARED_FILE(path);
+  patient::Volume ct = patient::LoadVolume(path);
+  ct.hounsfield = false;  // units: raw, as the case file says
+  struct Found {
+    double sternum_ml = 0.0, widest = 0.0, ribs_ml = 0.0, spine_ml = 0.0, vessels_ml = 0.0;
+    int centres_in_bone = 0, centres_in_vessels = 0;
+  };
+  auto sort_bones = [&](const patient::SegmentationOptions& options) {
+    const patient::Segmentation seg = patient::Segment(ct, options);
+    for (const std::string& a : seg.anatomy) std::printf("  %s\n", a.c_str());
+    const double voxel_ml = std::abs(ct.index_to_P.determinant()) * 1e6;
+    Found f;
+    std::set<int> sternum;
+    for (const auto& c : seg.bones.sternum) sternum.insert(c.label);
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const long v = ct.Index(i, j, k);
+          f.vessels_ml += seg.vessels.inside[v] * voxel_ml;
+          if (sternum.count(seg.bones.labels[v]) == 0) continue;
+          f.sternum_ml += voxel_ml;
+          f.widest = std::max(f.widest, std::abs(ct.PatientPoint(i, j, k).x() - seg.axis_P.x()));
+        }
+      }
+    }
+    for (const auto* side : {&seg.bones.ribs_left, &seg.bones.ribs_right}) {
+      for (const auto& c : *side) f.ribs_ml += c.volume * 1e6;
+    }
+    for (const auto& c : seg.bones.spine) f.spine_ml += c.volume * 1e6;
+    // Superior vena cava, right ventricle, right arm's vein: the centre of each lumen (a solid
+    // disc of 255 at least 7 voxels across).
+    for (const auto& [i, j, k] :
+         {std::array<int, 3>{104, 148, 24}, std::array<int, 3>{149, 159, 70},
+          std::array<int, 3>{7, 135, 8}}) {
+      const long v = ct.Index(i, j, k);
+      f.centres_in_bone += seg.bones.labels[v] != 0;
+      f.centres_in_vessels += seg.vessels.inside[v] != 0;
+    }
+    std::printf(
+        "sternum %.1f ml, widest %.0f mm off the midline; ribs %.1f ml, spine %.1f ml; "
+        "vessels %.1f ml; lumen centres in bone %d, in vessels %d\n",
+        f.sternum_ml, f.widest * 1e3, f.ribs_ml, f.spine_ml, f.vessels_ml, f.centres_in_bone,
+        f.centres_in_vessels);
+    return f;
+  };
+  patient::SegmentationOptions once;
+  once.anatomy.raw_cortex_core_radius = 0.0;
+  const Found before = sort_bones(once);
+  EXPECT_GT(before.sternum_ml, 50.0);  // the defect, with the 7 mm core alone
+  EXPECT_EQ(before.centres_in_bone, 3);
+  const Found now = sort_bones(patient::SegmentationOptions{});
+  EXPECT_EQ(now.centres_in_bone, 0);
+  EXPECT_EQ(now.centres_in_vessels, 3);
+  EXPECT_LT(now.widest, 0.03);
+  EXPECT_GT(now.vessels_ml, 50.0);
+  EXPECT_GE(now.ribs_ml, before.ribs_ml);  // no rib lost to the vessels
+  EXPECT_NEAR(now.spine_ml, before.spine_ml, 0.5);
+}
+
+// The same rule over phantoms in the same 8-bit window (bone 242, blood 122, the injection's
+// contrast 255): a vein 12 mm across (a 7 mm ball does not fit in it, a 3.5 mm one does) crossing
+// the midline 4.5 cm behind the front skin above the heart, as the brachiocephalic vein behind
+// the manubrium. With the bones hollowed to a cortex one voxel thick (as a real window reads
+// them: the marrow below the threshold), the ribs hold no 3.5 mm ball, the import sorts again,
+// and the vein is vessels, not sternum, while the ribs and the sternum stay bone. Sorted once
+// (raw_cortex_core_radius 0), the vein is bone: the test can fail. With solid bones, the ribs
+// hold the ball and the 7 mm core stays (a wide window's ribs are no contrast).
+TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCortex) {
+  for (const auto& [seed, voxel] : {std::pair{3u, 0.002}, std::pair{8u, 0.0025}}) {
+    SCOPED_TRACE(seed);
+    patient::PhantomParameters p;
+    p.seed = seed;
+    p.voxel_size = voxel;
+    p.wall_thickness = 0.02;
+    p.ribs_reach_spine = p.shoulders = true;
+    const patient::Phantom ph = patient::GeneratePhantom(p);
+    const patient::Volume& hu = ph.ct;
+    // The vein: the heart's top plus 2 cm, 4.5 cm behind the front skin at the rib cage's
+    // midline, from 4 cm right of it to 3 cm left.
+    const Eigen::Vector3d c = ph.truth.heart_centre;
+    const double z = c.z() + ph.truth.heart_semi_axes.z() + 0.02;
+    double mid_x = 0.0;
+    int points = 0;
+    for (const auto& rib : ph.truth.ribs) {
+      for (const auto& q : rib.centreline) {
+        mid_x += q.x();
+        ++points;
+      }
+    }
+    mid_x /= points;
+    double front = HUGE_VAL;
+    const Eigen::Matrix3d to_index = hu.index_to_P.inverse();
+    for (double y = -0.3; y <= 0.3; y += 0.001) {
+      const Eigen::Vector3d ijk = to_index * (Eigen::Vector3d(mid_x, y, z) - hu.origin_P);
+      const Eigen::Vector3i at(std::lround(ijk.x()), std::lround(ijk.y()), std::lround(ijk.z()));
+      if ((at.array() < 0).any() || (at.array() >= hu.size.array()).any()) continue;
+      if (hu.values[hu.Index(at.x(), at.y(), at.z())] > -400) front = std::min(front, y);
+    }
+    ASSERT_TRUE(std::isfinite(front));
+    const Eigen::Vector3d a(mid_x - 0.04, front + 0.045, z), b(mid_x + 0.03, front + 0.045, z);
+    auto in_vein = [&](const Eigen::Vector3d& q) {
+      const double t = std::clamp((q - a).dot(b - a) / (b - a).squaredNorm(), 0.0, 1.0);
+      return (q - (a + t * (b - a))).norm() <= 0.006;
+    };
+    auto windowed = [&](bool hollow) {
+      patient::Volume ct = hu;
+      const Eigen::Vector3i n = ct.size;
+      for (int k = 1; k + 1 < n.z(); ++k) {
+        for (int j = 1; j + 1 < n.y(); ++j) {
+          for (int i = 1; i + 1 < n.x(); ++i) {
+            const long v = ct.Index(i, j, k);
+            if (!hollow || hu.values[v] != patient::PhantomHu::kBone) continue;
+            // A voxel whose six face neighbours are bone is marrow: a cortex one voxel thick.
+            bool interior = true;
+            for (const auto& [di, dj, dk] :
+                 {std::array<int, 3>{1, 0, 0}, std::array<int, 3>{-1, 0, 0},
+                  std::array<int, 3>{0, 1, 0}, std::array<int, 3>{0, -1, 0},
+                  std::array<int, 3>{0, 0, 1}, std::array<int, 3>{0, 0, -1}})
+              interior = interior &&
+                         hu.values[ct.Index(i + di, j + dj, k + dk)] == patient::PhantomHu::kBone;
+            if (interior) ct.values[v] = patient::PhantomHu::kMarrow;
+          }
+        }
+      }
+      for (int k = 0; k < n.z(); ++k) {
+        for (int j = 0; j < n.y(); ++j) {
+          for (int i = 0; i < n.x(); ++i) {
+            if (in_vein(ct.PatientPoint(i, j, k))) ct.values[ct.Index(i, j, k)] = 1200.0f;
+          }
+        }
+      }
+      for (float& v : ct.values) v = std::clamp((v + 200.0f) / 1000.0f * 255.0f, 0.0f, 255.0f);
+      ct.hounsfield = false;
+      return ct;
+    };
+    struct Sorted {
+      bool cortex_only = false;
+      double vein_in_bone = 0, vein_in_vessels = 0, rib_bone_in_ribs = 0,
+             sternum_bone_in_sternum = 0;
+    };
+    auto sort_bones = [&](const patient::Volume& ct, double thin) {
+      patient::SegmentationOptions o;
+      o.raw_body = 15;
+      o.raw_bone = 166;
+      o.anatomy.raw_cortex_core_radius = thin;
+      const patient::Segmentation seg = patient::Segment(ct, o);
+      Sorted r;
+      for (const std::string& line : seg.anatomy)
+        r.cortex_only =
+            r.cortex_only || line.find("read as their cortex only") != std::string::npos;
+      std::set<int> ribs, sternum, spine;
+      for (const auto* side : {&seg.bones.ribs_left, &seg.bones.ribs_right})
+        for (const auto& piece : *side) ribs.insert(piece.label);
+      for (const auto& piece : seg.bones.sternum) sternum.insert(piece.label);
+      for (const auto& piece : seg.bones.spine) spine.insert(piece.label);
+      long vein = 0, rib_bone = 0, sternum_bone = 0;
+      for (int k = 0; k < ct.size.z(); ++k) {
+        for (int j = 0; j < ct.size.y(); ++j) {
+          for (int i = 0; i < ct.size.x(); ++i) {
+            const long v = ct.Index(i, j, k);
+            const Eigen::Vector3d q = ct.PatientPoint(i, j, k);
+            const int l = seg.bones.labels[v];
+            const bool labelled = ribs.count(l) + sternum.count(l) + spine.count(l) > 0;
+            if (in_vein(q)) {
+              ++vein;
+              r.vein_in_bone += labelled;
+              r.vein_in_vessels += seg.vessels.inside[v] != 0;
+              continue;
+            }
+            if (ct.values[v] < o.raw_bone) continue;
+            // Bone of the ribs' middle stretch (off the spine, the sternum and the shoulders).
+            bool on_rib = false;
+            for (const auto& rib : ph.truth.ribs) {
+              const auto mid =
+                  std::vector<Eigen::Vector3d>(rib.centreline.begin() + rib.centreline.size() / 4,
+                                               rib.centreline.end() - rib.centreline.size() / 4);
+              on_rib = on_rib || DistanceToPolyline(q, mid) <= p.rib_radius + 0.5 * p.voxel_size;
+            }
+            if (on_rib) {
+              ++rib_bone;
+              r.rib_bone_in_ribs += ribs.count(l) > 0;
+            }
+            if (std::abs(q.x() - mid_x) < 0.01 && q.y() < c.y()) {  // in front of the heart
+              ++sternum_bone;
+              r.sternum_bone_in_sternum += sternum.count(l) > 0;
+            }
+          }
+        }
+      }
+      r.vein_in_bone /= std::max(1L, vein);
+      r.vein_in_vessels /= std::max(1L, vein);
+      r.rib_bone_in_ribs /= std::max(1L, rib_bone);
+      r.sternum_bone_in_sternum /= std::max(1L, sternum_bone);
+      std::printf(
+          "seed %u thin %.4f: cortex only %d, vein %.2f bone %.2f vessels; rib bone %.2f "
+          "in ribs; sternum bone %.2f in the sternum\n",
+          seed, thin, r.cortex_only, r.vein_in_bone, r.vein_in_vessels, r.rib_bone_in_ribs,
+          r.sternum_bone_in_sternum);
+      return r;
+    };
+    const patient::Volume cortex = windowed(true);
+    const Sorted now = sort_bones(cortex, 0.0035);
+    EXPECT_TRUE(now.cortex_only);
+    EXPECT_LT(now.vein_in_bone, 0.02);
+    EXPECT_GT(now.vein_in_vessels, 0.9);
+    EXPECT_GT(now.rib_bone_in_ribs, 0.9);
+    EXPECT_GT(now.sternum_bone_in_sternum, 0.9);
+    const Sorted once = sort_bones(cortex, 0.0);
+    EXPECT_FALSE(once.cortex_only);
+    EXPECT_GT(once.vein_in_bone, 0.5);
+    const Sorted solid = sort_bones(windowed(false), 0.0035);
+    EXPECT_FALSE(solid.cortex_only);
+    EXPECT_GT(solid.rib_bone_in_ribs, 0.9);
+  }
+}
 }  // namespace
 }  // namespace trocar

@@ -274,6 +274,9 @@ TEST(PatientModel, BadCaseFilesNameTheFileAndField) {
   ExpectImportError(
       MakeCase("bad11", "thresholds: {body: 40, bone: 160, rib: 200}\n"),
       "thresholds.rib: 200 must lie between the body threshold (40) and the bone threshold (160)");
+  ExpectImportError(MakeCase("bad12", "vessels: {core_radius: 7}\n"),
+                    "vessels.core_radius: 7 m (expected 0.001-0.02 m)");
+  ExpectImportError(MakeCase("bad13", "vessels: {core: 0.004}\n"), "core");
   const std::string d9 = MakeCase("bad9");
   {
     std::string y = ReadTextFile(JoinPath(d9, "patient.yaml"));
