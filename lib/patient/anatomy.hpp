@@ -32,6 +32,7 @@ struct AnatomyOptions {
   double raw_vessel_core_radius = 0.007;
   double raw_cortex_core_radius = 0.0035;
   double raw_cortex_rib_share = 0.05;
+  double raw_cortex_cell = 0.0014;  ///< the share is measured on cells at least this wide (m)
   /// A scan without contrast (no blood pool of at least `contrast_min_volume` m³ and
   /// `contrast_bone_ratio` of the bone's volume) takes its bone threshold from the first of these
   /// (HU) instead: thin ribs and coarse slices' partial-volume bone stay in.

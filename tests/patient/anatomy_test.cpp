@@ -859,7 +859,7 @@ TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCorte
       return ct;
     };
     struct Sorted {
-      bool cortex_only = false;
+      bool cortex_only = false, read_solid = false;
       double vein_in_bone = 0, vein_in_vessels = 0, rib_bone_in_ribs = 0,
              sternum_bone_in_sternum = 0;
     };
@@ -870,9 +870,11 @@ TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCorte
       o.anatomy.raw_cortex_core_radius = thin;
       const patient::Segmentation seg = patient::Segment(ct, o);
       Sorted r;
-      for (const std::string& line : seg.anatomy)
+      for (const std::string& line : seg.anatomy) {
         r.cortex_only =
             r.cortex_only || line.find("read as their cortex only") != std::string::npos;
+        r.read_solid = r.read_solid || line.find("the ribs read solid") != std::string::npos;
+      }
       std::set<int> ribs, sternum, spine;
       for (const auto* side : {&seg.bones.ribs_left, &seg.bones.ribs_right})
         for (const auto& piece : *side) ribs.insert(piece.label);
@@ -935,6 +937,7 @@ TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCorte
     EXPECT_GT(once.vein_in_bone, 0.5);
     const Sorted solid = sort_bones(windowed(false), 0.0035);
     EXPECT_FALSE(solid.cortex_only);
+    EXPECT_TRUE(solid.read_solid);
     EXPECT_GT(solid.rib_bone_in_ribs, 0.9);
   }
 }
