@@ -63,9 +63,18 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
   for (int side : {+1, -1}) {
     if ((side > 0 && !o.left) || (side < 0 && !o.right)) continue;
     const auto& ribs = side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
-    TROCAR_THROW_UNLESS(ribs.size() >= 2, ct.source << ": " << ribs.size() << " rib(s) found on the "
-                                                    << (side > 0 ? "left" : "right")
-                                                    << ", need two to find a space between them");
+    if (ribs.size() < 2) {
+      // Say what the scan holds: a crop about the heart holds little of the rib cage.
+      const double extent = ct.index_to_P.col(AxialAxis(ct)).norm() * ct.size[AxialAxis(ct)];
+      const char* name = side > 0 ? "left" : "right";
+      TROCAR_THROW(ct.source << ": " << ribs.size() << " rib(s) found on the " << name
+                             << ", need two to find a space between them (the scan spans "
+                             << std::lround(extent * 1e3)
+                             << " mm head to foot; the rib cage's height is 25-30 cm): give the "
+                                "ports as annotated curves (port_candidates), or a label map "
+                                "with the ribs (labels), or leave this side out (intercostal: {"
+                             << name << ": false})");
+    }
     // For each rib and angular bin: the rib's lowest and highest z, and its mean radius.
     std::map<int, int> rib_of_label;
     for (std::size_t r = 0; r < ribs.size(); ++r) rib_of_label[ribs[r].label] = static_cast<int>(r);

@@ -246,6 +246,29 @@ void ExpectImportError(const std::string& dir, const std::string& needle) {
   }
 }
 
+// A heart-centred crop (totalseg-pulmonary, no label map) holds one piece of rib on the left:
+// no space can be found, and the error says how much of the body the scan spans and what to give
+// instead, naming the CT.
+TEST(PatientModel, ACropHoldingTooLittleRibCageSaysWhatTheScanSpansAndWhatToGive) {
+  const std::string ct = test::SharedDataPath("ct/totalseg-pulmonary/ct_cropped.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(ct);
+  const std::string dir = testing::TempDir() + "/trocar-pulmonary-alone";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::ofstream(JoinPath(dir, "patient.yaml"))
+      << "ct: " << ct << "\nintercostal: {left: true, right: true}\n";
+  try {
+    patient::ImportPatient(dir, {false, false});
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    for (const char* needle :
+         {"ct_cropped.nii.gz: 1 rib(s) found on the left, need two", "mm head to foot",
+          "port_candidates", "labels", "intercostal: {left: false}"})
+      EXPECT_NE(what.find(needle), std::string::npos) << needle << " in: " << what;
+  }
+}
+
 TEST(PatientModel, BadCaseFilesNameTheFileAndField) {
   ExpectImportError(testing::TempDir() + "/no-such-case", "no patient.yaml");
   ExpectImportError(MakeCase("bad1", "colour: red\n"), "colour");
