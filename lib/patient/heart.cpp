@@ -73,14 +73,40 @@ std::vector<float> SquaredDistanceToMask(const Volume& grid, const Mask& mask) {
   const int nmax = grid.size.maxCoeff();
   const Eigen::Vector3i& s = grid.size;
   const long stride[3] = {1, s.x(), static_cast<long>(s.x()) * s.y()};
-  for (int axis = 0; axis < 3; ++axis) {
-    const int a = axis == 0 ? 1 : 0, b = axis == 2 ? 1 : 2;
+  {
+    // Along x the input is binary: the squared distance to the nearest inside voxel of the line,
+    // from one sweep each way (what the lower envelope gives for parabolas of height 0 or ∞).
+    const double h2 = h.x() * h.x();
+    const long lines = static_cast<long>(s.y()) * s.z();
+#pragma omp parallel
+    {
+      std::vector<int> nearest(s.x());
+#pragma omp for schedule(static)
+      for (long line = 0; line < lines; ++line) {
+        float* row = &d[line * s.x()];
+        int last = -1;
+        for (int q = 0; q < s.x(); ++q) {
+          if (row[q] == 0.f) last = q;
+          nearest[q] = last;
+        }
+        last = -1;
+        for (int q = s.x() - 1; q >= 0; --q) {
+          if (row[q] == 0.f) last = q;
+          int p = nearest[q];
+          if (last >= 0 && (p < 0 || last - q < q - p)) p = last;
+          if (p >= 0) row[q] = static_cast<float>(h2 * (q - p) * (q - p));
+        }
+      }
+    }
+  }
+  for (int axis = 1; axis < 3; ++axis) {
+    const int a = 0, b = axis == 2 ? 1 : 2;
     // Lines along the axis are independent: split them over threads (exact, so the result does
     // not depend on the thread count).
     // Lines across x (y and z) are gathered kTile at a time from contiguous runs of x, which
     // keeps the strided reads in cache.
     constexpr int kTile = 16;
-    const int tile = axis == 0 ? 1 : kTile;
+    const int tile = kTile;
 #pragma omp parallel
     {
       std::vector<float> lines(static_cast<std::size_t>(kTile) * nmax), out(nmax);

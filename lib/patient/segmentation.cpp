@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <iomanip>
+#include <limits>
 #include <sstream>
 
 #include "common/error.hpp"
@@ -168,73 +170,137 @@ std::vector<Component> ConnectedComponents(const Volume& grid, const Mask& mask,
   TROCAR_THROW_UNLESS(region == nullptr || region->size() == mask.inside.size(),
                       "connected components: region and mask sizes differ");
   const int nx = grid.size.x(), ny = grid.size.y(), nz = grid.size.z();
-  labels->assign(mask.inside.size(), 0);
-  std::vector<Component> components;
-  std::vector<long> stack;
-  const double voxel_volume = std::abs(grid.index_to_P.determinant());
-  for (long start = 0; start < static_cast<long>(mask.inside.size()); ++start) {
-    if (!mask.inside[start] || (*labels)[start] != 0) continue;
-    Component c;
-    c.label = static_cast<int>(components.size()) + 1;
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    Eigen::Vector3i lo(nx, ny, nz), hi(-1, -1, -1);
-    (*labels)[start] = c.label;
-    stack.assign(1, start);
-    while (!stack.empty()) {
-      const long index = stack.back();
-      stack.pop_back();
-      const int i = static_cast<int>(index % nx);
-      const int j = static_cast<int>((index / nx) % ny);
-      const int k = static_cast<int>(index / (static_cast<long>(nx) * ny));
-      ++c.voxels;
-      sum += Eigen::Vector3d(i, j, k);
-      lo = lo.cwiseMin(Eigen::Vector3i(i, j, k));
-      hi = hi.cwiseMax(Eigen::Vector3i(i, j, k));
-      for (int dk = -1; dk <= 1; ++dk) {
-        const int kk = k + dk;
-        if (kk < 0 || kk >= nz) continue;
-        for (int dj = -1; dj <= 1; ++dj) {
-          const int jj = j + dj;
-          if (jj < 0 || jj >= ny) continue;
-          for (int di = -1; di <= 1; ++di) {
-            const int ii = i + di;
-            if (ii < 0 || ii >= nx) continue;
-            const long n = grid.Index(ii, jj, kk);
-            if (mask.inside[n] && (*labels)[n] == 0 && (region == nullptr || (*region)[n] == (*region)[index])) {
-              (*labels)[n] = c.label;
-              stack.push_back(n);
-            }
-          }
+  // Runs of the mask along x (split where the region changes), row by row in raster order, joined
+  // by union-find with the runs they touch in the four rows before them that are 26-neighbours:
+  // (j-1, k), (j-1, k-1), (j, k-1), (j+1, k-1). Work per run, not per voxel and neighbour.
+  struct Run {
+    int from, to;  // x, inclusive
+    std::uint8_t region;
+  };
+  std::vector<Run> runs;
+  const long rows = static_cast<long>(ny) * nz;
+  std::vector<int> row_begin(rows + 1, 0);
+  std::vector<int> parent;
+  auto find = [&](int r) {
+    while (parent[r] != r) {
+      parent[r] = parent[parent[r]];
+      r = parent[r];
+    }
+    return r;
+  };
+  auto join = [&](int a, int b) {
+    a = find(a);
+    b = find(b);
+    if (a == b) return;
+    if (a < b) std::swap(a, b);
+    parent[a] = b;  // the earlier run is the root: roots come in raster order
+  };
+  for (long row = 0; row < rows; ++row) {
+    TROCAR_THROW_UNLESS(runs.size() < static_cast<std::size_t>(std::numeric_limits<int>::max()),
+                        "connected components: too many runs");
+    row_begin[row] = static_cast<int>(runs.size());
+    const long base = row * nx;
+    for (int i = 0; i < nx;) {
+      if (!mask.inside[base + i]) {
+        ++i;
+        continue;
+      }
+      const std::uint8_t value = region != nullptr ? (*region)[base + i] : 0;
+      int end = i + 1;
+      while (end < nx && mask.inside[base + end] &&
+             (region == nullptr || (*region)[base + end] == value))
+        ++end;
+      runs.push_back({i, end - 1, value});
+      parent.push_back(static_cast<int>(runs.size()) - 1);
+      i = end;
+    }
+    const int first = row_begin[row], last = static_cast<int>(runs.size());
+    if (first == last) continue;
+    const int j = static_cast<int>(row % ny), k = static_cast<int>(row / ny);
+    long before[4];
+    int count = 0;
+    if (j > 0) before[count++] = row - 1;
+    if (k > 0) {
+      if (j > 0) before[count++] = row - ny - 1;
+      before[count++] = row - ny;
+      if (j + 1 < ny) before[count++] = row - ny + 1;
+    }
+    for (int b = 0; b < count; ++b) {
+      // Both rows' runs are sorted by x: walk them together. Runs split by a region change touch
+      // end to end, so each run is matched against every run of the other row within its
+      // reach (x one beyond each end), not only the next one.
+      int p = row_begin[before[b]];
+      const int p_end = row_begin[before[b] + 1];
+      for (int r = first; r < last; ++r) {
+        while (p < p_end && runs[p].to < runs[r].from - 1) ++p;
+        for (int q = p; q < p_end && runs[q].from <= runs[r].to + 1; ++q) {
+          if (runs[q].region == runs[r].region) join(q, r);
         }
       }
     }
-    const Eigen::Vector3d mean = sum / static_cast<double>(c.voxels);
+  }
+  row_begin[rows] = static_cast<int>(runs.size());
+  // Components numbered by their first voxel in raster order, then sorted largest first.
+  std::vector<int> id(runs.size(), -1);
+  std::vector<Eigen::Vector3d> sum;
+  std::vector<Eigen::Vector3i> lo, hi;
+  std::vector<long> voxels;
+  for (long row = 0; row < rows; ++row) {
+    const int j = static_cast<int>(row % ny), k = static_cast<int>(row / ny);
+    for (int r = row_begin[row]; r < row_begin[row + 1]; ++r) {
+      const int root = find(r);
+      if (id[root] < 0) {
+        id[root] = static_cast<int>(voxels.size());
+        sum.emplace_back(Eigen::Vector3d::Zero());
+        lo.emplace_back(nx, ny, nz);
+        hi.emplace_back(-1, -1, -1);
+        voxels.push_back(0);
+      }
+      const int c = id[root];
+      id[r] = c;
+      const long n = runs[r].to - runs[r].from + 1;
+      voxels[c] += n;
+      // Integers summed in doubles: exact (far below 2^53), as a voxel-by-voxel sum is.
+      sum[c] += Eigen::Vector3d(0.5 * static_cast<double>(runs[r].from + runs[r].to) * n,
+                                static_cast<double>(j) * n, static_cast<double>(k) * n);
+      lo[c] = lo[c].cwiseMin(Eigen::Vector3i(runs[r].from, j, k));
+      hi[c] = hi[c].cwiseMax(Eigen::Vector3i(runs[r].to, j, k));
+    }
+  }
+  const double voxel_volume = std::abs(grid.index_to_P.determinant());
+  std::vector<int> order(voxels.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return voxels[a] > voxels[b]; });
+  std::vector<int> rank_of(voxels.size(), 0);
+  std::vector<Component> sorted;
+  sorted.reserve(order.size());
+  for (std::size_t rank = 0; rank < order.size(); ++rank) {
+    const int c0 = order[rank];
+    rank_of[c0] = static_cast<int>(rank) + 1;
+    Component c;
+    c.label = static_cast<int>(rank) + 1;
+    c.voxels = voxels[c0];
+    const Eigen::Vector3d mean = sum[c0] / static_cast<double>(c.voxels);
     c.centroid_P = grid.PatientPoint(mean.x(), mean.y(), mean.z());
     c.volume = static_cast<double>(c.voxels) * voxel_volume;
     c.min_P = Eigen::Vector3d::Constant(HUGE_VAL);
     c.max_P = Eigen::Vector3d::Constant(-HUGE_VAL);
     for (int corner = 0; corner < 8; ++corner) {
-      const Eigen::Vector3d p = grid.PatientPoint(corner & 1 ? hi.x() : lo.x(), corner & 2 ? hi.y() : lo.y(),
-                                                  corner & 4 ? hi.z() : lo.z());
+      const Eigen::Vector3d p = grid.PatientPoint(corner & 1 ? hi[c0].x() : lo[c0].x(),
+                                                  corner & 2 ? hi[c0].y() : lo[c0].y(),
+                                                  corner & 4 ? hi[c0].z() : lo[c0].z());
       c.min_P = c.min_P.cwiseMin(p);
       c.max_P = c.max_P.cwiseMax(p);
     }
-    components.push_back(c);
-  }
-  // Largest first, labels rewritten to match.
-  std::vector<int> order(components.size());
-  for (std::size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
-  std::stable_sort(order.begin(), order.end(),
-                   [&](int a, int b) { return components[a].voxels > components[b].voxels; });
-  std::vector<int> relabel(components.size() + 1, 0);
-  std::vector<Component> sorted;
-  for (std::size_t rank = 0; rank < order.size(); ++rank) {
-    Component c = components[order[rank]];
-    relabel[c.label] = static_cast<int>(rank) + 1;
-    c.label = static_cast<int>(rank) + 1;
     sorted.push_back(c);
   }
-  for (int& label : *labels) label = relabel[label];
+  labels->assign(mask.inside.size(), 0);
+  for (long row = 0; row < rows; ++row) {
+    for (int r = row_begin[row]; r < row_begin[row + 1]; ++r) {
+      std::fill(labels->begin() + row * nx + runs[r].from,
+                labels->begin() + row * nx + runs[r].to + 1, rank_of[id[r]]);
+    }
+  }
   return sorted;
 }
 

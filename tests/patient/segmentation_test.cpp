@@ -37,6 +37,114 @@ struct SegmentedPhantom {
   patient::Segmentation seg;
 };
 
+// A plain 26-connected flood fill, voxel by voxel: the reference ConnectedComponents (which
+// works on runs along x) must match exactly, labels and statistics.
+std::vector<Component> FloodFill(const patient::Volume& grid, const patient::Mask& mask,
+                                 std::vector<int>* labels,
+                                 const std::vector<std::uint8_t>* region) {
+  const Eigen::Vector3i& s = grid.size;
+  labels->assign(mask.inside.size(), 0);
+  std::vector<Component> found;
+  std::vector<Eigen::Vector3d> sums;
+  std::vector<Eigen::Vector3i> lo, hi;
+  for (long start = 0; start < static_cast<long>(mask.inside.size()); ++start) {
+    if (!mask.inside[start] || (*labels)[start] != 0) continue;
+    found.emplace_back();
+    const int label = static_cast<int>(found.size());
+    sums.emplace_back(Eigen::Vector3d::Zero());
+    lo.emplace_back(s);
+    hi.emplace_back(-1, -1, -1);
+    std::vector<long> stack{start};
+    (*labels)[start] = label;
+    while (!stack.empty()) {
+      const long v = stack.back();
+      stack.pop_back();
+      const Eigen::Vector3i ijk(static_cast<int>(v % s.x()), static_cast<int>(v / s.x() % s.y()),
+                                static_cast<int>(v / (static_cast<long>(s.x()) * s.y())));
+      ++found.back().voxels;
+      sums.back() += ijk.cast<double>();
+      lo.back() = lo.back().cwiseMin(ijk);
+      hi.back() = hi.back().cwiseMax(ijk);
+      for (int dk = -1; dk <= 1; ++dk)
+        for (int dj = -1; dj <= 1; ++dj)
+          for (int di = -1; di <= 1; ++di) {
+            const Eigen::Vector3i n = ijk + Eigen::Vector3i(di, dj, dk);
+            if ((n.array() < 0).any() || (n.array() >= s.array()).any()) continue;
+            const long w = grid.Index(n.x(), n.y(), n.z());
+            if (!mask.inside[w] || (*labels)[w] != 0) continue;
+            if (region != nullptr && (*region)[w] != (*region)[v]) continue;
+            (*labels)[w] = label;
+            stack.push_back(w);
+          }
+    }
+  }
+  std::vector<int> order(found.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int a, int b) { return found[a].voxels > found[b].voxels; });
+  std::vector<int> rank(found.size() + 1, 0);
+  std::vector<Component> sorted;
+  for (std::size_t r = 0; r < order.size(); ++r) {
+    Component c = found[order[r]];
+    rank[order[r] + 1] = static_cast<int>(r) + 1;
+    c.label = static_cast<int>(r) + 1;
+    const Eigen::Vector3d mean = sums[order[r]] / static_cast<double>(c.voxels);
+    c.centroid_P = grid.PatientPoint(mean.x(), mean.y(), mean.z());
+    c.min_P = grid.PatientPoint(lo[order[r]].x(), lo[order[r]].y(), lo[order[r]].z());
+    c.max_P = grid.PatientPoint(hi[order[r]].x(), hi[order[r]].y(), hi[order[r]].z());
+    sorted.push_back(c);
+  }
+  for (int& l : *labels) l = rank[l];
+  return sorted;
+}
+
+// Over seeded random grids (sizes 1-23 per axis, densities from scattered specks through
+// percolating tangles to nearly full, with and without regions that cut the mask), the run-based
+// components equal the flood fill's: the same label at every voxel, the same order (largest
+// first, ties by first voxel in raster order), voxel counts, centroids and bounds.
+TEST(Segmentation, ConnectedComponentsEqualAPlainFloodFill) {
+  std::mt19937 rng(17);
+  int compared = 0, many = 0;
+  for (int trial = 0; trial < 400; ++trial) {
+    SCOPED_TRACE(trial);
+    patient::Volume grid;
+    std::uniform_int_distribution<int> n(1, 23);
+    grid.size = Eigen::Vector3i(n(rng), n(rng), n(rng));
+    grid.index_to_P = Eigen::Vector3d(0.001, 0.0015, 0.0025).asDiagonal();
+    grid.origin_P = Eigen::Vector3d(-0.01, 0.02, -0.3);
+    patient::Mask mask;
+    mask.size = grid.size;
+    const double density = std::uniform_real_distribution<double>(0.02, 0.95)(rng);
+    std::bernoulli_distribution in(density);
+    mask.inside.resize(grid.voxel_count());
+    for (auto& v : mask.inside) v = in(rng);
+    std::vector<std::uint8_t> region(mask.inside.size());
+    const bool with_region = trial % 2 == 1;
+    const int cut = std::uniform_int_distribution<int>(0, grid.size.x())(rng);
+    for (long v = 0; v < grid.voxel_count(); ++v) {
+      // Slabs along x (cuts inside runs) and scattered voxels of a third value.
+      region[v] = static_cast<std::uint8_t>((v % grid.size.x() < cut) + (rng() % 7 == 0 ? 2 : 0));
+    }
+    std::vector<int> got, want;
+    const auto a = patient::ConnectedComponents(grid, mask, &got, with_region ? &region : nullptr);
+    const auto b = FloodFill(grid, mask, &want, with_region ? &region : nullptr);
+    ASSERT_EQ(a.size(), b.size());
+    ASSERT_EQ(got, want);
+    for (std::size_t c = 0; c < a.size(); ++c) {
+      EXPECT_EQ(a[c].label, b[c].label);
+      EXPECT_EQ(a[c].voxels, b[c].voxels);
+      EXPECT_NEAR(a[c].volume, b[c].voxels * 0.001 * 0.0015 * 0.0025, 1e-15);
+      EXPECT_EQ(a[c].centroid_P, b[c].centroid_P);
+      EXPECT_EQ(a[c].min_P, b[c].min_P);
+      EXPECT_EQ(a[c].max_P, b[c].max_P);
+    }
+    ++compared;
+    many += a.size() > 10;
+  }
+  EXPECT_EQ(compared, 400);
+  EXPECT_GT(many, 50);  // the cases hold many components, not one blob each
+}
+
 TEST(Segmentation, FindsThePhantomsRibsWhereTheyWereMade) {
   for (unsigned seed : {1u, 2u}) {
     SCOPED_TRACE(seed);
