@@ -6,9 +6,11 @@
 #include <cstdlib>
 #include <iomanip>
 #include <map>
+#include <set>
 #include <sstream>
 
 #include "common/error.hpp"
+#include "patient/intercostal.hpp"
 #include "patient/segmentation.hpp"
 #include "patient/volume.hpp"
 
@@ -1375,6 +1377,121 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       << 100.0 * share << " % of their voxels hold a " << thin * 1e3
       << " mm ball): bone-bright blobs that hold one, off the spine, are contrast-filled vessels";
   seg->anatomy.insert(seg->anatomy.begin(), why.str());
+}
+
+double KeepBoneBeyondTheLayerOutOfRibs(const Volume& ct, const LayerChart& chart, int side,
+                                       const AnatomyOptions& o, Segmentation* seg) {
+  std::vector<Component>& ribs = side > 0 ? seg->bones.ribs_left : seg->bones.ribs_right;
+  const std::vector<double>& surface = side > 0 ? chart.surface_left : chart.surface_right;
+  if (ribs.empty() || seg->bones.labels.empty() || chart.rows <= 0 || chart.cols <= 0 ||
+      surface.size() != static_cast<std::size_t>(chart.rows) * chart.cols)
+    return 0.0;
+  std::map<int, int> rib_of_label;
+  for (std::size_t r = 0; r < ribs.size(); ++r) rib_of_label[ribs[r].label] = static_cast<int>(r);
+  const int n = static_cast<int>(ribs.size());
+  // A voxel against the ribs' surface: -1 not judged (no surface there, or in the band behind
+  // the spine, where the layer is the vertebrae's arches under the back's muscles), 0 within the
+  // layer, 1 beyond it.
+  const double spine_band = 2.0 * o.spine_half_width;
+  auto judge = [&](long v) {
+    const int i = static_cast<int>(v % ct.size.x());
+    const int j = static_cast<int>((v / ct.size.x()) % ct.size.y());
+    const int k = static_cast<int>(v / (static_cast<long>(ct.size.x()) * ct.size.y()));
+    const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+    const Eigen::Vector2d d = p.head<2>() - seg->axis_P;
+    if (d.y() > 0.0 && std::abs(d.x()) < spine_band) return -1;
+    const double angle = std::atan2(side * d.x(), d.y());  // 0 at the back, π at the front
+    const long row = std::lround((chart.top_z - p.z()) / chart.dz);
+    if (angle < 0.0 || row < 0 || row >= chart.rows) return -1;
+    const int col = std::min(chart.cols - 1, static_cast<int>(angle / chart.bin));
+    const double s = surface[row * chart.cols + col];
+    if (std::isnan(s)) return -1;
+    return d.norm() > s + chart.outside ? 1 : 0;
+  };
+  std::vector<long> judged(n, 0), beyond(n, 0);
+  for (long v = 0; v < static_cast<long>(seg->bones.labels.size()); ++v) {
+    const int label = seg->bones.labels[v];
+    if (label <= 0) continue;
+    const auto it = rib_of_label.find(label);
+    if (it == rib_of_label.end()) continue;
+    const int verdict = judge(v);
+    if (verdict < 0) continue;
+    ++judged[it->second];
+    beyond[it->second] += verdict;
+  }
+  std::set<int> out_labels;
+  for (int r = 0; r < n; ++r) {
+    if (judged[r] >= o.layer_judged_share * static_cast<double>(ribs[r].voxels) &&
+        beyond[r] > o.layer_beyond_share * static_cast<double>(judged[r]))
+      out_labels.insert(ribs[r].label);
+  }
+  if (out_labels.empty()) return 0.0;
+  if (seg->shoulder.inside.size() != seg->bones.labels.size()) {
+    seg->shoulder.size = ct.size;
+    seg->shoulder.inside.assign(seg->bones.labels.size(), 0);
+  }
+  // A piece outside goes to the girdle, but for what of it lies within the layer and is a rib
+  // by itself (at least `min_rib_volume` and `min_rib_length`): a rib merged with its collarbone
+  // or shoulder blade keeps its own bone.
+  Mask within;
+  within.size = ct.size;
+  within.inside.assign(seg->bones.labels.size(), 0);
+  int next_label = 0;
+  for (long v = 0; v < static_cast<long>(seg->bones.labels.size()); ++v) {
+    const int label = seg->bones.labels[v];
+    next_label = std::max(next_label, std::abs(label));
+    if (label <= 0 || out_labels.count(label) == 0) continue;
+    within.inside[v] = judge(v) == 0;
+    seg->bones.labels[v] = 0;
+    seg->shoulder.inside[v] = 1;
+  }
+  std::vector<int> within_labels;
+  const std::vector<Component> parts = ConnectedComponents(ct, within, &within_labels);
+  std::vector<int> new_label(parts.size() + 1, 0);
+  std::vector<Component> kept;
+  for (const Component& c : parts) {
+    if (c.volume < o.min_rib_volume || (c.max_P - c.min_P).norm() < o.min_rib_length) continue;
+    Component rib = c;
+    rib.label = ++next_label;
+    new_label[c.label] = rib.label;
+    kept.push_back(rib);
+  }
+  double kept_volume = 0.0;
+  for (long v = 0; v < static_cast<long>(within_labels.size()); ++v) {
+    const int l = within_labels[v];
+    if (l == 0 || new_label[l] == 0) continue;
+    seg->bones.labels[v] = new_label[l];
+    seg->shoulder.inside[v] = 0;
+  }
+  double moved = 0.0;
+  std::vector<Component> stay;
+  for (const Component& c : ribs) {
+    if (out_labels.count(c.label) != 0) {
+      moved += c.volume;
+    } else {
+      stay.push_back(c);
+    }
+  }
+  for (const Component& c : kept) {
+    kept_volume += c.volume;
+    stay.push_back(c);
+  }
+  std::stable_sort(stay.begin(), stay.end(), [](const Component& a, const Component& b) {
+    return a.centroid_P.z() > b.centroid_P.z();
+  });
+  ribs = std::move(stay);
+  std::ostringstream line;
+  line << (side > 0 ? "left" : "right") << ": " << out_labels.size()
+       << " rib-like piece(s) lying mostly outside the rib cage's layer (over "
+       << std::lround(100.0 * o.layer_beyond_share) << " % of them further from the axis than "
+       << "the ribs' surface by over " << std::lround(chart.outside * 1e3)
+       << " mm: shoulder blade, collarbone, arm): " << Ml(moved - kept_volume)
+       << ", kept out of the ribs";
+  if (!kept.empty())
+    line << " (" << kept.size() << " rib(s) within the layer kept from them: " << Ml(kept_volume)
+         << ")";
+  seg->anatomy.push_back(line.str());
+  return moved - kept_volume;
 }
 
 }  // namespace trocar::patient

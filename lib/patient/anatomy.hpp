@@ -16,6 +16,7 @@ namespace trocar::patient {
 
 struct Volume;
 struct Segmentation;
+struct LayerChart;
 
 struct AnatomyOptions {
   /// Bone this thick (a ball of this radius fits in it) and off the spine's column is a
@@ -125,6 +126,10 @@ struct AnatomyOptions {
   /// Numbering: the top of the rib cage is in view when the scan reaches this far above the
   /// highest rib; the bottom when the spine continues this far below the lowest rib (m).
   double top_margin = 0.015, bottom_spine = 0.03;
+  /// A side judged from the rib cage's layer (KeepBoneBeyondTheLayerOutOfRibs): a rib-like piece
+  /// is outside the rib cage when at least `layer_judged_share` of its voxels can be judged
+  /// against the ribs' surface and over `layer_beyond_share` of those lie beyond it.
+  double layer_judged_share = 0.5, layer_beyond_share = 0.6;
 };
 
 /// How one side's ribs were numbered.
@@ -138,5 +143,19 @@ struct RibNumbering {
 /// `seg->vessels` and `seg->shoulder`; reports what it found in `seg->anatomy`.
 void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& options,
                    double min_bone_volume);
+
+/// The shoulder girdle kept out of one side's ribs by the rib cage's layer (LayerChart), for a
+/// side whose ribs are judged from the layer (a windowed volume whose ribs read as fragments:
+/// there the pieces' own rule, other rib pieces nearer the axis, has too few ribs to go by, and a
+/// shoulder blade read alone or merged with rib fragments passes for a rib). A rib-like piece
+/// lying mostly further from the body's axis than the ribs' surface by more than the layer's
+/// band (`chart.outside`; options `layer_judged_share`, `layer_beyond_share`) goes to
+/// `seg->shoulder`, but for its parts within the layer that are ribs by themselves (at least
+/// `min_rib_volume` and `min_rib_length`): a first rib merged with its collarbone keeps its
+/// bone, as a new rib piece. Voxels behind the spine within twice `spine_half_width` of the
+/// midline are not judged: the layer there is the vertebrae's arches. A line in `seg->anatomy`
+/// says what moved. Returns the volume moved to the girdle (m³).
+double KeepBoneBeyondTheLayerOutOfRibs(const Volume& ct, const LayerChart& chart, int side,
+                                       const AnatomyOptions& options, Segmentation* seg);
 
 }  // namespace trocar::patient

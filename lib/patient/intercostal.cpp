@@ -213,23 +213,41 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
     chart->bin = o.bin;
     chart->rows = rows;
     chart->cols = cols;
+    chart->outside = o.layer_outside;
   }
 
   std::vector<IntercostalSpace> spaces;
   for (int side : {+1, -1}) {
     if ((side > 0 && !o.left) || (side < 0 && !o.right)) continue;
-    // The innermost rib-bright voxel in the wall along each ray.
+    // The innermost rib-bright voxel in the wall along each ray; and, for the girdle's surface,
+    // the inner end of the innermost bright run no deeper along the ray than a rib
+    // (`layer_max_rib_depth`) that the wall does not cut (an organ under the ribs, the liver
+    // with contrast, reads as a long run from the wall's inner edge).
     std::vector<double> inner(static_cast<std::size_t>(rows) * cols, NAN);
+    std::vector<double> thin(inner.size(), NAN);
     for (int row = 0; row < rows; ++row) {
       const double z = row_z(row);
       for (int col = 0; col < cols; ++col) {
         const Eigen::Vector2d d = direction(side, col);
+        double run_from = -1.0;
+        bool cut = false, was_in_wall = false;
         for (double r = 0.0; r <= max_r; r += dr) {
           const long v = voxel(Eigen::Vector3d(axis.x() + r * d.x(), axis.y() + r * d.y(), z));
-          if (in_wall(v) && ct.values[v] >= floor) {
-            inner[row * cols + col] = r;
-            break;
+          const bool wall = in_wall(v);
+          const bool bright = wall && ct.values[v] >= floor;
+          if (bright && std::isnan(inner[row * cols + col])) inner[row * cols + col] = r;
+          if (bright && run_from < 0.0) {
+            run_from = r;
+            cut = !was_in_wall;  // the run begins where the wall does
+          } else if (!bright && run_from >= 0.0) {
+            if (!cut && r - run_from <= o.layer_max_rib_depth) {
+              thin[row * cols + col] = run_from;
+              break;
+            }
+            run_from = -1.0;
           }
+          if (was_in_wall && v >= 0 && !seg.body.inside[v]) break;  // out through the skin
+          was_in_wall = was_in_wall || wall;
         }
       }
     }
@@ -237,21 +255,25 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
     // innermost layer; between them the ray meets what lies outside, a shoulder blade or muscle).
     const int wa = std::max(1, static_cast<int>(std::lround(o.layer_smooth_angle / o.bin)));
     const int wz = std::max(1, static_cast<int>(std::lround(o.layer_smooth_height / dz)));
-    std::vector<double> surface(inner.size(), NAN);
-    std::vector<double> near;
-    for (int row = 0; row < rows; ++row) {
-      for (int col = 0; col < cols; ++col) {
-        near.clear();
-        for (int r2 = std::max(0, row - wz); r2 <= std::min(rows - 1, row + wz); ++r2) {
-          for (int c2 = std::max(0, col - wa); c2 <= std::min(cols - 1, col + wa); ++c2) {
-            if (!std::isnan(inner[r2 * cols + c2])) near.push_back(inner[r2 * cols + c2]);
+    auto lower_quartile = [&](const std::vector<double>& radii) {
+      std::vector<double> smooth(radii.size(), NAN);
+      std::vector<double> near;
+      for (int row = 0; row < rows; ++row) {
+        for (int col = 0; col < cols; ++col) {
+          near.clear();
+          for (int r2 = std::max(0, row - wz); r2 <= std::min(rows - 1, row + wz); ++r2) {
+            for (int c2 = std::max(0, col - wa); c2 <= std::min(cols - 1, col + wa); ++c2) {
+              if (!std::isnan(radii[r2 * cols + c2])) near.push_back(radii[r2 * cols + c2]);
+            }
           }
+          if (near.size() < 3) continue;
+          std::nth_element(near.begin(), near.begin() + near.size() / 4, near.end());
+          smooth[row * cols + col] = near[near.size() / 4];
         }
-        if (near.size() < 3) continue;
-        std::nth_element(near.begin(), near.begin() + near.size() / 4, near.end());
-        surface[row * cols + col] = near[near.size() / 4];
       }
-    }
+      return smooth;
+    };
+    const std::vector<double> surface = lower_quartile(inner);
     // Rib or not, per chart cell: any voxel of the band reaching the floor.
     std::vector<std::uint8_t> rib(inner.size(), 0);
     for (int row = 0; row < rows; ++row) {
@@ -269,7 +291,10 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
         }
       }
     }
-    if (chart != nullptr) (side > 0 ? chart->rib_left : chart->rib_right) = rib;
+    if (chart != nullptr) {
+      (side > 0 ? chart->rib_left : chart->rib_right) = rib;
+      (side > 0 ? chart->surface_left : chart->surface_right) = lower_quartile(thin);
+    }
     // Per angle, the dark runs between two rib runs; linked across neighbouring angles (their
     // rows overlapping) into curves.
     struct Run {

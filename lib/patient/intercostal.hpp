@@ -45,6 +45,9 @@ struct IntercostalOptions {
   /// most `layer_max_gap` (m): taller bright runs are organs in the band (the liver below the rib
   /// cage, the heart against it), taller dark ones no space between neighbouring ribs.
   double layer_max_rib = 0.025, layer_max_gap = 0.035;
+  /// A rib's run of bright voxels along a ray from the body's axis is at most this deep (m):
+  /// the girdle's surface (LayerChart) is the innermost such run, not an organ under the ribs.
+  double layer_max_rib_depth = 0.015;
 };
 
 struct IntercostalSpace {
@@ -68,6 +71,12 @@ struct LayerChart {
   double top_z = 0.0, dz = 0.0, bin = 0.0;
   int rows = 0, cols = 0;
   std::vector<std::uint8_t> rib_left, rib_right;  ///< row * cols + col: 1 where the layer is rib
+  /// row * cols + col: the ribs' surface, its distance from the body's axis (m; NaN where the
+  /// wall holds no rib-bright run near): the lower quartile around of the innermost bright runs
+  /// no deeper than a rib (`layer_max_rib_depth`). Bone beyond it by more than `outside` lies
+  /// outside the rib cage.
+  std::vector<double> surface_left, surface_right;
+  double outside = 0.0;  ///< `layer_outside` as used (m)
 };
 
 /// Spaces found in a chart of the rib cage's layer, not between rib components: for windowed

@@ -5,16 +5,17 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <exception>
 #include <filesystem>
 #include <functional>
-#include <exception>
-#include <optional>
 #include <iomanip>
+#include <optional>
 #include <sstream>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "common/yaml_util.hpp"
+#include "patient/anatomy.hpp"
 #include "patient/case_file.hpp"
 #include "patient/intercostal.hpp"
 #include "patient/label_map.hpp"
@@ -182,6 +183,30 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
     stage("label map", [&] {
       labelled = AnatomyFromLabels(LoadLabelMap(c.labels, c.label_names), ct);
       seg.bones = labelled.bones;
+    });
+  }
+  // A side of a windowed volume (raw units, no label map) whose ribs are not numbered is judged
+  // from the chart of the rib cage's layer: its ribs' cross-sections are mostly below the bone
+  // threshold, and the components are fragments. The chart keeps the shoulder girdle out of its
+  // ribs, and gives its intercostal spaces (port candidates, below).
+  std::vector<IntercostalSpace> layer_spaces[2];  // left, right
+  bool layer_side[2] = {false, false};
+  double layer_floor = 0.0;
+  if (!ct.hounsfield && !have_labels) {
+    stage("rib cage layer", [&] {
+      for (int side : {+1, -1}) {
+        if ((side > 0 ? seg.numbering_left : seg.numbering_right).numbered) continue;
+        IntercostalOptions one = c.intercostal;
+        one.left = side > 0;
+        one.right = side < 0;
+        LayerChart chart;
+        auto found = FindIntercostalSpacesInLayer(ct, seg, one, &chart);
+        if (c.seg.shape_anatomy)
+          KeepBoneBeyondTheLayerOutOfRibs(ct, chart, side, c.seg.anatomy, &seg);
+        layer_spaces[side > 0 ? 0 : 1] = std::move(found);
+        layer_side[side > 0 ? 0 : 1] = true;
+        layer_floor = chart.floor;
+      }
     });
   }
   m.body_min_P = seg.body_min_P;
@@ -411,34 +436,31 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
     if (m.port_candidates.empty()) {
       // Named from the ribs' anatomical numbers (a label map's, or the numbering of
       // ClassifyBones with its confidence); spaces between ribs that are not numbered are
-      // called gap-L1, gap-L2, ... from the top: an order, never an anatomical name.
-      // A side of a windowed volume (raw units, no label map) whose ribs are not numbered has
-      // its spaces from the chart of the rib cage's layer: its ribs' cross-sections are mostly
-      // below the bone threshold, and the components between which spaces are otherwise found
-      // are fragments. Numbered ribs keep their named spaces.
+      // called gap-L1, gap-L2, ... from the top: an order, never an anatomical name. Sides
+      // judged from the rib cage's layer have their spaces from it (found above); numbered ribs
+      // keep their named spaces.
       int unnamed[2] = {0, 0};
       std::vector<IntercostalSpace> spaces;
       bool any_layer = false;
       for (int side : {+1, -1}) {
         if (!(side > 0 ? c.intercostal.left : c.intercostal.right)) continue;
+        if (layer_side[side > 0 ? 0 : 1]) {
+          if (!any_layer) {
+            std::ostringstream s;
+            s << "intercostal spaces: from the rib cage's layer (a windowed volume whose ribs are "
+                 "not numbered: ribs at or above "
+              << std::fixed << std::setprecision(1) << layer_floor << " within "
+              << std::setprecision(0) << c.intercostal.layer_depth * 1e3 << " mm of the skin)";
+            report.checks.push_back(s.str());
+            any_layer = true;
+          }
+          for (auto& space : layer_spaces[side > 0 ? 0 : 1]) spaces.push_back(std::move(space));
+          continue;
+        }
         IntercostalOptions one = c.intercostal;
         one.left = side > 0;
         one.right = side < 0;
-        const RibNumbering& numbering = side > 0 ? seg.numbering_left : seg.numbering_right;
-        const bool layer = !ct.hounsfield && !have_labels && !numbering.numbered;
-        LayerChart chart;
-        auto found = layer ? FindIntercostalSpacesInLayer(ct, seg, one, &chart)
-                           : FindIntercostalSpaces(ct, seg, one);
-        if (layer && !any_layer) {
-          std::ostringstream s;
-          s << "intercostal spaces: from the rib cage's layer (a windowed volume whose ribs are "
-               "not numbered: ribs at or above "
-            << std::fixed << std::setprecision(1) << chart.floor << " within "
-            << std::setprecision(0) << c.intercostal.layer_depth * 1e3 << " mm of the skin)";
-          report.checks.push_back(s.str());
-          any_layer = true;
-        }
-        for (auto& space : found) spaces.push_back(std::move(space));
+        for (auto& space : FindIntercostalSpaces(ct, seg, one)) spaces.push_back(std::move(space));
       }
       for (const auto& space : spaces) {
         const auto& ribs = space.side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;

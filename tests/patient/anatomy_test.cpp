@@ -1,3 +1,5 @@
+#include "patient/anatomy.hpp"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -946,5 +948,142 @@ TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCorte
     EXPECT_GT(solid.rib_bone_in_ribs, 0.9);
   }
 }
+}  // namespace
+}  // namespace trocar
+
+namespace trocar {
+namespace {
+
+// The shoulder girdle of a windowed volume whose ribs read as fragments is kept out of its ribs
+// by the rib cage's layer (KeepBoneBeyondTheLayerOutOfRibs): phantoms with shoulder blades,
+// collarbones and arms, each bone hollowed to a cortex one voxel thick and windowed to 8 bits
+// (the ribs read as their cortex, as LIDC2's do), cut at the top through the first ribs so that
+// neither side is numbered (the layer judges them). Before, the girdle's bone (voxels further than
+// three rib radii from every generated rib) is among the ribs; after, none of it is, and the ribs'
+// own bone (their middle stretch) stays. The ribs read as fragments: along each, 5 cm stretches
+// at bone brightness and 3 cm ones below the bone threshold, above the layer's floor (as a
+// rib's partial-volume cortex reads in LIDC2's window); the girdle's bone reads bright.
+TEST(ShapeAnatomy, AShoulderGirdleOutsideTheLayerIsKeptOutOfFragmentaryRibs) {
+  for (const auto& [seed, voxel] : {std::pair{3u, 0.0025}, std::pair{9u, 0.0025}}) {
+    SCOPED_TRACE(seed);
+    patient::PhantomParameters p;
+    p.seed = seed;
+    p.voxel_size = voxel;
+    p.wall_thickness = 0.02;
+    p.ribs_reach_spine = p.shoulders = true;
+    const patient::Phantom ph = patient::GeneratePhantom(p);
+    const patient::Volume& hu = ph.ct;
+    // Cut 1 cm under the first ribs' highest point.
+    double top = -HUGE_VAL;
+    for (const auto& rib : ph.truth.ribs) {
+      if (rib.index == 0)
+        for (const auto& q : rib.centreline) top = std::max(top, q.z());
+    }
+    const int axial = patient::AxialAxis(hu);
+    ASSERT_EQ(axial, 2);
+    std::vector<int> keep;
+    for (int k = 0; k < hu.size.z(); ++k) {
+      if (hu.PatientPoint(0, 0, k).z() <= top - 0.01) keep.push_back(k);
+    }
+    ASSERT_FALSE(keep.empty());
+    patient::Volume ct = hu;
+    ct.size.z() = static_cast<int>(keep.size());
+    ct.origin_P = hu.PatientPoint(0, 0, keep.front());
+    ct.values.assign(static_cast<std::size_t>(ct.voxel_count()), 0.0f);
+    const long plane = static_cast<long>(hu.size.x()) * hu.size.y();
+    for (std::size_t t = 0; t < keep.size(); ++t) {
+      for (long v = 0; v < plane; ++v) {
+        // Hollowed: a bone voxel whose six face neighbours are bone is marrow.
+        const int k = keep[t];
+        const long at = v + k * plane;
+        float value = hu.values[at];
+        const int i = static_cast<int>(v % hu.size.x()), j = static_cast<int>(v / hu.size.x());
+        if (value == patient::PhantomHu::kBone && i > 0 && j > 0 && k > 0 && i + 1 < hu.size.x() &&
+            j + 1 < hu.size.y() && k + 1 < hu.size.z()) {
+          bool interior = true;
+          for (const long step : {1L, static_cast<long>(hu.size.x()), plane})
+            interior = interior && hu.values[at + step] == patient::PhantomHu::kBone &&
+                       hu.values[at - step] == patient::PhantomHu::kBone;
+          if (interior) value = patient::PhantomHu::kMarrow;
+        }
+        float raw = std::clamp((value + 200.0f) / 1000.0f * 255.0f, 0.0f, 255.0f);
+        if (hu.values[at] == patient::PhantomHu::kBone) {
+          // On a rib (within two radii of its centreline, off the spine's end): dim between
+          // stretches.
+          const Eigen::Vector3d q = hu.PatientPoint(i, j, k);
+          for (const auto& rib : ph.truth.ribs) {
+            double arc = 0.0, best = HUGE_VAL, best_arc = 0.0;
+            for (std::size_t n = 0; n + 1 < rib.centreline.size(); ++n) {
+              const Eigen::Vector3d a = rib.centreline[n], ab = rib.centreline[n + 1] - a;
+              const double u = std::clamp((q - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0);
+              const double d = (a + u * ab - q).norm();
+              if (d < best) {
+                best = d;
+                best_arc = arc + u * ab.norm();
+              }
+              arc += ab.norm();
+            }
+            if (best < 2 * p.rib_radius && best_arc > 0.04 && std::fmod(best_arc, 0.08) >= 0.05)
+              raw = 140.0f;
+          }
+        }
+        ct.values[v + static_cast<long>(t) * plane] = raw;
+      }
+    }
+    ct.hounsfield = false;
+    patient::SegmentationOptions so;
+    so.raw_body = 15;
+    so.raw_bone = 166;
+    patient::Segmentation seg = patient::Segment(ct, so);
+    ASSERT_FALSE(seg.numbering_left.numbered) << seg.numbering_left.basis;
+    ASSERT_FALSE(seg.numbering_right.numbered) << seg.numbering_right.basis;
+    // Rib voxels: off every generated rib (girdle) or on a rib's middle stretch (rib).
+    auto count = [&](const patient::Segmentation& s) {
+      std::set<int> ribs;
+      for (const auto* side : {&s.bones.ribs_left, &s.bones.ribs_right})
+        for (const auto& piece : *side) ribs.insert(piece.label);
+      std::pair<long, long> girdle_rib{0, 0};
+      for (long v = 0; v < ct.voxel_count(); ++v) {
+        if (s.bones.labels[v] <= 0 || ribs.count(s.bones.labels[v]) == 0) continue;
+        const Eigen::Vector3d q = ct.PatientPoint(
+            static_cast<double>(v % ct.size.x()),
+            static_cast<double>(v / ct.size.x() % ct.size.y()), static_cast<double>(v / plane));
+        double nearest = HUGE_VAL, middle = HUGE_VAL;
+        for (const auto& rib : ph.truth.ribs) {
+          nearest = std::min(nearest, DistanceToPolyline(q, rib.centreline));
+          const std::vector<Eigen::Vector3d> mid(rib.centreline.begin() + rib.centreline.size() / 4,
+                                                 rib.centreline.end() - rib.centreline.size() / 4);
+          middle = std::min(middle, DistanceToPolyline(q, mid));
+        }
+        girdle_rib.first += nearest > 3 * p.rib_radius;
+        girdle_rib.second += middle < 2 * p.rib_radius;
+      }
+      return girdle_rib;
+    };
+    const auto before = count(seg);
+    EXPECT_GT(before.first, 200) << "the girdle was not among the ribs: the test proves nothing";
+    patient::IntercostalOptions io;
+    io.right = true;
+    double moved = 0.0;
+    for (int side : {+1, -1}) {
+      io.left = side > 0;
+      io.right = side < 0;
+      patient::LayerChart chart;
+      patient::FindIntercostalSpacesInLayer(ct, seg, io, &chart);
+      moved += patient::KeepBoneBeyondTheLayerOutOfRibs(ct, chart, side, so.anatomy, &seg);
+    }
+    const auto after = count(seg);
+    std::printf(
+        "seed %u: girdle among ribs %ld -> %ld voxels, rib middles %ld -> %ld, moved %.1f ml\n",
+        seed, before.first, after.first, before.second, after.second, moved * 1e6);
+    EXPECT_LT(after.first, 0.02 * before.first);
+    EXPECT_GE(after.second, 0.95 * before.second);
+    // What moved is the shoulder's now.
+    long shoulder = 0;
+    for (std::uint8_t in : seg.shoulder.inside) shoulder += in;
+    EXPECT_GE(shoulder * std::abs(ct.index_to_P.determinant()), moved - 1e-12);
+  }
+}
+
 }  // namespace
 }  // namespace trocar

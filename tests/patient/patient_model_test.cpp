@@ -502,6 +502,26 @@ TEST(PatientModel, Lidc2SpacesFoundInAWindowedScanLieOnTheAnnotatedOnes) {
   EXPECT_NE(layer_check(imported.report).find("ribs at or above 110.2 within 45 mm"),
             std::string::npos)
       << layer_check(imported.report);
+  // The layer keeps the shoulder girdle out of the ribs on both sides (ShapeAnatomy.
+  // AShoulderGirdleOutsideTheLayerIsKeptOutOfFragmentaryRibs): the right upper arm, merged with
+  // the right shoulder blade into one "rib" 157 mm right of the spine before, is no rib now; no
+  // rib lies further from the spine's midline than the rib cage's half width (LIDC2's widest
+  // ribs reach 136 mm).
+  int girdle_lines = 0;
+  for (const std::string& c : imported.report.checks)
+    girdle_lines += c.find("lying mostly outside the rib cage's layer") != std::string::npos;
+  EXPECT_EQ(girdle_lines, 2);
+  {
+    const patient::Structure* spine = m.Find("spine");
+    const patient::Structure* ribs = m.Find("ribs");
+    ASSERT_TRUE(spine != nullptr && ribs != nullptr);
+    double mid_x = 0.0;
+    for (const auto& v : spine->mesh.vertices) mid_x += v.x();
+    mid_x /= static_cast<double>(spine->mesh.vertices.size());
+    double widest = 0.0;
+    for (const auto& v : ribs->mesh.vertices) widest = std::max(widest, std::abs(v.x() - mid_x));
+    EXPECT_LT(widest, 0.145);
+  }
   const auto annotated =
       patient::LoadMarkups(test::SourcePath("patients/lidc2/markups/intercostal.mrk.json"));
   ASSERT_EQ(annotated.size(), 5u);
