@@ -129,7 +129,7 @@ struct AnatomyOptions {
   /// A side judged from the rib cage's layer (KeepBoneBeyondTheLayerOutOfRibs): a rib-like piece
   /// is outside the rib cage when at least `layer_judged_share` of its voxels can be judged
   /// against the ribs' surface and over `layer_beyond_share` of those lie beyond it.
-  double layer_judged_share = 0.5, layer_beyond_share = 0.6;
+  double layer_judged_share = 0.5, layer_beyond_share = 0.67;
 };
 
 /// How one side's ribs were numbered.

@@ -220,9 +220,11 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
   for (int side : {+1, -1}) {
     if ((side > 0 && !o.left) || (side < 0 && !o.right)) continue;
     // The innermost rib-bright voxel in the wall along each ray; and, for the girdle's surface,
-    // the inner end of the innermost bright run no deeper along the ray than a rib
-    // (`layer_max_rib_depth`) that the wall does not cut (an organ under the ribs, the liver
-    // with contrast, reads as a long run from the wall's inner edge).
+    // the inner end of the innermost bright run that ends in the wall and is no deeper along the
+    // ray than a rib (`layer_max_rib_depth`), measured whole, inside the wall's depth too: an
+    // organ under the ribs (the liver with contrast) is a long run, and a rib whose inner edge
+    // lies deeper than the wall's depth (under a shoulder blade and the back's muscles) is a
+    // short one.
     std::vector<double> inner(static_cast<std::size_t>(rows) * cols, NAN);
     std::vector<double> thin(inner.size(), NAN);
     for (int row = 0; row < rows; ++row) {
@@ -230,24 +232,25 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
       for (int col = 0; col < cols; ++col) {
         const Eigen::Vector2d d = direction(side, col);
         double run_from = -1.0;
-        bool cut = false, was_in_wall = false;
+        bool run_in_wall = false, entered = false;
         for (double r = 0.0; r <= max_r; r += dr) {
           const long v = voxel(Eigen::Vector3d(axis.x() + r * d.x(), axis.y() + r * d.y(), z));
+          const bool in_body = v >= 0 && seg.body.inside[v];
+          const bool bright = in_body && ct.values[v] >= floor;
           const bool wall = in_wall(v);
-          const bool bright = wall && ct.values[v] >= floor;
-          if (bright && std::isnan(inner[row * cols + col])) inner[row * cols + col] = r;
-          if (bright && run_from < 0.0) {
-            run_from = r;
-            cut = !was_in_wall;  // the run begins where the wall does
-          } else if (!bright && run_from >= 0.0) {
-            if (!cut && r - run_from <= o.layer_max_rib_depth) {
+          if (bright && wall && std::isnan(inner[row * cols + col])) inner[row * cols + col] = r;
+          if (bright) {
+            if (run_from < 0.0) run_from = r;
+            run_in_wall = wall;
+          } else if (run_from >= 0.0) {
+            if (run_in_wall && r - run_from <= o.layer_max_rib_depth) {
               thin[row * cols + col] = run_from;
               break;
             }
             run_from = -1.0;
           }
-          if (was_in_wall && v >= 0 && !seg.body.inside[v]) break;  // out through the skin
-          was_in_wall = was_in_wall || wall;
+          if (entered && !in_body) break;  // out through the skin
+          entered = entered || in_body;
         }
       }
     }

@@ -73,8 +73,8 @@ struct LayerChart {
   std::vector<std::uint8_t> rib_left, rib_right;  ///< row * cols + col: 1 where the layer is rib
   /// row * cols + col: the ribs' surface, its distance from the body's axis (m; NaN where the
   /// wall holds no rib-bright run near): the lower quartile around of the innermost bright runs
-  /// no deeper than a rib (`layer_max_rib_depth`). Bone beyond it by more than `outside` lies
-  /// outside the rib cage.
+  /// that end in the wall and are no deeper than a rib (`layer_max_rib_depth`, measured whole).
+  /// Bone beyond it by more than `outside` lies outside the rib cage.
   std::vector<double> surface_left, surface_right;
   double outside = 0.0;  ///< `layer_outside` as used (m)
 };

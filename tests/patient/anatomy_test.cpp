@@ -958,18 +958,23 @@ namespace {
 // by the rib cage's layer (KeepBoneBeyondTheLayerOutOfRibs): phantoms with shoulder blades,
 // collarbones and arms, each bone hollowed to a cortex one voxel thick and windowed to 8 bits
 // (the ribs read as their cortex, as LIDC2's do), cut at the top through the first ribs so that
-// neither side is numbered (the layer judges them). Before, the girdle's bone (voxels further than
-// three rib radii from every generated rib) is among the ribs; after, none of it is, and the ribs'
-// own bone (their middle stretch) stays. The ribs read as fragments: along each, 5 cm stretches
-// at bone brightness and 3 cm ones below the bone threshold, above the layer's floor (as a
-// rib's partial-volume cortex reads in LIDC2's window); the girdle's bone reads bright.
+// neither side is numbered (the layer judges them); over seeds, voxel sizes (2-3 mm), chest
+// walls 20-24 mm thick (the ribs under the shoulder blades then lie deeper than the layer's
+// 45 mm) and body widths 30-34 cm. Before, the girdle's bone (voxels further than three rib
+// radii from every generated rib) is among the ribs; after, at most 5 % of it is (what stays is
+// an arm's bone below the rib cage, where the layer has no ribs to judge it by), and 95 % of the
+// ribs' own bone (their middle stretch) stays. The ribs read as fragments: along each, 5 cm
+// stretches at bone brightness and 3 cm ones below the bone threshold, above the layer's floor (as
+// a rib's partial-volume cortex reads in LIDC2's window); the girdle's bone reads bright.
 TEST(ShapeAnatomy, AShoulderGirdleOutsideTheLayerIsKeptOutOfFragmentaryRibs) {
-  for (const auto& [seed, voxel] : {std::pair{3u, 0.0025}, std::pair{9u, 0.0025}}) {
+  for (const auto& [seed, voxel] :
+       {std::pair{2u, 0.002}, std::pair{5u, 0.0025}, std::pair{7u, 0.003}, std::pair{9u, 0.0025}}) {
     SCOPED_TRACE(seed);
     patient::PhantomParameters p;
     p.seed = seed;
     p.voxel_size = voxel;
-    p.wall_thickness = 0.02;
+    p.wall_thickness = 0.02 + 0.002 * (seed % 3);
+    p.body_width = 0.30 + 0.01 * (seed % 5);
     p.ribs_reach_spine = p.shoulders = true;
     const patient::Phantom ph = patient::GeneratePhantom(p);
     const patient::Volume& hu = ph.ct;
@@ -1076,7 +1081,7 @@ TEST(ShapeAnatomy, AShoulderGirdleOutsideTheLayerIsKeptOutOfFragmentaryRibs) {
     std::printf(
         "seed %u: girdle among ribs %ld -> %ld voxels, rib middles %ld -> %ld, moved %.1f ml\n",
         seed, before.first, after.first, before.second, after.second, moved * 1e6);
-    EXPECT_LT(after.first, 0.02 * before.first);
+    EXPECT_LE(after.first, 0.05 * before.first);
     EXPECT_GE(after.second, 0.95 * before.second);
     // What moved is the shoulder's now.
     long shoulder = 0;
