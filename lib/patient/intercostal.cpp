@@ -227,6 +227,8 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
     // short one.
     std::vector<double> inner(static_cast<std::size_t>(rows) * cols, NAN);
     std::vector<double> thin(inner.size(), NAN);
+    // Rows are independent (each writes its own cells): split over threads.
+#pragma omp parallel for schedule(dynamic, 4)
     for (int row = 0; row < rows; ++row) {
       const double z = row_z(row);
       for (int col = 0; col < cols; ++col) {

@@ -194,19 +194,21 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
   double layer_floor = 0.0;
   if (!ct.hounsfield && !have_labels) {
     stage("rib cage layer", [&] {
+      // Both unnumbered sides in one chart (one distance transform for the wall's depth).
+      IntercostalOptions both = c.intercostal;
+      both.left = !seg.numbering_left.numbered;
+      both.right = !seg.numbering_right.numbered;
+      if (!both.left && !both.right) return;
+      LayerChart chart;
+      auto found = FindIntercostalSpacesInLayer(ct, seg, both, &chart);
+      layer_floor = chart.floor;
       for (int side : {+1, -1}) {
-        if ((side > 0 ? seg.numbering_left : seg.numbering_right).numbered) continue;
-        IntercostalOptions one = c.intercostal;
-        one.left = side > 0;
-        one.right = side < 0;
-        LayerChart chart;
-        auto found = FindIntercostalSpacesInLayer(ct, seg, one, &chart);
+        if (!(side > 0 ? both.left : both.right)) continue;
         if (c.seg.shape_anatomy)
           KeepBoneBeyondTheLayerOutOfRibs(ct, chart, side, c.seg.anatomy, &seg);
-        layer_spaces[side > 0 ? 0 : 1] = std::move(found);
         layer_side[side > 0 ? 0 : 1] = true;
-        layer_floor = chart.floor;
       }
+      for (auto& space : found) layer_spaces[space.side > 0 ? 0 : 1].push_back(std::move(space));
     });
   }
   m.body_min_P = seg.body_min_P;
