@@ -200,7 +200,18 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
       both.right = !seg.numbering_right.numbered;
       if (!both.left && !both.right) return;
       LayerChart chart;
-      auto found = FindIntercostalSpacesInLayer(ct, seg, both, &chart);
+      std::vector<IntercostalSpace> found;
+      try {
+        found = FindIntercostalSpacesInLayer(ct, seg, both, &chart);
+      } catch (const Error& e) {
+        // Needed for the ports: the error stands. Needed for the girdle only (the ports are
+        // annotated): the import goes on with the pieces' own rule, and says so.
+        if (c.port_markups.empty()) throw;
+        report.warnings.push_back(
+            std::string("bones: the rib cage's layer could not be charted (") + e.what() +
+            "): the shoulder girdle is judged by the bone pieces alone");
+        return;
+      }
       layer_floor = chart.floor;
       for (int side : {+1, -1}) {
         if (!(side > 0 ? both.left : both.right)) continue;
