@@ -234,25 +234,29 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
       for (int col = 0; col < cols; ++col) {
         const Eigen::Vector2d d = direction(side, col);
         double run_from = -1.0;
-        bool run_in_wall = false, entered = false;
+        bool run_in_wall = false, entered = false, thin_done = false;
         for (double r = 0.0; r <= max_r; r += dr) {
           const long v = voxel(Eigen::Vector3d(axis.x() + r * d.x(), axis.y() + r * d.y(), z));
           const bool in_body = v >= 0 && seg.body.inside[v];
           const bool bright = in_body && ct.values[v] >= floor;
           const bool wall = in_wall(v);
           if (bright && wall && std::isnan(inner[row * cols + col])) inner[row * cols + col] = r;
-          if (bright) {
-            if (run_from < 0.0) run_from = r;
-            run_in_wall = wall;
-          } else if (run_from >= 0.0) {
-            if (run_in_wall && r - run_from <= o.layer_max_rib_depth) {
-              thin[row * cols + col] = run_from;
-              break;
+          if (!thin_done) {
+            if (bright) {
+              if (run_from < 0.0) run_from = r;
+              run_in_wall = wall;
+            } else if (run_from >= 0.0) {
+              if (run_in_wall && r - run_from <= o.layer_max_rib_depth) {
+                thin[row * cols + col] = run_from;
+                thin_done = true;
+              }
+              run_from = -1.0;
             }
-            run_from = -1.0;
+            // Out through the skin: an arm beyond it is not the chest wall's.
+            thin_done = thin_done || (entered && !in_body);
+            entered = entered || in_body;
           }
-          if (entered && !in_body) break;  // out through the skin
-          entered = entered || in_body;
+          if (thin_done && !std::isnan(inner[row * cols + col])) break;
         }
       }
     }

@@ -204,9 +204,12 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
       try {
         found = FindIntercostalSpacesInLayer(ct, seg, both, &chart);
       } catch (const Error& e) {
-        // Needed for the ports: the error stands. Needed for the girdle only (the ports are
-        // annotated): the import goes on with the pieces' own rule, and says so.
-        if (c.port_markups.empty()) throw;
+        // Needed for the ports (not annotated, and asked of an unnumbered side): the error
+        // stands. Needed for the girdle only: the import goes on with the pieces' own rule, and
+        // says so.
+        if (c.port_markups.empty() &&
+            ((c.intercostal.left && both.left) || (c.intercostal.right && both.right)))
+          throw;
         report.warnings.push_back(
             std::string("bones: the rib cage's layer could not be charted (") + e.what() +
             "): the shoulder girdle is judged by the bone pieces alone");
