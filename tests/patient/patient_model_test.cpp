@@ -1,17 +1,18 @@
 #include "patient/patient_model.hpp"
 
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 
-#include <gtest/gtest.h>
-
-#include "common/error.hpp"
 #include "collision/triangle_bvh.hpp"
+#include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "patient/markups.hpp"
 #include "patient/model_cache.hpp"
+#include "patient/phantom.hpp"
 #include "patient/volume.hpp"
 #include "test_util.hpp"
 
@@ -244,6 +245,53 @@ void ExpectImportError(const std::string& dir, const std::string& needle) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
   }
+}
+
+// A windowed volume's rib cage layer cannot be charted when its chest wall holds no soft tissue
+// between the body and bone thresholds (here a phantom windowed to bone or nothing: every wall
+// voxel reads 0 or 255). With the ports annotated, the layer was wanted for the shoulder girdle
+// only: the import goes on, says why (naming the CT) and keeps the annotated ports. Without them
+// the ports need the layer, and the error stands, naming the CT and the reason.
+TEST(PatientModel, ALayerThatCannotBeChartedIsAWarningOnlyWhenThePortsAreAnnotated) {
+  patient::PhantomParameters p;
+  p.seed = 3;
+  p.voxel_size = 0.003;
+  patient::Phantom ph = patient::GeneratePhantom(p);
+  for (float& v : ph.ct.values) v = v >= 400.0f ? 255.0f : 0.0f;  // bone, or nothing
+  const std::string dir = testing::TempDir() + "/trocar-layer-not-charted";
+  fs::remove_all(dir);
+  patient::WritePhantomCase(ph, dir);
+  std::string yaml, yaml_without_ports;
+  {
+    std::ifstream in(JoinPath(dir, "patient.yaml"));
+    std::string line;
+    while (std::getline(in, line)) {
+      if (line.rfind("units:", 0) == 0 || line.rfind("thresholds:", 0) == 0 ||
+          line.rfind("heart:", 0) == 0)
+        continue;
+      yaml += line + "\n";
+      if (line.rfind("port_candidates:", 0) != 0) yaml_without_ports += line + "\n";
+    }
+  }
+  const std::string windowed =
+      "units: raw\nthresholds: {body: 40, bone: 160}\nheart: {contrast: false}\n"
+      "intercostal: {left: true}\n";
+  ASSERT_NE(yaml.size(), yaml_without_ports.size());  // the phantom's case annotates its ports
+  std::ofstream(JoinPath(dir, "patient.yaml")) << yaml << windowed;
+  const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
+  int said = 0;
+  for (const std::string& w : imported.report.warnings) {
+    said += w.find("the rib cage's layer could not be charted") != std::string::npos &&
+            w.find("ct.nrrd: no soft tissue in the chest wall") != std::string::npos;
+  }
+  EXPECT_EQ(said, 1);
+  for (const std::string& c : imported.report.checks)
+    EXPECT_EQ(c.find("rib cage's layer"), std::string::npos) << c;  // the layer judged nothing
+  ASSERT_FALSE(imported.model->port_candidates.empty());
+  for (const patient::PortCandidate& c : imported.model->port_candidates)
+    EXPECT_NE(c.source.find("markups:"), std::string::npos) << c.name << ": " << c.source;
+  std::ofstream(JoinPath(dir, "patient.yaml")) << yaml_without_ports << windowed;
+  ExpectImportError(dir, "ct.nrrd: no soft tissue in the chest wall (body threshold 40");
 }
 
 // A heart-centred crop (totalseg-pulmonary, no label map) holds one piece of rib on the left:
