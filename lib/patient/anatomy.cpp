@@ -173,7 +173,7 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
       }
     }
   }
-  const double area = ct.spacing().x() * ct.spacing().y();
+  const double area = InPlaneSpacing(ct).prod();
   for (int s = 0; s < slices.count; ++s) {
     if (candidates[s].size() * area < 20e-6) candidates[s].swap(thick[s]);
   }
@@ -187,7 +187,7 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
   // across any line on a crop off the body's centre, do not. The axis' front-back place is the
   // median of the midline band's bone.
   constexpr double kPairGap = 0.008, kPairReach = 0.045, kRowHeight = 0.002;
-  const double bin = std::max(ct.spacing().x(), 1e-3);
+  const double bin = std::max(InPlaneSpacing(ct).mean(), 1e-3);
   const int search = static_cast<int>(std::floor(o.spine_search / bin));
   const int gap = static_cast<int>(std::ceil(kPairGap / bin));
   const int reach = static_cast<int>(std::floor(kPairReach / bin));
@@ -285,7 +285,7 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
   a.x.assign(slices.count, 0.0);
   a.y.assign(slices.count, 0.0);
   a.known.assign(slices.count, 0);
-  const double voxel_area = ct.spacing().x() * ct.spacing().y();
+  const double voxel_area = InPlaneSpacing(ct).prod();
   for (int s = 0; s < slices.count; ++s) {
     if (xs[s].size() * voxel_area < 20e-6) continue;  // 20 mm² of midline bone at least
     a.x[s] = mirror_x[s];
@@ -1099,7 +1099,7 @@ void ClassifyBonesOnce(const Volume& ct, Segmentation* seg, const AnatomyOptions
       }
     }
     const int steps =
-        std::max(1, static_cast<int>(std::lround(grow_distance / ct.spacing().head<2>().mean())));
+        std::max(1, static_cast<int>(std::lround(grow_distance / InPlaneSpacing(ct).mean())));
     std::vector<int> grown = parts.labels;
     for (int& l : grown) l = l > 0 ? l : 0;
     Grow(ct, &grown, steps, [&](long n) {

@@ -215,6 +215,13 @@ std::vector<CutFace> FindCutFaces(const Volume& ct, const Mask& body, double min
       faces.push_back({positive ? kPositive[along] : kNegative[along], axis, high, fraction});
     }
   }
+  auto rank = [](const CutFace& f) {
+    static const char* kOrder[6] = {"right",     "left",     "anterior",
+                                    "posterior", "superior", "inferior"};
+    return std::find(kOrder, kOrder + 6, f.name) - kOrder;
+  };
+  std::stable_sort(faces.begin(), faces.end(),
+                   [&](const CutFace& a, const CutFace& b) { return rank(a) < rank(b); });
   return faces;
 }
 

@@ -41,7 +41,9 @@ struct CutFace {
   double body_fraction = 0.0;  ///< of the face's voxels inside the body
 };
 
-/// The faces of the volume the body touches over at least `min_fraction` of their voxels.
+/// The faces of the volume the body touches over at least `min_fraction` of their voxels, in the
+/// patient's order (right, left, anterior, posterior, superior, inferior) whichever index axes the
+/// file stores them along.
 std::vector<CutFace> FindCutFaces(const Volume& ct, const Mask& body, double min_fraction = 0.002);
 
 /// Distance (m) from `p_P` to a cut face's plane, measured along its index axis (negative outside

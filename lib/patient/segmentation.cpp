@@ -30,6 +30,12 @@ int AxialAxis(const Volume& v) {
   return best;
 }
 
+Eigen::Vector2d InPlaneSpacing(const Volume& v) {
+  const int axis = AxialAxis(v);
+  const Eigen::Vector3d h = v.spacing();
+  return {h[(axis + 1) % 3], h[(axis + 2) % 3]};
+}
+
 namespace {
 
 Mask Threshold(const Volume& v, double threshold) {

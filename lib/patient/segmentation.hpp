@@ -27,6 +27,11 @@ struct Mask {
 /// across it.
 int AxialAxis(const Volume& v);
 
+/// The spacings along the two index axes across AxialAxis (m): a slice's rows and columns,
+/// whichever index axes the file stores them along (a volume stored sagittally has its slices
+/// across its first axis).
+Eigen::Vector2d InPlaneSpacing(const Volume& v);
+
 struct Component {
   int label = 0;           ///< 1-based label in the label image
   long voxels = 0;

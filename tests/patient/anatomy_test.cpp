@@ -14,7 +14,9 @@
 #include "patient/intercostal.hpp"
 #include "patient/label_map.hpp"
 #include "patient/patient_model.hpp"
+#include "patient/sanity.hpp"
 #include "patient/segmentation.hpp"
+#include "patient/stored_otherwise.hpp"
 #include "patient/volume.hpp"
 #include "test_util.hpp"
 
@@ -1087,6 +1089,113 @@ TEST(ShapeAnatomy, AShoulderGirdleOutsideTheLayerIsKeptOutOfFragmentaryRibs) {
     long shoulder = 0;
     for (std::uint8_t in : seg.shoulder.inside) shoulder += in;
     EXPECT_GE(shoulder * std::abs(ct.index_to_P.determinant()), moved - 1e-12);
+  }
+}
+
+}  // namespace
+}  // namespace trocar
+namespace trocar {
+namespace {
+
+// What the sorting made of each voxel: 0 nothing, 1 spine, 2 sternum, 3 vessel, 4 girdle, and
+// ribs 100 + number (left) or 200 + number (right), number 0 when not numbered.
+std::vector<int> ClassOfEachVoxel(const patient::Segmentation& seg) {
+  std::map<int, int> of_label;
+  for (const auto& c : seg.bones.spine) of_label[c.label] = 1;
+  for (const auto& c : seg.bones.sternum) of_label[c.label] = 2;
+  for (const auto& c : seg.bones.ribs_left) of_label[c.label] = 100 + std::max(0, c.number);
+  for (const auto& c : seg.bones.ribs_right) of_label[c.label] = 200 + std::max(0, c.number);
+  std::vector<int> out(seg.bones.labels.size(), 0);
+  for (std::size_t v = 0; v < out.size(); ++v) {
+    const auto it = of_label.find(seg.bones.labels[v]);
+    if (it != of_label.end()) out[v] = it->second;
+    if (seg.vessels.inside[v]) out[v] = 3;
+    if (seg.shoulder.inside[v]) out[v] = 4;
+  }
+  return out;
+}
+
+// A CT stored sagittally or coronally, or with reversed axes, is the same CT: the bone sorting
+// and the spaces found between the ribs do not depend on the order of the file's index axes
+// (a slice's voxel area and in-plane spacing once came from the first two index axes, which in a
+// sagittal stack are across the slices: LIDC2 stored with its slices across the first axis lost
+// 6 ml of spine to a rib). Over phantoms whose ribs touch the vertebrae, with shoulder girdles
+// and contrast, in Hounsfield units: every voxel gets the same class, rib numbers included, and
+// the same spaces come out.
+TEST(ShapeAnatomy, TheSortingDoesNotDependOnTheOrderTheFileStoresItsAxesIn) {
+  struct Case {
+    unsigned seed;
+    std::array<int, 3> order;
+    std::array<bool, 3> flip;
+  };
+  for (const Case& c :
+       {Case{4, {2, 0, 1}, {false, false, false}}, Case{8, {1, 2, 0}, {true, false, true}},
+        Case{9, {0, 2, 1}, {false, true, false}}}) {
+    SCOPED_TRACE(c.seed);
+    patient::PhantomParameters p;
+    p.seed = c.seed;
+    p.voxel_size = 0.002;
+    p.slice_spacing = 0.004;  // thicker slices than pixels, as in clinical CTs
+    p.ribs_per_side = 12;
+    p.length = 0.15 + 1.04 * 11 * p.rib_spacing;
+    p.wall_thickness = 0.02;
+    p.ribs_reach_spine = p.shoulders = true;
+    const patient::Phantom ph = patient::GeneratePhantom(p);
+    const patient::Volume& ct = ph.ct;
+    const test::Stored stored = test::StoreOtherwise(ct, c.order, c.flip);
+    ASSERT_NE(patient::AxialAxis(stored.ct), 2);
+    const patient::Segmentation a = patient::Segment(ct);
+    const patient::Segmentation b = patient::Segment(stored.ct);
+    const std::vector<int> class_a = ClassOfEachVoxel(a), class_b = ClassOfEachVoxel(b);
+    long bone = 0, differ = 0;
+    std::map<int, long> classes;
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const int x = class_a[ct.Index(i, j, k)], y = class_b[stored.Index(ct, i, j, k)];
+          bone += x != 0;
+          differ += x != y;
+          ++classes[x];
+        }
+      }
+    }
+    EXPECT_GT(classes[1], 0);
+    EXPECT_GT(classes[4], 0);
+    EXPECT_GT(classes[112], 0);  // ribs numbered 1 to 12, the last left one among them
+    EXPECT_EQ(differ, 0) << differ << " of " << bone << " voxels sorted otherwise";
+    EXPECT_EQ(a.numbering_left.basis, b.numbering_left.basis);
+    patient::IntercostalOptions io;
+    io.right = true;
+    // The heart's contrast pool, the orientation's findings and the cut faces alike.
+    const std::optional<patient::Mask> heart_a = patient::TrySegmentHeartFromContrast(ct, a);
+    const std::optional<patient::Mask> heart_b = patient::TrySegmentHeartFromContrast(stored.ct, b);
+    ASSERT_TRUE(heart_a.has_value() && heart_b.has_value());
+    long heart = 0, heart_differ = 0;
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const bool x = heart_a->inside[ct.Index(i, j, k)];
+          heart += x;
+          heart_differ += x != (heart_b->inside[stored.Index(ct, i, j, k)] != 0);
+        }
+      }
+    }
+    EXPECT_GT(heart, 0);
+    EXPECT_EQ(heart_differ, 0);
+    EXPECT_EQ(patient::CheckOrientation(ct, a, &*heart_a).findings,
+              patient::CheckOrientation(stored.ct, b, &*heart_b).findings);
+    std::vector<std::string> faces_a, faces_b;
+    for (const auto& f : patient::FindCutFaces(ct, a.body)) faces_a.push_back(f.name);
+    for (const auto& f : patient::FindCutFaces(stored.ct, b.body)) faces_b.push_back(f.name);
+    EXPECT_EQ(faces_a, faces_b);
+    const auto spaces_a = patient::FindIntercostalSpaces(ct, a, io);
+    const auto spaces_b = patient::FindIntercostalSpaces(stored.ct, b, io);
+    ASSERT_EQ(spaces_a.size(), spaces_b.size());
+    for (std::size_t n = 0; n < spaces_a.size(); ++n) {
+      ASSERT_EQ(spaces_a[n].skin.size(), spaces_b[n].skin.size());
+      for (std::size_t q = 0; q < spaces_a[n].skin.size(); ++q)
+        EXPECT_LT((spaces_a[n].skin[q] - spaces_b[n].skin[q]).norm(), 1e-3);
+    }
   }
 }
 

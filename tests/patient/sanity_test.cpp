@@ -314,8 +314,8 @@ TEST(CutFaces, FaceNamesFollowTheHeadersAxes) {
   }
   std::vector<std::string> names;
   for (const auto& f : patient::FindCutFaces(v, body)) names.push_back(f.name);
-  // i = 9 lies at the most negative x: the right; k runs superior.
-  EXPECT_EQ(names, (std::vector<std::string>{"right", "inferior", "superior"}));
+  // i = 9 lies at the most negative x: the right; k runs superior. Named in the patient's order.
+  EXPECT_EQ(names, (std::vector<std::string>{"right", "superior", "inferior"}));
 }
 
 // Target points beyond the scanned box are an error naming the target and the file.
