@@ -71,6 +71,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
     // In the CT's own units: set both the HU and the raw fields, whichever the CT turns out to be.
     if (t["body"]) c.seg.body_hu = c.seg.raw_body = y.Number(t["body"], "thresholds.body");
     if (t["bone"]) c.seg.bone_hu = c.seg.raw_bone = y.Number(t["bone"], "thresholds.bone");
+    c.thresholds_given = t["body"] || t["bone"];
     TROCAR_THROW_UNLESS(c.seg.body_hu < c.seg.bone_hu && c.seg.raw_body < c.seg.raw_bone,
                         y.Where(t, "thresholds")
                             << ": the body threshold must be below the bone threshold");

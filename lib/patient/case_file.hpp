@@ -40,6 +40,7 @@ struct CaseSpec {
   bool has_phantom = false;
   PhantomParameters phantom;
   int units = 0;  // 0 auto, 1 hounsfield, 2 raw
+  bool thresholds_given = false;  // thresholds.body or thresholds.bone set (else the defaults)
   SegmentationOptions seg;
   std::string heart_mask;
   double heart_mask_threshold = 0.5;

@@ -166,6 +166,32 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
   m.name = c.name;
   m.case_dir = case_dir;
   report.warnings.insert(report.warnings.end(), ct.warnings.begin(), ct.warnings.end());
+  // CT numbers stored without their rescale intercept are converted and said (units: raw keeps
+  // them as they are).
+  double soft_tissue = 0.0;
+  if (c.units != 2 && LooksLikeCtNumbersWithoutIntercept(ct, &soft_tissue)) {
+    for (float& x : ct.values) x -= 1024.0f;
+    ct.hounsfield = true;
+    std::ostringstream w;
+    w << c.ct << ": no value below 0, air near 0 and soft tissue near " << std::lround(soft_tissue)
+      << ": read as CT numbers stored without their rescale intercept, converted to Hounsfield "
+         "units (value - 1024); set units: raw in "
+      << c.file << " if they are not";
+    report.warnings.push_back(w.str());
+  }
+  // The default raw thresholds are an 8-bit window's: a raw volume beyond that range needs its
+  // own.
+  if (!ct.hounsfield && !c.thresholds_given && !ct.values.empty()) {
+    const float top = *std::max_element(ct.values.begin(), ct.values.end());
+    TROCAR_THROW_UNLESS(
+        top <= 255.5f,
+        c.ct << ": not in Hounsfield units (no value at or below -500) and not an 8-bit window "
+                "(values reach "
+             << top << "): the default thresholds for windowed volumes (body " << c.seg.raw_body
+             << ", bone " << c.seg.raw_bone << ") do not fit it; give thresholds: {body: ..., "
+             << "bone: ...} in the CT's own units in " << c.file
+             << ", or units: hounsfield if its values are HU");
+  }
   if (ct.hounsfield && c.intercostal.layer_floor > 0.0) {
     report.warnings.push_back(
         "thresholds.rib is for windowed volumes (units: raw); this CT is in Hounsfield units, its "

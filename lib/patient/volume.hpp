@@ -65,6 +65,14 @@ Image RenderSlice(const Volume& volume, int axis, int index, double level, doubl
 ///         unknown type, wrong sizes, truncated or garbled data, missing data file, NaN values.
 Volume LoadVolume(const std::string& path);
 
+/// CT numbers stored without their rescale intercept (a NRRD or NIfTI written from a DICOM
+/// series' stored pixel values, whose RescaleIntercept of −1024 was not applied): no value below
+/// zero, air reading near 0 and the body's soft tissue near 1024 (water), bone beyond 1500. True
+/// when at least 5 % of the voxels read at most 300 (air, lung) and at least 40 % of the rest
+/// read 850-1200 (fat to muscle, −174 to +176 HU); `soft_tissue` gets the median of those.
+/// An 8-bit window never qualifies (no value beyond 255).
+bool LooksLikeCtNumbersWithoutIntercept(const Volume& v, double* soft_tissue = nullptr);
+
 /// Reads a DICOM series through GDCM: `path` is a folder holding one series, or one file of the
 /// series to pick (its folder may hold others). Every transfer syntax GDCM decodes (implicit or
 /// explicit VR, big endian, deflated, JPEG, JPEG-LS, JPEG 2000, RLE); classic single-frame slices

@@ -162,6 +162,37 @@ bool LooksLikeHounsfield(VoxelType type, const std::vector<float>& values) {
   return *std::min_element(values.begin(), values.end()) <= -500.0f;
 }
 
+}  // namespace
+
+bool LooksLikeCtNumbersWithoutIntercept(const Volume& v, double* soft_tissue) {
+  if (v.values.empty()) return false;
+  const auto [lo, hi] = std::minmax_element(v.values.begin(), v.values.end());
+  if (*lo < 0.0f || *hi < 1500.0f) return false;
+  // Every 7th voxel is plenty for shares of a volume's tissues.
+  long air = 0, rest = 0;
+  std::vector<float> soft;
+  for (std::size_t n = 0; n < v.values.size(); n += 7) {
+    const float x = v.values[n];
+    if (x <= 300.0f) {
+      ++air;
+    } else {
+      ++rest;
+      if (x >= 850.0f && x <= 1200.0f) soft.push_back(x);
+    }
+  }
+  const long all = air + rest;
+  if (air < 0.05 * static_cast<double>(all) || rest == 0 ||
+      static_cast<double>(soft.size()) < 0.4 * static_cast<double>(rest))
+    return false;
+  if (soft_tissue != nullptr) {
+    std::nth_element(soft.begin(), soft.begin() + soft.size() / 2, soft.end());
+    *soft_tissue = soft[soft.size() / 2];
+  }
+  return true;
+}
+
+namespace {
+
 // Sizes, spacing and directions as CheckVolumeGeometry, returning the voxel count.
 std::uint64_t CheckGeometry(const Volume& v, const std::string& what) {
   CheckVolumeGeometry(v, what);

@@ -307,6 +307,56 @@ TEST(PatientModel, Lidc2StoredSagittallyImportsAsItself) {
   EXPECT_EQ(a.cut_faces, b.cut_faces);
 }
 
+// CT numbers stored without their rescale intercept (air at 0, water at 1024: a NRRD written
+// from a DICOM series' stored values) are recognised, converted to Hounsfield units and said: the
+// abdominal CT so stored imports as itself. Told `units: raw` without thresholds, the import
+// stops and says the default thresholds are an 8-bit window's. Real HU and LIDC2's 8-bit window
+// are not taken for it.
+TEST(PatientModel, CtNumbersWithoutTheirInterceptAreConvertedAndSaid) {
+  const std::string ct_path = test::SharedDataPath("ct/totalseg-abdomen/example_ct.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(ct_path);
+  const std::string dir = testing::TempDir() + "/trocar-ct-numbers";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const patient::Volume hu = patient::LoadVolume(ct_path);
+  ASSERT_TRUE(hu.hounsfield);
+  EXPECT_FALSE(patient::LooksLikeCtNumbersWithoutIntercept(hu));
+  EXPECT_FALSE(patient::LooksLikeCtNumbersWithoutIntercept(
+      patient::LoadVolume(test::SharedDataPath("ct/lidc2/ct.nhdr"))));
+  patient::Volume stored = hu;
+  for (float& x : stored.values) x = std::max(0.0f, x + 1024.0f);  // air below -1024 clips at 0
+  double soft = 0.0;
+  EXPECT_TRUE(patient::LooksLikeCtNumbersWithoutIntercept(stored, &soft));
+  EXPECT_NEAR(soft, 1024.0, 100.0);
+  patient::WriteNrrd(stored, JoinPath(dir, "stored.nrrd"));
+  const std::string sides = "intercostal: {left: true, right: true}\n";
+  std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: " << ct_path << "\n" << sides;
+  const patient::ImportedPatient a = patient::ImportCase(dir, {false, false});
+  std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: stored.nrrd\n" << sides;
+  const patient::ImportedPatient b = patient::ImportCase(dir, {false, false});
+  int said = 0;
+  for (const std::string& w : b.report.warnings)
+    said += w.find("stored.nrrd: no value below 0") != std::string::npos &&
+            w.find("converted to Hounsfield units") != std::string::npos;
+  EXPECT_EQ(said, 1);
+  for (const std::string& w : a.report.warnings)
+    EXPECT_EQ(w.find("converted to Hounsfield"), std::string::npos) << w;
+  ASSERT_EQ(a.model->structures.size(), b.model->structures.size());
+  ASSERT_GE(a.model->structures.size(), 3u);
+  for (std::size_t s = 0; s < a.model->structures.size(); ++s) {
+    EXPECT_EQ(a.model->structures[s].name, b.model->structures[s].name);
+    EXPECT_NEAR(a.model->structures[s].volume, b.model->structures[s].volume,
+                1e-3 * a.model->structures[s].volume)
+        << a.model->structures[s].name;
+  }
+  ASSERT_EQ(a.model->port_candidates.size(), b.model->port_candidates.size());
+  EXPECT_EQ(a.report.checks, b.report.checks);
+  std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: stored.nrrd\nunits: raw\n" << sides;
+  ExpectImportError(dir,
+                    "stored.nrrd: not in Hounsfield units (no value at or below -500) and "
+                    "not an 8-bit window");
+}
+
 // A windowed volume's rib cage layer cannot be charted when its chest wall holds no soft tissue
 // between the body and bone thresholds (here a phantom windowed to bone or nothing: every wall
 // voxel reads 0 or 255). With the ports annotated, the layer was wanted for the shoulder girdle
