@@ -381,11 +381,15 @@ bool Unenhanced(const Volume& ct, const Mask& body, double bone_threshold, const
 }
 
 // Grows labelled voxels into unlabelled ones that pass `accept`, breadth first, at most `steps`
-// voxels away (26-neighbours); each grown voxel takes the label it was reached from.
+// voxels away (26-neighbours); each grown voxel takes the label it was reached from, the smallest
+// (the largest component's) when labels reach it in the same step: the result does not depend on
+// the order the file stores its axes in. Labels are non-negative; during a step a voxel claimed
+// holds its label negated.
 template <typename Accept>
 void Grow(const Volume& grid, std::vector<int>* labels, int steps, const Accept& accept) {
   std::vector<long> front, next;
   for (long v = 0; v < static_cast<long>(labels->size()); ++v) {
+    TROCAR_THROW_UNLESS((*labels)[v] >= 0, "Grow: negative label");
     if ((*labels)[v] != 0) front.push_back(v);
   }
   const int nx = grid.size.x(), ny = grid.size.y(), nz = grid.size.z();
@@ -400,13 +404,19 @@ void Grow(const Volume& grid, std::vector<int>* labels, int steps, const Accept&
             const int ii = i + di, jj = j + dj, kk = k + dk;
             if (ii < 0 || jj < 0 || kk < 0 || ii >= nx || jj >= ny || kk >= nz) continue;
             const long n = grid.Index(ii, jj, kk);
-            if ((*labels)[n] != 0 || !accept(n)) continue;
-            (*labels)[n] = (*labels)[v];
+            int& l = (*labels)[n];
+            if (l < 0) {
+              l = std::max(l, -(*labels)[v]);  // reached again this step: the smaller label
+              continue;
+            }
+            if (l != 0 || !accept(n)) continue;
+            l = -(*labels)[v];
             next.push_back(n);
           }
         }
       }
     }
+    for (const long n : next) (*labels)[n] = -(*labels)[n];
     front.swap(next);
   }
 }
