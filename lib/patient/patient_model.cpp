@@ -182,15 +182,16 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
   // The default raw thresholds are an 8-bit window's: a raw volume beyond that range needs its
   // own.
   if (!ct.hounsfield && !c.thresholds_given && !ct.values.empty()) {
-    const float top = *std::max_element(ct.values.begin(), ct.values.end());
-    TROCAR_THROW_UNLESS(
-        top <= 255.5f,
-        c.ct << ": not in Hounsfield units (no value at or below -500) and not an 8-bit window "
-                "(values reach "
-             << top << "): the default thresholds for windowed volumes (body " << c.seg.raw_body
-             << ", bone " << c.seg.raw_bone << ") do not fit it; give thresholds: {body: ..., "
-             << "bone: ...} in the CT's own units in " << c.file
-             << ", or units: hounsfield if its values are HU");
+    const auto [lo, hi] = std::minmax_element(ct.values.begin(), ct.values.end());
+    TROCAR_THROW_UNLESS(*hi <= 255.5f,
+                        c.ct << ": read as a windowed volume ("
+                             << (c.units == 2 ? "units: raw" : "no value at or below -500 HU")
+                             << ") but not an 8-bit window (values " << *lo << " to " << *hi
+                             << "): the default thresholds for windowed volumes (body "
+                             << c.seg.raw_body << ", bone " << c.seg.raw_bone
+                             << ") do not fit it; give thresholds: {body: ..., "
+                             << "bone: ...} in the CT's own units in " << c.file
+                             << ", or units: hounsfield if its values are HU");
   }
   if (ct.hounsfield && c.intercostal.layer_floor > 0.0) {
     report.warnings.push_back(

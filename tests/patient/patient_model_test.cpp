@@ -248,6 +248,21 @@ void ExpectImportError(const std::string& dir, const std::string& needle) {
   }
 }
 
+// LIDC2's case file without its annotated spaces (port_candidates) and without its ct line, its
+// markups' paths made absolute: a case written elsewhere adds the CT it is about.
+std::string Lidc2CaseWithoutAnnotatedSpaces() {
+  std::ifstream in(test::SourcePath("patients/lidc2/patient.yaml"));
+  std::string yaml, line;
+  while (std::getline(in, line)) {
+    if (line.rfind("port_candidates:", 0) == 0 || line.rfind("ct:", 0) == 0) continue;
+    const auto at = line.find("markups/");
+    if (at != std::string::npos)
+      line.replace(at, 8, test::SourcePath("patients/lidc2/markups") + "/");
+    yaml += line + "\n";
+  }
+  return yaml;
+}
+
 // LIDC2 stored as a sagittal stack (its slices across the file's first index axis, the other
 // axes reversed) is the same CT: the import gives the same structures, the same spaces and the
 // same report. With a slice's pixel area taken from the file's first two axes, 6 ml of its spine
@@ -258,18 +273,7 @@ TEST(PatientModel, Lidc2StoredSagittallyImportsAsItself) {
   const std::string dir = testing::TempDir() + "/trocar-lidc2-sagittal";
   fs::remove_all(dir);
   fs::create_directories(dir);
-  std::string yaml;
-  {
-    std::ifstream in(test::SourcePath("patients/lidc2/patient.yaml"));
-    std::string line;
-    while (std::getline(in, line)) {
-      if (line.rfind("port_candidates:", 0) == 0) continue;  // the spaces found, compared
-      const auto at = line.find("markups/");
-      if (at != std::string::npos)
-        line.replace(at, 8, test::SourcePath("patients/lidc2/markups") + "/");
-      if (line.rfind("ct:", 0) != 0) yaml += line + "\n";
-    }
-  }
+  const std::string yaml = Lidc2CaseWithoutAnnotatedSpaces();  // the spaces found, compared
   std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: " << ct_path << "\n" << yaml;
   const patient::ImportedPatient axial = patient::ImportCase(dir, {false, false});
   const test::Stored sagittal =
@@ -353,8 +357,8 @@ TEST(PatientModel, CtNumbersWithoutTheirInterceptAreConvertedAndSaid) {
   EXPECT_EQ(a.report.checks, b.report.checks);
   std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: stored.nrrd\nunits: raw\n" << sides;
   ExpectImportError(dir,
-                    "stored.nrrd: not in Hounsfield units (no value at or below -500) and "
-                    "not an 8-bit window");
+                    "stored.nrrd: read as a windowed volume (units: raw) but not an 8-bit "
+                    "window (values 0 to 4");
 }
 
 // A windowed volume's rib cage layer cannot be charted when its chest wall holds no soft tissue
@@ -634,19 +638,8 @@ TEST(PatientModel, Lidc2SpacesFoundInAWindowedScanLieOnTheAnnotatedOnes) {
   const std::string dir = testing::TempDir() + "/trocar-lidc2-automatic";
   fs::remove_all(dir);
   fs::create_directories(dir);
-  {
-    std::ifstream in(test::SourcePath("patients/lidc2/patient.yaml"));
-    std::ofstream out(JoinPath(dir, "patient.yaml"));
-    std::string line;
-    while (std::getline(in, line)) {
-      if (line.rfind("port_candidates:", 0) == 0) continue;  // no annotated spaces
-      if (line.rfind("ct:", 0) == 0) line = "ct: " + ct_path;
-      const auto at = line.find("markups/");
-      if (at != std::string::npos)
-        line.replace(at, 8, test::SourcePath("patients/lidc2/markups") + "/");
-      out << line << "\n";
-    }
-  }
+  std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: " << ct_path << "\n"
+                                               << Lidc2CaseWithoutAnnotatedSpaces();
   const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
   const patient::PatientModel& m = *imported.model;
   // The rib floor is measured: 0.4 of the way from the wall's soft tissue (77) to the bone
