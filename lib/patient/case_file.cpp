@@ -31,7 +31,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
     y.ExpectMap(ph, "phantom",
                 {"seed", "body_width", "body_depth", "length", "ribs_per_side", "rib_spacing",
                  "heart_scale", "heart_offset", "voxel_size", "slice_spacing", "field_of_view",
-                 "wall_thickness", "ribs_reach_spine", "shoulders"});
+                 "wall_thickness", "ribs_reach_spine", "shoulders", "table_gap"});
     c.has_phantom = true;
     PhantomParameters& p = c.phantom;
     // Whole numbers in range before the casts (a cast of a negative or huge double is undefined).
@@ -57,6 +57,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
     p.wall_thickness = y.NumberOr(ph, "wall_thickness", "phantom", p.wall_thickness);
     if (ph["ribs_reach_spine"]) p.ribs_reach_spine = y.Bool(ph["ribs_reach_spine"], "phantom.ribs_reach_spine");
     if (ph["shoulders"]) p.shoulders = y.Bool(ph["shoulders"], "phantom.shoulders");
+    if (ph["table_gap"]) p.table_gap = y.NumberOr(ph, "table_gap", "phantom", p.table_gap);
   }
   if (root["units"]) {
     const std::string u = y.String(root["units"], "units");

@@ -86,6 +86,8 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   TROCAR_THROW_UNLESS(in.slice_spacing == 0.0 || (std::isfinite(in.slice_spacing) && in.slice_spacing >= 0.0005 &&
                                                   in.slice_spacing <= 0.006),
                       "phantom: slice_spacing " << in.slice_spacing << " outside 0.0005..0.006 m (or 0: the voxel size)");
+  TROCAR_THROW_UNLESS(std::isnan(in.table_gap) || (in.table_gap >= -0.01 && in.table_gap <= 0.05),
+                      "phantom: table_gap " << in.table_gap << " outside -0.01..0.05 m");
   TROCAR_THROW_UNLESS(in.heart_offset.allFinite() && in.heart_offset.norm() < 0.05,
                       "phantom: heart_offset " << in.heart_offset.transpose()
                                                << " must be finite and under 0.05 m");
@@ -136,7 +138,12 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   TROCAR_THROW_UNLESS(in.field_of_view == 0.0 || in.field_of_view >= 2 * half_x + 0.01,
                       "phantom: field_of_view " << in.field_of_view << " m must hold the arms (" << 2 * half_x << " m)");
   const double fov_x = in.field_of_view > 0.0 ? in.field_of_view : 2 * half_x + 2 * margin;
-  const double fov_y = in.field_of_view > 0.0 ? in.field_of_view : 2 * b + 2 * margin;
+  // The table: its top's middle `table_gap` behind the back, rising 1 m's cradle to the sides.
+  const bool table = !std::isnan(in.table_gap);
+  const double table_top = b + (table ? in.table_gap : 0.0), table_shell = 0.002,
+               table_core = 0.030, table_half_width = 0.23, cradle_radius = 1.0;
+  const double half_y = table ? std::max(b, table_top + 2 * table_shell + table_core) : b;
+  const double fov_y = in.field_of_view > 0.0 ? in.field_of_view : 2 * half_y + 2 * margin;
   v.size = Eigen::Vector3i(static_cast<int>(std::ceil(fov_x / h - 1e-9)), static_cast<int>(std::ceil(fov_y / h - 1e-9)),
                            static_cast<int>(std::ceil(in.length / hz)));
   v.index_to_P = Eigen::Vector3d(h, h, hz).asDiagonal();
@@ -165,6 +172,13 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
         auto inside = [&](double ea, double eb) { return (x * x) / (ea * ea) + (y * y) / (eb * eb) <= 1.0; };
         float hu = PhantomHu::kAir;
         if (inside(a, b)) hu = PhantomHu::kFat;
+        if (table && std::abs(x) <= table_half_width) {
+          // Depth below the table top's surface (positive: into the table).
+          const double t = y - (table_top - x * x / (2.0 * cradle_radius));
+          if (t >= 0.0 && t <= 2 * table_shell + table_core)
+            hu = (t <= table_shell || t >= table_shell + table_core) ? PhantomHu::kCarbon
+                                                                     : PhantomHu::kFoam;
+        }
         if (inside(a - in.fat_thickness, b - in.fat_thickness)) hu = PhantomHu::kMuscle;
         if (in.shoulders && std::hypot(std::abs(x) - arm_x, y) <= arm_r) {
           const double rh = std::hypot(std::abs(x) - arm_x, y);
@@ -376,6 +390,7 @@ void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat f
     if (p.wall_thickness != PhantomParameters{}.wall_thickness) yaml << ", wall_thickness: " << p.wall_thickness;
     if (p.ribs_reach_spine) yaml << ", ribs_reach_spine: true";
     if (p.shoulders) yaml << ", shoulders: true";
+    if (!std::isnan(p.table_gap)) yaml << ", table_gap: " << p.table_gap;
     yaml << "}\n";
     WriteFileAtomically(JoinPath(tmp, "patient.yaml"), yaml.str());
   }

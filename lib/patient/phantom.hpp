@@ -38,6 +38,11 @@ struct PhantomParameters {
   /// collarbones over the first ribs, upper arms beside the chest (the field of view widens to
   /// hold them). Needs `wall_thickness` of at least 0.02 m (the shoulder blade lies in it).
   bool shoulders = false;
+  /// A CT table under the back: a carbon-fibre top (two 2 mm shells 30 mm apart over foam, a
+  /// cradle curved 1 m across, 0.46 m wide, cut by the field of view when wider), its top this
+  /// far behind the back (m); negative presses the back flat onto it over a patch (as a patient
+  /// lies on the table). NaN: no table.
+  double table_gap = NAN;
 };
 
 /// A polyline in the patient frame (m).
@@ -70,8 +75,8 @@ struct Phantom {
 /// Tissue values (HU) used by the phantom.
 struct PhantomHu {
   static constexpr float kAir = -1000, kLung = -820, kFat = -100, kMuscle = 45, kBlood = 280,
-                         kMyocardium = 90, kArtery = 380, kBone = 750,
-                         kCancellous = 250, kDisc = 80, kMarrow = -50;
+                         kMyocardium = 90, kArtery = 380, kBone = 750, kCancellous = 250,
+                         kDisc = 80, kMarrow = -50, kCarbon = 600, kFoam = -950;
 };
 
 /// @throws trocar::Error for parameters out of their sensible ranges (named).
