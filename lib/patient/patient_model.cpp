@@ -332,6 +332,7 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
                                "heart")));
     }
     // What the bone sorting found, and on what the ribs' numbers rest (or why there are none).
+    if (!seg.body_table.empty()) report.checks.push_back("body: " + seg.body_table);
     if (!seg.body_fill.empty()) report.checks.push_back("body: " + seg.body_fill);
     for (const auto& a : seg.anatomy) report.checks.push_back("bones: " + a);
     if (!have_labels) {

@@ -310,6 +310,179 @@ std::vector<Component> ConnectedComponents(const Volume& grid, const Mask& mask,
   return sorted;
 }
 
+namespace {
+
+// A CT table (or a pad) under the patient joined to the body (SegmentationOptions::table_*):
+// left out of `body` (the body's component, before its holes are filled). Worked on blocks of
+// about `table_grid`: erode the body by a ball of `table_thickness` (what stays is the core: the
+// trunk, and arms joined to it by a thin contact), grow the core back by the ball; what it does
+// not reach is thin. A thin piece that runs through the scan with the same cross-section is the
+// table (the body changes along the scan). Where the table lies against the back, its bright
+// voxels out of the core go with it. Returns what was left out, in words (empty: nothing).
+std::string DetachTable(const Volume& ct, const SegmentationOptions& o, Mask* body) {
+  // Hounsfield units only: in a windowed volume fat reads as air, and the skin over thick fat
+  // is as thin as a table's shell.
+  if (!ct.hounsfield || o.table_thickness <= 0.0 || o.table_grid <= 0.0 ||
+      o.table_grid_slices <= 0.0)
+    return {};
+  const int axial = AxialAxis(ct);
+  const Eigen::Vector3d spacing = ct.spacing();
+  Eigen::Vector3i stride, size;
+  for (int a = 0; a < 3; ++a) {
+    stride[a] = a == axial
+                    ? std::max(1, static_cast<int>(std::lround(o.table_grid_slices / spacing[a])))
+                    : std::max(1, static_cast<int>(o.table_grid / spacing[a]));
+    size[a] = (ct.size[a] + stride[a] - 1) / stride[a];
+  }
+  Volume grid;
+  grid.size = size;
+  grid.index_to_P = ct.index_to_P * stride.cast<double>().asDiagonal();
+  grid.origin_P = ct.origin_P;
+  const long nx = ct.size.x(), ny = ct.size.y();
+  auto fine = [&](int i, int j, int k) { return i + nx * (j + ny * static_cast<long>(k)); };
+  Mask coarse;
+  coarse.size = size;
+  coarse.inside.assign(static_cast<std::size_t>(grid.voxel_count()), 0);
+  // A coarse voxel is body when any of its block is: a table's shell thinner than the block
+  // stays whole.
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      const long row = fine(0, j, k);
+      const long coarse_row = grid.Index(0, j / stride.y(), k / stride.z());
+      for (int i = 0; i < ct.size.x(); ++i) {
+        if (body->inside[row + i]) coarse.inside[coarse_row + i / stride.x()] = 1;
+      }
+    }
+  }
+  // The core: the body eroded by the ball (the trunk, and arms joined to it by a thin contact).
+  // Outside is what lies outside the body's outline: the lungs and airways (holes in each
+  // slice) are not, so a thin chest wall over them is not thin.
+  Mask outside = coarse;
+  FillHolesPerSlice(grid, &outside);
+  for (auto& in : outside.inside) in = !in;
+  const std::vector<float> to_outside = SquaredDistanceToMask(grid, outside);
+  const float r2 = static_cast<float>(o.table_thickness * o.table_thickness);
+  Mask core = coarse;
+  for (std::size_t v = 0; v < to_outside.size(); ++v) core.inside[v] = to_outside[v] > r2;
+  if (core.count() == 0) return {};
+  // Thin: the body the core grown back by the ball does not reach (with a coarse voxel's
+  // diagonal more, so the skin the grid samples unevenly stays with the core).
+  const std::vector<float> to_core = SquaredDistanceToMask(grid, core);
+  const double reach = o.table_thickness + grid.spacing().norm();
+  Mask thin = coarse;
+  for (std::size_t v = 0; v < to_core.size(); ++v)
+    thin.inside[v] = coarse.inside[v] && to_core[v] > static_cast<float>(reach * reach);
+  std::vector<int> labels;
+  const std::vector<Component> pieces = ConnectedComponents(grid, thin, &labels);
+  // The body's slices, and per thin piece its slices and in-plane footprint.
+  const int a0 = (axial + 1) % 3, a1 = (axial + 2) % 3;
+  const int slices = size[axial];
+  std::vector<std::uint8_t> body_slice(slices, 0);
+  std::vector<int> table_label(pieces.size() + 1, 0);
+  std::vector<int> candidates;
+  for (const Component& c : pieces) {
+    if (c.volume >= o.table_min_volume) candidates.push_back(c.label);
+  }
+  std::ostringstream what;
+  double removed = 0.0;
+  for (int label : candidates) {
+    std::vector<int> footprint(static_cast<std::size_t>(size[a0]) * size[a1], 0);
+    std::vector<std::uint8_t> in_slice(slices, 0);
+    long voxels = 0;
+    Eigen::Vector3i n;
+    for (n.z() = 0; n.z() < size.z(); ++n.z()) {
+      for (n.y() = 0; n.y() < size.y(); ++n.y()) {
+        for (n.x() = 0; n.x() < size.x(); ++n.x()) {
+          const long v = grid.Index(n.x(), n.y(), n.z());
+          if (coarse.inside[v]) body_slice[n[axial]] = 1;
+          if (labels[v] != label) continue;
+          ++voxels;
+          in_slice[n[axial]] = 1;
+          ++footprint[n[a0] + static_cast<long>(size[a0]) * n[a1]];
+        }
+      }
+    }
+    const int spanned = static_cast<int>(std::count(in_slice.begin(), in_slice.end(), 1));
+    const int body_slices = static_cast<int>(std::count(body_slice.begin(), body_slice.end(), 1));
+    long constant = 0;
+    for (int f : footprint) {
+      if (f >= 0.8 * spanned) constant += f;
+    }
+    const double constant_share = static_cast<double>(constant) / static_cast<double>(voxels);
+    if (spanned < o.table_min_slices * body_slices || constant_share < o.table_constant) continue;
+    table_label[label] = 1;
+    removed += pieces[label - 1].volume;
+    const double slice = grid.index_to_P.col(axial).norm();
+    what << std::fixed << std::setprecision(0) << (what.tellp() > 0 ? "; " : "") << "about "
+         << pieces[label - 1].volume * 1e6 << " ml over " << 1e3 * spanned * slice
+         << " of the body's " << 1e3 * body_slices * slice << " mm head to foot, "
+         << 100.0 * constant_share << " % of it the same in 80 % of its slices";
+  }
+  if (removed == 0.0) return {};
+  // Out of the fine body: each voxel whose coarse voxel is the table's, or lies near
+  // it and further from the core than the ball (the table's contact with the back: what the
+  // body opened by the ball does not hold).
+  Mask table;
+  table.size = size;
+  table.inside.assign(labels.size(), 0);
+  for (std::size_t v = 0; v < labels.size(); ++v) table.inside[v] = table_label[labels[v]];
+  const std::vector<float> to_table = SquaredDistanceToMask(grid, table);
+  const float near_table = static_cast<float>(4.0 * reach * reach);
+  auto coarse_of = [&](int i, int j, int k) {
+    return grid.Index(i / stride.x(), j / stride.y(), k / stride.z());
+  };
+  std::vector<long> front;
+  std::vector<float> values;
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const long c = coarse_of(i, j, k), v = fine(i, j, k);
+        if (!body->inside[v]) continue;
+        if (table.inside[c] || (to_table[c] <= near_table && to_core[c] > r2)) {
+          body->inside[v] = 0;
+          front.push_back(v);
+          if (table.inside[c]) values.push_back(ct.values[v]);
+        }
+      }
+    }
+  }
+  // Where the table lies against the back (within the ball of the core: in voxels the two
+  // touch over a patch) shape cannot tell its shell from the skin, but brightness can: from what
+  // was taken, on through voxels out of the core at least as bright as the table's lower
+  // quartile and 150 HU (above skin and muscle).
+  if (!values.empty()) {
+    std::nth_element(values.begin(), values.begin() + values.size() / 4, values.end());
+    const float bright = std::max(150.0f, values[values.size() / 4]);
+    while (!front.empty()) {
+      const long v = front.back();
+      front.pop_back();
+      const int i = static_cast<int>(v % nx), j = static_cast<int>((v / nx) % ny),
+                k = static_cast<int>(v / (nx * ny));
+      for (int dk = -1; dk <= 1; ++dk) {
+        for (int dj = -1; dj <= 1; ++dj) {
+          for (int di = -1; di <= 1; ++di) {
+            const int a = i + di, b = j + dj, c = k + dk;
+            if (a < 0 || b < 0 || c < 0 || a >= ct.size.x() || b >= ct.size.y() || c >= ct.size.z())
+              continue;
+            const long n = fine(a, b, c);
+            if (!body->inside[n] || ct.values[n] < bright || to_outside[coarse_of(a, b, c)] > r2)
+              continue;
+            body->inside[n] = 0;
+            front.push_back(n);
+          }
+        }
+      }
+    }
+  }
+  std::ostringstream out;
+  out << "a thin piece joined to the body that runs through the scan unchanged (a CT table, its "
+         "pad or a blanket): "
+      << what.str() << "; left out of the body";
+  return out.str();
+}
+
+}  // namespace
+
 Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
   Segmentation s;
   s.body_threshold = ct.hounsfield ? o.body_hu : o.raw_body;
@@ -335,10 +508,18 @@ Segmentation Segment(const Volume& ct, const SegmentationOptions& o) {
                                                      << ": empty segmentation");
   s.body_min_P = body_parts.front().min_P;  // filling holes inside does not move the bounds
   s.body_max_P = body_parts.front().max_P;
-  s.axis_P = 0.5 * (s.body_min_P + s.body_max_P).head<2>();
   s.body.size = ct.size;
   s.body.inside.resize(labels.size());
   for (std::size_t i = 0; i < labels.size(); ++i) s.body.inside[i] = labels[i] == 1;
+  s.body_table = DetachTable(ct, o, &s.body);
+  if (!s.body_table.empty()) {
+    // What stays of the body once the table is out: its largest part, and its bounds.
+    const auto parts = ConnectedComponents(ct, s.body, &labels);
+    s.body_min_P = parts.front().min_P;
+    s.body_max_P = parts.front().max_P;
+    for (std::size_t i = 0; i < labels.size(); ++i) s.body.inside[i] = labels[i] == 1;
+  }
+  s.axis_P = 0.5 * (s.body_min_P + s.body_max_P).head<2>();
   std::vector<int>().swap(labels);  // 4 bytes a voxel: not held while the bone is labelled
   std::vector<std::uint8_t>().swap(above.inside);
   if (ct.hounsfield ? o.body_convex_fill : o.raw_body_convex_fill) {

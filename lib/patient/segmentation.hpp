@@ -66,6 +66,19 @@ struct SegmentationOptions {
   /// the convex fill's volume, the holes' fill is kept (its concavities are real: an arm beside
   /// the chest, the back). A broken outline leaves the lungs open to the outside (LIDC2: 27 %).
   double convex_fill_below = 0.6;
+  /// A CT table (or a pad, a blanket) joined to the body is left out of it (Hounsfield volumes;
+  /// in a windowed one fat reads as air and the skin over it is as thin): a piece of the body
+  /// thinner than twice `table_thickness` (m; it vanishes when the body is eroded by a ball of
+  /// that radius) of at least `table_min_volume` (m³) that runs through at least
+  /// `table_min_slices` of the body's slices with the same cross-section (at least
+  /// `table_constant` of its voxels at in-plane places it holds in 80 % of its slices: the table
+  /// does not change along the scan, the body does), and the bright voxels by which it lies
+  /// against the back. Worked on blocks of at most `table_grid` (m) in-plane and about
+  /// `table_grid_slices` along the slices. `table_thickness` 0 turns it off.
+  double table_thickness = 0.005;
+  double table_min_volume = 5e-6;
+  double table_min_slices = 0.9, table_constant = 0.7;
+  double table_grid = 0.0015, table_grid_slices = 0.0025;
   /// Bone components smaller than this are noise (m³).
   double min_bone_volume = 0.3e-6;
   /// Bone sorted by shape and place (ClassifyBones, anatomy.hpp): contrast kept out of the bone,
@@ -104,6 +117,7 @@ struct Segmentation {
   std::vector<std::string> anatomy;  ///< what the sorting found, in words
   double body_threshold = 0.0, bone_threshold = 0.0;  ///< as used, in the volume's units
   std::string body_fill;  ///< how the body's slices were filled, and why
+  std::string body_table;  ///< a CT table joined to the body and left out of it (else empty)
 };
 
 /// Segments body and bone, and sorts the bone into anatomy by shape and place (ClassifyBones):

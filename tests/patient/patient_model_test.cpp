@@ -38,6 +38,67 @@ std::string MakeCase(const std::string& name, const std::string& extra_yaml = ""
   return dir;
 }
 
+// A patient lying on the CT table (the back pressed onto its carbon top, or just touching it)
+// imports as without the table: the table is reported and left out of the body, so the skin,
+// the bones, the body's box, the cut faces and the port candidates found are those of the
+// patient alone. Joined, the table reached the scan's side faces, which were then taken for
+// crop faces, and its shell read as bone.
+TEST(PatientModel, APatientLyingOnTheTableImportsAsWithoutIt) {
+  auto import = [](const std::string& name, double table_gap) {
+    const std::string dir = testing::TempDir() + "/trocar-table-" + name;
+    fs::remove_all(dir);
+    patient::PhantomParameters p;
+    p.seed = 7;
+    p.slice_spacing = 0.004;
+    p.table_gap = table_gap;
+    p.field_of_view = 0.4;  // the same grid with and without the table; the table is cut by it
+    patient::WritePhantomCase(patient::GeneratePhantom(p), dir);
+    std::ofstream(JoinPath(dir, "patient.yaml"))
+        << "ct: ct.nrrd\nunits: hounsfield\ntargets:\n"
+        << "  - {name: LAD, markups: markups/LAD.mrk.json, surface: heart}\n";
+    return patient::ImportCase(dir, {false, false});
+  };
+  const patient::ImportedPatient alone = import("none", NAN);
+  for (double gap : {0.0, -0.005}) {
+    SCOPED_TRACE(gap);
+    const patient::ImportedPatient lying = import(gap < 0 ? "pressed" : "touching", gap);
+    const patient::PatientModel &a = *alone.model, &b = *lying.model;
+    const auto& checks = lying.report.checks;
+    EXPECT_EQ(std::count_if(checks.begin(), checks.end(),
+                            [](const std::string& line) {
+                              return line.find("body: a thin piece joined to the body") == 0 &&
+                                     line.find("CT table") != std::string::npos;
+                            }),
+              1)
+        << ::testing::PrintToString(checks);
+    EXPECT_EQ(a.cut_faces, b.cut_faces);
+    EXPECT_EQ(alone.report.warnings, lying.report.warnings);
+    // Lying on the table the back is flattened by as much as it is pressed: the box's back
+    // moves by that, the skin's volume by under 1 %; the bones do not move.
+    EXPECT_LT((a.body_min_P - b.body_min_P).cwiseAbs().maxCoeff(), 1e-9);
+    EXPECT_LT((a.body_max_P - b.body_max_P).head<2>().cwiseAbs().maxCoeff(),
+              -std::min(gap, 0.0) + 0.002);
+    ASSERT_EQ(a.structures.size(), b.structures.size());
+    for (std::size_t s = 0; s < a.structures.size(); ++s) {
+      SCOPED_TRACE(a.structures[s].name);
+      if (gap < 0.0 && a.structures[s].name == "skin")
+        EXPECT_NEAR(a.structures[s].volume, b.structures[s].volume, 0.01 * a.structures[s].volume);
+      else
+        EXPECT_EQ(a.structures[s].volume, b.structures[s].volume);
+    }
+    // The port candidates found: the same spaces, their skin points on the same curves (within a
+    // voxel when the back is flattened: the rays start from the body's axis, whose front-back
+    // place is the box's middle, moved by half the flattening).
+    ASSERT_EQ(a.port_candidates.size(), b.port_candidates.size());
+    ASSERT_GE(a.port_candidates.size(), 8u);
+    for (std::size_t n = 0; n < a.port_candidates.size(); ++n) {
+      EXPECT_EQ(a.port_candidates[n].name, b.port_candidates[n].name);
+      for (const Eigen::Vector3d& p : b.port_candidates[n].skin)
+        EXPECT_LT(test::DistanceToPolyline(p, a.port_candidates[n].skin), gap < 0.0 ? 0.002 : 1e-9);
+    }
+  }
+}
+
 TEST(PatientModel, PhantomCaseBuildsClosedSurfacesTargetsPortsAndPose) {
   const std::string dir = MakeCase("model");
   const patient::ImportedPatient m_imported = patient::ImportCase(dir);

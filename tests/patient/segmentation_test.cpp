@@ -223,6 +223,157 @@ TEST(Segmentation, Lidc2ChestRibCageSkinAndBone) {
   EXPECT_GE(seg.bones.ribs_right.size(), 3u);
 }
 
+// The real CT's table (its curved carbon shells, apart from the body under a mattress) raised
+// until it meets the back, as when the patient lies on the table top: the import leaves it out
+// of the body, which is then the body of the CT as scanned. Without the rule the table joins
+// the body and stretches it to the table's width.
+patient::Volume WithTheTableRaisedToTheBack(const patient::Volume& ct, const patient::Mask& body,
+                                            int overlap) {
+  // The front-back index axis, and which way along it is posterior.
+  int ay = 0;
+  for (int a = 1; a < 3; ++a) {
+    if (std::abs(ct.index_to_P(1, a)) > std::abs(ct.index_to_P(1, ay))) ay = a;
+  }
+  const int back = ct.index_to_P(1, ay) > 0 ? +1 : -1;
+  // The table: what is above the body threshold behind the back (along each column of the
+  // front-back axis, beyond the body's last voxel), outside the body. Its gap to the back: the
+  // least over the columns (the table's top is curved).
+  std::vector<std::uint8_t> table(ct.values.size(), 0);
+  const int a0 = (ay + 1) % 3, a1 = (ay + 2) % 3;
+  int gap = std::numeric_limits<int>::max();
+  for (int p = 0; p < ct.size[a0]; ++p) {
+    for (int q = 0; q < ct.size[a1]; ++q) {
+      Eigen::Vector3i n;
+      n[a0] = p;
+      n[a1] = q;
+      auto at = [&](int t) {
+        n[ay] = back > 0 ? t : ct.size[ay] - 1 - t;  // t counts from the front
+        return ct.Index(n.x(), n.y(), n.z());
+      };
+      int last_body = -1;
+      for (int t = 0; t < ct.size[ay]; ++t)
+        if (body.inside[at(t)]) last_body = t;
+      if (last_body < 0) continue;
+      for (int t = last_body + 1; t < ct.size[ay]; ++t) {
+        const long v = at(t);
+        if (ct.values[v] <= -400.0f) continue;
+        if (!table[v]) gap = std::min(gap, t - last_body - 1);
+        for (int u = t; u < ct.size[ay]; ++u)
+          if (ct.values[at(u)] > -400.0f) table[at(u)] = 1;
+        break;
+      }
+    }
+  }
+  // Up by the gap, and `overlap` voxels more.
+  const int shift = gap + overlap;
+  patient::Volume raised = ct;
+  for (long v = 0; v < static_cast<long>(table.size()); ++v)
+    if (table[v]) raised.values[v] = -1000.0f;  // air where the table was
+  for (int k = 0; k < ct.size.z(); ++k)
+    for (int j = 0; j < ct.size.y(); ++j)
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const long v = ct.Index(i, j, k);
+        if (!table[v]) continue;
+        Eigen::Vector3i n(i, j, k);
+        n[ay] -= back * shift;
+        if (n[ay] < 0 || n[ay] >= ct.size[ay]) continue;
+        float& to = raised.values[ct.Index(n.x(), n.y(), n.z())];
+        to = std::max(to, ct.values[v]);
+      }
+  return raised;
+}
+
+TEST(Segmentation, ACtTableUnderTheBackIsLeftOutOfTheBody) {
+  const std::string path = test::SharedDataPath("ct/totalseg-dicom-j2k/dicom");
+  TROCAR_REQUIRE_SHARED_FILE(path);
+  const patient::Volume ct = patient::LoadVolume(path);
+  const patient::Segmentation apart = patient::Segment(ct);
+  EXPECT_EQ(apart.body_table, "");
+  for (int overlap : {0, 1}) {
+    SCOPED_TRACE(overlap);
+    const patient::Volume raised = WithTheTableRaisedToTheBack(ct, apart.body, overlap);
+    patient::SegmentationOptions off;
+    off.table_thickness = 0.0;
+    const patient::Segmentation joined = patient::Segment(raised, off);
+    // Without the rule the table is body: it is wider than the body and lies behind it.
+    ASSERT_GT(joined.body_max_P.y() - apart.body_max_P.y(), 0.005);
+    const patient::Segmentation seg = patient::Segment(raised);
+    EXPECT_NE(seg.body_table, "");
+    // The body as scanned: its bounds within 3 mm (four voxels: where the shell overlaps the
+    // skin it is taken for skin), its voxels alike but where the table meets the back.
+    EXPECT_LT((seg.body_min_P - apart.body_min_P).cwiseAbs().maxCoeff(), 0.003);
+    EXPECT_LT((seg.body_max_P - apart.body_max_P).cwiseAbs().maxCoeff(), 0.003);
+    long differ = 0, table_voxels = 0;
+    for (std::size_t v = 0; v < seg.body.inside.size(); ++v) {
+      differ += seg.body.inside[v] != apart.body.inside[v];
+      table_voxels += joined.body.inside[v] && !apart.body.inside[v];
+    }
+    EXPECT_LT(differ, 0.005 * apart.body.count());
+    EXPECT_LT(differ, 0.05 * table_voxels);
+    // The table's shell reads as bone: none of it stays.
+    const long table_bone = joined.bone.count() - apart.bone.count();
+    EXPECT_GT(table_bone, 1000);
+    EXPECT_LT(std::abs(seg.bone.count() - apart.bone.count()), 0.02 * table_bone);
+  }
+}
+
+// Nothing of a body without a table is taken for one: over seeded phantoms with thin chest
+// walls (no fat, 3-5 mm of muscle over the ribs: thinner than the ball, over the lungs), arms
+// against the chest, and short scans (every piece of a short scan runs through all its slices),
+// the body is voxel for voxel the body without the rule.
+TEST(Segmentation, NothingIsTakenFromABodyWithoutATable) {
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int seed = 1; seed <= 6; ++seed) {
+    SCOPED_TRACE(seed);
+    patient::PhantomParameters p;
+    p.seed = static_cast<unsigned>(seed);
+    p.voxel_size = 0.003;
+    p.slice_spacing = 0.003 + 0.002 * u(rng);
+    p.shoulders = seed % 2 == 0;
+    p.fat_thickness = p.shoulders ? 0.004 * u(rng) : 0.0;
+    p.wall_thickness = p.shoulders ? 0.02 : 0.003 + 0.002 * u(rng);
+    p.ribs_per_side = seed <= 3 ? 4 : 9;
+    p.length = seed <= 3 ? 0.2 : 0.34;
+    const patient::Volume ct = patient::GeneratePhantom(p).ct;
+    patient::SegmentationOptions off;
+    off.table_thickness = 0.0;
+    const patient::Segmentation with = patient::Segment(ct), without = patient::Segment(ct, off);
+    EXPECT_EQ(with.body_table, "");
+    EXPECT_TRUE(with.body.inside == without.body.inside);
+  }
+  // A chest wall 6 mm thin over a lung along the whole scan, which the phantom's walls (at
+  // least 11 mm, ribs and pleura) never are: the lung is inside the body's outline, not outside.
+  patient::Volume ct;
+  ct.size = {120, 90, 40};
+  ct.index_to_P = Eigen::Vector3d(0.002, 0.002, 0.003).asDiagonal();
+  ct.origin_P = Eigen::Vector3d(-0.12, -0.09, 0.0);
+  ct.hounsfield = true;
+  ct.values.assign(static_cast<std::size_t>(ct.voxel_count()), -1000.0f);
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const Eigen::Vector3d q = ct.PatientPoint(i, j, k);
+        auto in = [&](double cx, double a, double b) {
+          return std::pow((q.x() - cx) / a, 2) + std::pow(q.y() / b, 2) <= 1.0;
+        };
+        float& v = ct.values[ct.Index(i, j, k)];
+        if (in(0.0, 0.11, 0.08)) v = 40.0f;
+        if (in(0.05, 0.054, 0.06)) v = -850.0f;  // 6 mm of wall left of it
+        if (std::abs(q.x()) < 0.01 && std::abs(q.y() - 0.05) < 0.01) v = 700.0f;  // a spine
+      }
+    }
+  }
+  patient::SegmentationOptions off;
+  off.table_thickness = 0.0;
+  off.shape_anatomy = false;
+  patient::SegmentationOptions on = off;
+  on.table_thickness = patient::SegmentationOptions{}.table_thickness;
+  const patient::Segmentation with = patient::Segment(ct, on), without = patient::Segment(ct, off);
+  EXPECT_EQ(with.body_table, "");
+  EXPECT_TRUE(with.body.inside == without.body.inside);
+}
+
 // A windowed volume's body is filled to the convex hull of each slice (fat clipped to the value of
 // air breaks the outline): over seeded star-shaped (non-convex) bodies, the filled slice is exactly
 // the set of voxels inside or on the hull of the slice's voxels above the threshold, by a direct
