@@ -183,6 +183,11 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
     for (double y : {seg.body_min_P.y(), seg.body_max_P.y()})
       max_r = std::max(max_r, (Eigen::Vector2d(x, y) - axis).norm());
   }
+  // A space lies on the rib cage, round the lungs and the heart: where the band within the
+  // wall's depth of the skin reaches the body's middle (the neck's base, below the rib cage)
+  // what bounds a dark run is no rib.
+  const double min_cage_radius =
+      o.layer_min_cage_radius * 0.5 * (seg.body_max_P.x() - seg.body_min_P.x());
   auto direction = [&](int side, int col) {
     const double angle = (col + 0.5) * o.bin;
     return Eigen::Vector2d(side * std::sin(angle), std::cos(angle));
@@ -344,7 +349,7 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
         const int mid = (run.top + run.bottom) / 2;
         const double z = 0.5 * (row_z(run.top) + row_z(run.bottom));
         const double radius = surface[mid * cols + col];
-        if (std::isnan(radius)) continue;
+        if (std::isnan(radius) || radius < min_cage_radius) continue;
         // Out to the skin within the chest wall's reach (an arm against the chest: no port).
         const std::optional<Eigen::Vector3d> skin =
             SkinAlongRay(voxel, seg.body, axis, d, z, radius, o.max_wall_depth, dr);

@@ -48,6 +48,11 @@ struct IntercostalOptions {
   /// A rib's run of bright voxels along a ray from the body's axis is at most this deep (m):
   /// the girdle's surface (LayerChart) is the innermost such run, not an organ under the ribs.
   double layer_max_rib_depth = 0.015;
+  /// A space's points in the layer lie at least this share of the body's half-width (left to
+  /// right) from its axis: the rib cage is round the lungs and the heart. On LIDC2 the spaces
+  /// lie at 0.48-0.86 of it; dark runs at the neck's base and below the rib cage, where the band
+  /// under the skin reaches the body's middle, at 0.04-0.21.
+  double layer_min_cage_radius = 0.4;
 };
 
 struct IntercostalSpace {
