@@ -795,7 +795,7 @@ double RmsPositionError(const std::string& output) {
 TEST(TrocarTeleopNetwork, ACircleThroughTheNetworkTracksAsTheSameCircleHeadless) {
   const std::string psm = test::SourcePath("robots/davinci-classic/psm.yaml");
   // Both runs are real time, on a machine other tests load too: up to three tries, one within
-  // 10 % passes (each try's figures are printed on failure).
+  // 10 % with nothing dropped passes (each try's figures are printed on failure).
   std::string tries;
   bool matched = false;
   std::string address;
@@ -809,14 +809,17 @@ TEST(TrocarTeleopNetwork, ACircleThroughTheNetworkTracksAsTheSameCircleHeadless)
     server.join();
     ASSERT_EQ(listening.exit_code, 0) << listening.output << device.output;
     EXPECT_NE(listening.output.find("device 'hand': "), std::string::npos) << listening.output;
-    EXPECT_NE(listening.output.find(" 0 dropped"), std::string::npos) << listening.output;
     EXPECT_NE(listening.output.find("latency, arrival to command"), std::string::npos) << listening.output;
+    // Nothing dropped is part of a try's result, not a failure of its own: a try on a loaded
+    // machine may drop a late message, and another try is taken.
+    const bool none_dropped = listening.output.find(" 0 dropped") != std::string::npos;
     const CommandRun headless = Trocar("teleop --robot " + psm + " --input circle --duration 3 --realtime");
     ASSERT_EQ(headless.exit_code, 0) << headless.output;
     const double network = RmsPositionError(listening.output), alone = RmsPositionError(headless.output);
     ASSERT_TRUE(std::isfinite(network) && std::isfinite(alone)) << listening.output << headless.output;
-    tries += "network " + std::to_string(network) + " mm, headless " + std::to_string(alone) + " mm; ";
-    matched = std::abs(network - alone) <= 0.10 * alone;
+    tries += "network " + std::to_string(network) + " mm, headless " + std::to_string(alone) +
+             " mm" + (none_dropped ? "" : ", messages dropped") + "; ";
+    matched = none_dropped && std::abs(network - alone) <= 0.10 * alone;
   }
   EXPECT_TRUE(matched) << tries;
   // The device is told when the trocar goes, and a port in use is a clear error.
