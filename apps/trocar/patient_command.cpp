@@ -170,6 +170,10 @@ void AddPatientCommands(CLI::App* app) {
   cmd->add_flag("--ribs-reach-spine", o->p.ribs_reach_spine, "ribs meet the vertebral bodies, as real ribs do");
   cmd->add_flag("--shoulders", o->p.shoulders,
                 "shoulder blades, collarbones and upper arms (needs --wall 0.02 or more)");
+  cmd->add_option(
+      "--table-gap", o->p.table_gap,
+      "a CT table under the back, its top this far behind the back (m; negative presses "
+      "the back flat onto it; default: no table)");
   cmd->add_flag("--force", o->force, "overwrite the case already in --out (its patient.yaml too)");
   cmd->add_flag("--ras", o->ras, "write the CT with a RAS header (default LPS)");
   cmd->add_flag("--dicom", o->dicom, "write the CT as a DICOM series folder ct/ instead of ct.nrrd")
