@@ -172,17 +172,19 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
         auto inside = [&](double ea, double eb) { return (x * x) / (ea * ea) + (y * y) / (eb * eb) <= 1.0; };
         float hu = PhantomHu::kAir;
         if (inside(a, b)) hu = PhantomHu::kFat;
+        if (inside(a - in.fat_thickness, b - in.fat_thickness)) hu = PhantomHu::kMuscle;
+        if (in.shoulders && std::hypot(std::abs(x) - arm_x, y) <= arm_r) {
+          const double rh = std::hypot(std::abs(x) - arm_x, y);
+          hu = rh > humerus_r ? PhantomHu::kMuscle
+                              : (rh > humerus_r - 0.003 ? PhantomHu::kBone : PhantomHu::kMarrow);
+        }
         if (table && std::abs(x) <= table_half_width) {
+          // Over the fat, muscle and arms: the back pressed onto it is flat whatever its fat.
           // Depth below the table top's surface (positive: into the table).
           const double t = y - (table_top - x * x / (2.0 * cradle_radius));
           if (t >= 0.0 && t <= 2 * table_shell + table_core)
             hu = (t <= table_shell || t >= table_shell + table_core) ? PhantomHu::kCarbon
                                                                      : PhantomHu::kFoam;
-        }
-        if (inside(a - in.fat_thickness, b - in.fat_thickness)) hu = PhantomHu::kMuscle;
-        if (in.shoulders && std::hypot(std::abs(x) - arm_x, y) <= arm_r) {
-          const double rh = std::hypot(std::abs(x) - arm_x, y);
-          hu = rh > humerus_r ? PhantomHu::kMuscle : (rh > humerus_r - 0.003 ? PhantomHu::kBone : PhantomHu::kMarrow);
         }
         if (inside(a_p, b_p)) {
           hu = PhantomHu::kLung;

@@ -378,6 +378,17 @@ std::string DetachTable(const Volume& ct, const SegmentationOptions& o, Mask* bo
   const int a0 = (axial + 1) % 3, a1 = (axial + 2) % 3;
   const int slices = size[axial];
   std::vector<std::uint8_t> body_slice(slices, 0);
+  {
+    Eigen::Vector3i n;
+    for (n.z() = 0; n.z() < size.z(); ++n.z()) {
+      for (n.y() = 0; n.y() < size.y(); ++n.y()) {
+        for (n.x() = 0; n.x() < size.x(); ++n.x()) {
+          if (coarse.inside[grid.Index(n.x(), n.y(), n.z())]) body_slice[n[axial]] = 1;
+        }
+      }
+    }
+  }
+  const int body_slices = static_cast<int>(std::count(body_slice.begin(), body_slice.end(), 1));
   std::vector<int> table_label(pieces.size() + 1, 0);
   std::vector<int> candidates;
   for (const Component& c : pieces) {
@@ -394,7 +405,6 @@ std::string DetachTable(const Volume& ct, const SegmentationOptions& o, Mask* bo
       for (n.y() = 0; n.y() < size.y(); ++n.y()) {
         for (n.x() = 0; n.x() < size.x(); ++n.x()) {
           const long v = grid.Index(n.x(), n.y(), n.z());
-          if (coarse.inside[v]) body_slice[n[axial]] = 1;
           if (labels[v] != label) continue;
           ++voxels;
           in_slice[n[axial]] = 1;
@@ -403,7 +413,6 @@ std::string DetachTable(const Volume& ct, const SegmentationOptions& o, Mask* bo
       }
     }
     const int spanned = static_cast<int>(std::count(in_slice.begin(), in_slice.end(), 1));
-    const int body_slices = static_cast<int>(std::count(body_slice.begin(), body_slice.end(), 1));
     long constant = 0;
     for (int f : footprint) {
       if (f >= 0.8 * spanned) constant += f;

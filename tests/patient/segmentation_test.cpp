@@ -223,10 +223,8 @@ TEST(Segmentation, Lidc2ChestRibCageSkinAndBone) {
   EXPECT_GE(seg.bones.ribs_right.size(), 3u);
 }
 
-// The real CT's table (its curved carbon shells, apart from the body under a mattress) raised
-// until it meets the back, as when the patient lies on the table top: the import leaves it out
-// of the body, which is then the body of the CT as scanned. Without the rule the table joins
-// the body and stretches it to the table's width.
+// The CT with its table (what lies behind the back, outside `body`) moved toward the back until
+// it touches it, and `overlap` voxels further.
 patient::Volume WithTheTableRaisedToTheBack(const patient::Volume& ct, const patient::Mask& body,
                                             int overlap) {
   // The front-back index axis, and which way along it is posterior.
@@ -283,6 +281,10 @@ patient::Volume WithTheTableRaisedToTheBack(const patient::Volume& ct, const pat
   return raised;
 }
 
+// The real CT's table (its curved carbon shells, apart from the body under a mattress) raised
+// until it meets the back, as when the patient lies on the table top: the segmentation leaves it
+// out of the body, which is then the body of the CT as scanned. Without the rule the table joins
+// the body and stretches it to the table's width.
 TEST(Segmentation, ACtTableUnderTheBackIsLeftOutOfTheBody) {
   const std::string path = test::SharedDataPath("ct/totalseg-dicom-j2k/dicom");
   TROCAR_REQUIRE_SHARED_FILE(path);
