@@ -31,7 +31,8 @@ CaseSpec ReadCase(const std::string& case_dir) {
     y.ExpectMap(ph, "phantom",
                 {"seed", "body_width", "body_depth", "length", "ribs_per_side", "rib_spacing",
                  "heart_scale", "heart_offset", "voxel_size", "slice_spacing", "field_of_view",
-                 "wall_thickness", "ribs_reach_spine", "shoulders", "table_gap"});
+                 "fat_thickness", "wall_thickness", "rib_radius", "rib_drop", "ribs_reach_spine",
+                 "shoulders", "table_gap"});
     c.has_phantom = true;
     PhantomParameters& p = c.phantom;
     // Whole numbers in range before the casts (a cast of a negative or huge double is undefined).
@@ -54,7 +55,10 @@ CaseSpec ReadCase(const std::string& case_dir) {
     p.voxel_size = y.NumberOr(ph, "voxel_size", "phantom", p.voxel_size);
     p.slice_spacing = y.NumberOr(ph, "slice_spacing", "phantom", p.slice_spacing);
     p.field_of_view = y.NumberOr(ph, "field_of_view", "phantom", p.field_of_view);
+    p.fat_thickness = y.NumberOr(ph, "fat_thickness", "phantom", p.fat_thickness);
     p.wall_thickness = y.NumberOr(ph, "wall_thickness", "phantom", p.wall_thickness);
+    p.rib_radius = y.NumberOr(ph, "rib_radius", "phantom", p.rib_radius);
+    p.rib_drop = y.NumberOr(ph, "rib_drop", "phantom", p.rib_drop);
     if (ph["ribs_reach_spine"]) p.ribs_reach_spine = y.Bool(ph["ribs_reach_spine"], "phantom.ribs_reach_spine");
     if (ph["shoulders"]) p.shoulders = y.Bool(ph["shoulders"], "phantom.shoulders");
     if (ph["table_gap"]) p.table_gap = y.NumberOr(ph, "table_gap", "phantom", p.table_gap);

@@ -389,7 +389,16 @@ void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat f
     // Non-default grid fields only; 12 digits so a regenerated CT has the very same grid.
     if (p.slice_spacing > 0.0) yaml << ", slice_spacing: " << p.slice_spacing;
     if (p.field_of_view > 0.0) yaml << ", field_of_view: " << p.field_of_view;
-    if (p.wall_thickness != PhantomParameters{}.wall_thickness) yaml << ", wall_thickness: " << p.wall_thickness;
+    // Every other field that is not its default: the record regenerates this very phantom.
+    const PhantomParameters defaults;
+    if (p.fat_thickness != defaults.fat_thickness) yaml << ", fat_thickness: " << p.fat_thickness;
+    if (p.wall_thickness != defaults.wall_thickness)
+      yaml << ", wall_thickness: " << p.wall_thickness;
+    if (p.rib_radius != defaults.rib_radius) yaml << ", rib_radius: " << p.rib_radius;
+    if (p.rib_drop != defaults.rib_drop) yaml << ", rib_drop: " << p.rib_drop;
+    if (p.heart_offset != defaults.heart_offset)
+      yaml << ", heart_offset: [" << p.heart_offset.x() << ", " << p.heart_offset.y() << ", "
+           << p.heart_offset.z() << "]";
     if (p.ribs_reach_spine) yaml << ", ribs_reach_spine: true";
     if (p.shoulders) yaml << ", shoulders: true";
     if (!std::isnan(p.table_gap)) yaml << ", table_gap: " << p.table_gap;
