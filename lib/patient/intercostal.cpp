@@ -28,31 +28,50 @@ struct Lookup {
 };
 
 // The skin over a space: out from `radius` along the ray from the body's axis in direction `d`
-// at height z, the last point inside the body, in steps of `step`. None when the ray starts
-// outside the body, or when it stays in the body further than `max_wall_depth` beyond `radius`
-// (it runs into an arm lying against the chest: no port there).
-std::optional<Eigen::Vector3d> SkinAlongRay(const Lookup& voxel, const Mask& body,
-                                            const Eigen::Vector2d& axis, const Eigen::Vector2d& d,
-                                            double z, double radius, double max_wall_depth,
-                                            double step) {
+// at height z, the last point inside the body, in steps of `step`, and the radius of the first
+// point outside it (infinite when the ray stays in the body further than `longest` beyond
+// `radius`). None when the ray starts outside the body.
+struct SkinPoint {
+  Eigen::Vector3d skin;
+  double exit_radius = 0.0;
+};
+std::optional<SkinPoint> SkinAlongRay(const Lookup& voxel, const Mask& body,
+                                      const Eigen::Vector2d& axis, const Eigen::Vector2d& d,
+                                      double z, double radius, double longest, double step) {
   auto inside = [&](const Eigen::Vector3d& p) {
     const long v = voxel(p);
     return v >= 0 && body.inside[v] != 0;
   };
   Eigen::Vector3d skin(axis.x() + radius * d.x(), axis.y() + radius * d.y(), z);
   if (!inside(skin)) return std::nullopt;
-  for (double r = radius; r <= radius + max_wall_depth; r += step) {
+  for (double r = radius; r <= radius + longest; r += step) {
     const Eigen::Vector3d q(axis.x() + r * d.x(), axis.y() + r * d.y(), z);
-    if (!inside(q)) return skin;
+    if (!inside(q)) return SkinPoint{skin, r};
     skin = q;
   }
-  return std::nullopt;
+  return SkinPoint{skin, HUGE_VAL};
+}
+
+// The side's bound on the wall: a ray whose skin lies further beyond the ribs runs into an arm
+// against the chest. `walls`: each ray's exit beyond its radius, +inf for a ray that never left
+// the body within the longest ray.
+WallReach ReachOfWalls(int side, std::vector<double> walls, const IntercostalOptions& o) {
+  WallReach reach;
+  reach.side = side;
+  reach.limit = o.max_wall_depth;
+  if (walls.empty()) return reach;
+  std::nth_element(walls.begin(), walls.begin() + walls.size() / 4, walls.end());
+  reach.typical = walls[walls.size() / 4];
+  if (std::isfinite(reach.typical))
+    reach.limit = std::max(o.max_wall_depth, reach.typical + o.arm_margin);
+  return reach;
 }
 
 }  // namespace
 
 std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segmentation& seg,
-                                                    const IntercostalOptions& o) {
+                                                    const IntercostalOptions& o,
+                                                    std::vector<WallReach>* reach) {
   TROCAR_THROW_UNLESS(o.bin > 0 && o.to_angle > o.from_angle, "intercostal spaces: bad angle range");
   // About the body's axis (Segmentation::axis_P).
   TROCAR_THROW_UNLESS(seg.body_max_P.x() > seg.body_min_P.x(), ct.source << ": empty body mask");
@@ -105,6 +124,9 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
     // space. Pieces of one rib (not joined) and ribs that end (the first, the lowest) are taken
     // as they come at each angle; a space is the run of bins between the same two ribs.
     std::map<std::pair<int, int>, IntercostalSpace> found;
+    // Per space, each point's ray: where it left the body and the radius it started from.
+    std::map<std::pair<int, int>, std::vector<std::pair<double, double>>> rays;
+    std::vector<double> walls;
     for (int b = 0; b < bins; ++b) {
       std::vector<int> here;
       for (int r = 0; r < n; ++r) {
@@ -121,23 +143,44 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
         const double z = 0.5 * (z_lo[upper] + z_hi[lower]);
         const double rib_radius = 0.5 * (radius[upper] / count[upper] + radius[lower] / count[lower]);
         const Eigen::Vector2d direction(side * std::sin(angle), std::cos(angle));
-        // Out to the skin within the chest wall's reach (an arm against the chest: no port).
-        const std::optional<Eigen::Vector3d> skin =
-            SkinAlongRay(voxel, seg.body, axis, direction, z, rib_radius, o.max_wall_depth, step);
+        // Out to the skin (within the chest wall's reach, below: an arm against the chest is no
+        // port site).
+        const std::optional<SkinPoint> skin =
+            SkinAlongRay(voxel, seg.body, axis, direction, z, rib_radius, o.longest_ray, step);
         if (!skin) continue;
         IntercostalSpace& space = found[{here[t], here[t + 1]}];
         space.side = side;
         space.upper_rib = here[t];
         space.lower_rib = here[t + 1];
-        space.skin.push_back(*skin);
+        space.skin.push_back(skin->skin);
         space.depth.emplace_back(axis.x() + rib_radius * direction.x(), axis.y() + rib_radius * direction.y(), z);
         space.gap.push_back(gap);
+        rays[{here[t], here[t + 1]}].emplace_back(skin->exit_radius, rib_radius);
+        walls.push_back(skin->exit_radius - rib_radius);
       }
     }
+    WallReach side_reach = ReachOfWalls(side, walls, o);
     std::vector<IntercostalSpace> side_spaces;
     for (auto& [key, space] : found) {
-      if (static_cast<int>(space.skin.size()) >= o.min_points) side_spaces.push_back(std::move(space));
+      IntercostalSpace within;
+      within.side = space.side;
+      within.upper_rib = space.upper_rib;
+      within.lower_rib = space.lower_rib;
+      const auto& ray = rays[key];
+      for (std::size_t i = 0; i < space.skin.size(); ++i) {
+        if (!(ray[i].first <= ray[i].second + side_reach.limit)) {
+          ++side_reach.dropped;
+          continue;
+        }
+        ++side_reach.kept;
+        within.skin.push_back(space.skin[i]);
+        within.depth.push_back(space.depth[i]);
+        within.gap.push_back(space.gap[i]);
+      }
+      if (static_cast<int>(within.skin.size()) >= o.min_points)
+        side_spaces.push_back(std::move(within));
     }
+    if (reach != nullptr && !walls.empty()) reach->push_back(side_reach);
     // Top to bottom by mean height.
     auto mean_z = [](const IntercostalSpace& s) {
       double z = 0.0;
@@ -154,7 +197,8 @@ std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segm
 std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
                                                            const Segmentation& seg,
                                                            const IntercostalOptions& o,
-                                                           LayerChart* chart) {
+                                                           LayerChart* chart,
+                                                           std::vector<WallReach>* reach) {
   TROCAR_THROW_UNLESS(o.bin > 0 && o.to_angle > o.from_angle,
                       "intercostal spaces: bad angle range");
   TROCAR_THROW_UNLESS(seg.body_max_P.x() > seg.body_min_P.x(), ct.source << ": empty body mask");
@@ -322,6 +366,15 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
     std::vector<Chain> chains;
     const int col_from = static_cast<int>(std::ceil(o.from_angle / o.bin - 0.5));
     const int col_to = std::min(cols - 1, static_cast<int>(std::floor(o.to_angle / o.bin - 0.5)));
+    // First each column's spaces and their rays out to the skin (the side's walls bound what is
+    // an arm), then the linking.
+    struct Candidate {
+      Run run;
+      double gap, z, radius;
+      SkinPoint skin;
+    };
+    std::vector<std::vector<Candidate>> candidates(cols);
+    std::vector<double> walls;
     for (int col = std::max(0, col_from); col <= col_to; ++col) {
       // A space lies between two ribs: rib runs no taller than `layer_max_rib`, a dark run no
       // taller than `layer_max_gap` (taller bright runs are organs in the layer's band, below the
@@ -342,7 +395,6 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
           runs.push_back({top, row - 1});
       }
       const Eigen::Vector2d d = direction(side, col);
-      std::vector<std::uint8_t> taken(chains.size(), 0);
       for (const Run& run : runs) {
         const double gap = (run.bottom - run.top + 1) * dz;
         if (gap < o.min_gap) continue;
@@ -350,10 +402,27 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
         const double z = 0.5 * (row_z(run.top) + row_z(run.bottom));
         const double radius = surface[mid * cols + col];
         if (std::isnan(radius) || radius < min_cage_radius) continue;
-        // Out to the skin within the chest wall's reach (an arm against the chest: no port).
-        const std::optional<Eigen::Vector3d> skin =
-            SkinAlongRay(voxel, seg.body, axis, d, z, radius, o.max_wall_depth, dr);
+        const std::optional<SkinPoint> skin =
+            SkinAlongRay(voxel, seg.body, axis, d, z, radius, o.longest_ray, dr);
         if (!skin) continue;
+        candidates[col].push_back({run, gap, z, radius, *skin});
+        walls.push_back(skin->exit_radius - radius);
+      }
+    }
+    WallReach side_reach = ReachOfWalls(side, walls, o);
+    for (int col = std::max(0, col_from); col <= col_to; ++col) {
+      const Eigen::Vector2d d = direction(side, col);
+      std::vector<std::uint8_t> taken(chains.size(), 0);
+      for (const Candidate& candidate : candidates[col]) {
+        const Run& run = candidate.run;
+        const double gap = candidate.gap, z = candidate.z, radius = candidate.radius;
+        // Within the chest wall's reach (an arm against the chest: no port).
+        if (!(candidate.skin.exit_radius <= radius + side_reach.limit)) {
+          ++side_reach.dropped;
+          continue;
+        }
+        ++side_reach.kept;
+        const Eigen::Vector3d skin = candidate.skin.skin;
         // The chain this run continues: the one ending at the last angle or the one before, whose
         // rows overlap most.
         int best = -1, best_overlap = 0;
@@ -377,11 +446,12 @@ std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
         taken[best] = 1;
         chain.last = run;
         chain.last_col = col;
-        chain.space.skin.push_back(*skin);
+        chain.space.skin.push_back(skin);
         chain.space.depth.emplace_back(axis.x() + radius * d.x(), axis.y() + radius * d.y(), z);
         chain.space.gap.push_back(gap);
       }
     }
+    if (reach != nullptr && !walls.empty()) reach->push_back(side_reach);
     std::vector<IntercostalSpace> side_spaces;
     for (Chain& chain : chains) {
       if (static_cast<int>(chain.space.skin.size()) >= o.min_points)

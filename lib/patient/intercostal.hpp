@@ -19,9 +19,14 @@ struct IntercostalOptions {
   double bin = 2.0 * M_PI / 180.0;  ///< angular sampling (rad)
   /// Shortest gap between rib edges that counts as a space (m).
   double min_gap = 0.004;
-  /// Farthest the skin may lie beyond the ribs along a ray (m): beyond it the ray runs into an
-  /// arm against the chest, and the point is no port site.
+  /// Farthest the skin may lie beyond the ribs along a ray (m), at least: beyond it the ray runs
+  /// into an arm against the chest, and the point is no port site. A side whose chest wall is
+  /// thicker (obese patients: 5-8 cm of fat) gets its own bound, the lower quartile of its rays'
+  /// walls plus `arm_margin` (an arm against the chest adds at least its own thickness, 7 cm or
+  /// more); rays are followed out to `longest_ray` beyond the ribs.
   double max_wall_depth = 0.08;
+  double arm_margin = 0.04;
+  double longest_ray = 0.3;
   /// Fewest angular samples for a curve to be kept.
   int min_points = 5;
   bool left = true;
@@ -64,10 +69,22 @@ struct IntercostalSpace {
   std::vector<double> gap;  ///< width of the gap at each point (m)
 };
 
-/// Spaces of a side come top to bottom (by mean height).
+/// How far the skin lies beyond the ribs on one side's rays over its spaces, and the points left
+/// out as lying under an arm.
+struct WallReach {
+  int side = +1;
+  double typical = 0.0;  ///< the lower quartile of the rays' walls, ribs to skin (m)
+  double limit = 0.0;    ///< max(max_wall_depth, typical + arm_margin) (m)
+  int kept = 0;          ///< rays whose skin lies within `limit`
+  int dropped = 0;       ///< rays further: into an arm against the chest
+};
+
+/// Spaces of a side come top to bottom (by mean height). `reach`, when given, gets one entry per
+/// side with rays.
 /// @throws trocar::Error naming the volume when a side asked for has fewer than two ribs.
 std::vector<IntercostalSpace> FindIntercostalSpaces(const Volume& ct, const Segmentation& seg,
-                                                    const IntercostalOptions& options = {});
+                                                    const IntercostalOptions& options = {},
+                                                    std::vector<WallReach>* reach = nullptr);
 
 /// The chart of the rib cage's layer per side: rows are heights from `top_z` down by `dz`, columns
 /// angles about the body's axis from the back (column c at (c + ½)·bin, to π at the front).
@@ -94,6 +111,7 @@ struct LayerChart {
 std::vector<IntercostalSpace> FindIntercostalSpacesInLayer(const Volume& ct,
                                                            const Segmentation& seg,
                                                            const IntercostalOptions& options = {},
-                                                           LayerChart* chart = nullptr);
+                                                           LayerChart* chart = nullptr,
+                                                           std::vector<WallReach>* reach = nullptr);
 
 }  // namespace trocar::patient

@@ -217,6 +217,7 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
   // threshold, and the components are fragments. The chart keeps the shoulder girdle out of its
   // ribs, and gives its intercostal spaces (port candidates, below).
   std::vector<IntercostalSpace> layer_spaces[2];  // left, right
+  std::vector<WallReach> layer_reach;             // their sides' walls
   bool layer_side[2] = {false, false};
   double layer_floor = 0.0;
   if (!ct.hounsfield && !have_labels) {
@@ -229,7 +230,7 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
       LayerChart chart;
       std::vector<IntercostalSpace> found;
       try {
-        found = FindIntercostalSpacesInLayer(ct, seg, both, &chart);
+        found = FindIntercostalSpacesInLayer(ct, seg, both, &chart, &layer_reach);
       } catch (const Error& e) {
         // Needed for the ports (not annotated, and asked of an unnumbered side): the error
         // stands. Needed for the girdle only: the import goes on with the pieces' own rule, and
@@ -471,6 +472,7 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
       m.targets.push_back(std::move(t));
     }
   });
+  int rays_kept = 0, rays_under_arm = 0;  // over the spaces found, out to the skin
   stage("port candidates", [&] {
     for (const auto& file : c.port_markups) {
       for (const auto& mk : LoadMarkups(file)) {
@@ -485,6 +487,7 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
       // keep their named spaces.
       int unnamed[2] = {0, 0};
       std::vector<IntercostalSpace> spaces;
+      std::vector<WallReach> reach;
       bool any_layer = false;
       for (int side : {+1, -1}) {
         if (!(side > 0 ? c.intercostal.left : c.intercostal.right)) continue;
@@ -499,12 +502,33 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
             any_layer = true;
           }
           for (auto& space : layer_spaces[side > 0 ? 0 : 1]) spaces.push_back(std::move(space));
+          for (const WallReach& r : layer_reach) {
+            if (r.side == side) reach.push_back(r);
+          }
           continue;
         }
         IntercostalOptions one = c.intercostal;
         one.left = side > 0;
         one.right = side < 0;
-        for (auto& space : FindIntercostalSpaces(ct, seg, one)) spaces.push_back(std::move(space));
+        for (auto& space : FindIntercostalSpaces(ct, seg, one, &reach))
+          spaces.push_back(std::move(space));
+      }
+      // A chest wall thicker than the usual bound, or rays that ran into an arm: say so.
+      for (const WallReach& r : reach) {
+        rays_kept += r.kept;
+        rays_under_arm += r.dropped;
+        if (r.dropped == 0 && r.limit <= c.intercostal.max_wall_depth) continue;
+        std::ostringstream s;
+        s << "ports: " << (r.side > 0 ? "left" : "right") << " chest wall "
+          << std::lround(r.typical * 1e3) << " mm from the ribs to the skin (lower quartile of "
+          << r.kept + r.dropped << " rays over the spaces)";
+        if (r.limit > c.intercostal.max_wall_depth)
+          s << ", thicker than " << std::lround(c.intercostal.max_wall_depth * 1e3)
+            << " mm: points up to " << std::lround(r.limit * 1e3) << " mm deep kept";
+        if (r.dropped > 0)
+          s << "; " << r.dropped << " rays stay in the body further than "
+            << std::lround(r.limit * 1e3) << " mm (an arm against the chest): no port there";
+        report.checks.push_back(s.str());
       }
       for (const auto& space : spaces) {
         const auto& ribs = space.side > 0 ? seg.bones.ribs_left : seg.bones.ribs_right;
@@ -591,6 +615,10 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
         w << "no intercostal space was found (ribs found: " << left << " left, " << right
           << " right; sides asked: " << (c.intercostal.left ? "left" : "") << (c.intercostal.left && c.intercostal.right ? ", " : "")
           << (c.intercostal.right ? "right" : "") << ")";
+        if (rays_kept == 0 && rays_under_arm > 0)
+          w << ": between the ribs, all " << rays_under_arm
+            << " rays out to the skin stay in the body further than the chest wall's reach (an "
+               "arm against the chest)";
       }
       w << "; annotate them (port_candidates: in patient.yaml) or give a label map (labels:)";
       report.warnings.push_back(w.str());

@@ -454,13 +454,17 @@ TEST(ShapeAnatomy, AWholePhantomRibCageIsNumberedOneToTwelveOverSeedsAndSizes) {
 
 // The same whole rib cages imported as cases without annotated ports: the intercostal spaces
 // found are named from the ribs' numbers (ICS-L1 … ICS-L11, ICS-R…), each one lying along the
-// generated space of its name, and say what the names rest on.
+// generated space of its name, and say what the names rest on. The upper arms lie against the
+// chest: a point on the arm's skin would lie 8 cm or more off the space's curve. The third
+// patient is obese (6 cm of fat, 8-9 cm from the ribs to the skin): with a fixed 8 cm bound on
+// the chest wall it had no port candidate at all.
 TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
   struct Size {
     unsigned seed;
-    double width, spacing, voxel;
+    double width, spacing, voxel, depth = 0.24, fat = 0.012;
   };
-  for (const Size& z : {Size{6, 0.34, 0.028, 0.003}, Size{7, 0.31, 0.026, 0.0035}}) {
+  for (const Size& z : {Size{6, 0.34, 0.028, 0.003}, Size{7, 0.31, 0.026, 0.0035},
+                        Size{8, 0.44, 0.028, 0.0035, 0.32, 0.06}}) {
     SCOPED_TRACE(z.seed);
     const std::string dir = testing::TempDir() + "/trocar-whole-cage-" + std::to_string(z.seed);
     std::filesystem::remove_all(dir);
@@ -469,13 +473,16 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
     std::ofstream(dir + "/patient.yaml")
         << "name: whole\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true, right: true}\n"
         << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n"
-        << "phantom: {seed: " << z.seed << ", body_width: " << z.width << ", length: " << length
+        << "phantom: {seed: " << z.seed << ", body_width: " << z.width
+        << ", body_depth: " << z.depth << ", fat_thickness: " << z.fat << ", length: " << length
         << ", ribs_per_side: 12, rib_spacing: " << z.spacing << ", voxel_size: " << z.voxel
         << ", wall_thickness: 0.02, ribs_reach_spine: true, shoulders: true}\n";
     const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
     patient::PhantomParameters p;
     p.seed = z.seed;
     p.body_width = z.width;
+    p.body_depth = z.depth;
+    p.fat_thickness = z.fat;
     p.length = length;
     p.ribs_per_side = 12;
     p.rib_spacing = z.spacing;
