@@ -608,4 +608,103 @@ Mask ResampleMask(const Volume& mask_volume, const Volume& grid, double threshol
   return m;
 }
 
+BodyRoll MeasureBodyRoll(const Volume& ct, const Mask& body) {
+  // Moments in index space, carried into the patient frame through the grid's geometry.
+  const int nx = ct.size.x(), ny = ct.size.y(), nz = ct.size.z();
+  double n = 0.0;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d products = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < nz; ++k) {
+    for (int j = 0; j < ny; ++j) {
+      const std::size_t row = static_cast<std::size_t>(nx) * (j + static_cast<std::size_t>(ny) * k);
+      for (int i = 0; i < nx; ++i) {
+        if (!body.inside[row + i]) continue;
+        const Eigen::Vector3d q(i, j, k);
+        n += 1.0;
+        sum += q;
+        products += q * q.transpose();
+      }
+    }
+  }
+  BodyRoll roll;
+  if (n < 2.0) return roll;
+  const Eigen::Vector3d mean = sum / n;
+  const Eigen::Matrix3d covariance_index = products / n - mean * mean.transpose();
+  const Eigen::Matrix3d covariance = ct.index_to_P * covariance_index * ct.index_to_P.transpose();
+  roll.centre_P = ct.origin_P + ct.index_to_P * mean;
+  const double cxx = covariance(0, 0), cyy = covariance(1, 1), cxy = covariance(0, 1);
+  roll.angle = 0.5 * std::atan2(2.0 * cxy, cxx - cyy);
+  const double half_trace = 0.5 * (cxx + cyy);
+  const double spread = std::sqrt(std::max(0.0, 0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy));
+  const double minor = half_trace - spread;
+  roll.aspect = minor > 0.0 ? std::sqrt((half_trace + spread) / minor) : HUGE_VAL;
+  return roll;
+}
+
+void MoveVolumeFrame(const Eigen::Isometry3d& X_DP, Volume* v) {
+  v->origin_P = X_DP * v->origin_P;
+  v->index_to_P = X_DP.linear() * v->index_to_P;
+}
+
+Volume ResampleTurned(const Volume& v, const Eigen::Isometry3d& X_DP, float fill, const Mask* cover,
+                      int margin) {
+  const int axial = AxialAxis(v);
+  const double step = InPlaneSpacing(v).minCoeff();
+  const double dz = std::abs(v.index_to_P.col(axial).z());
+  TROCAR_THROW_UNLESS(step > 0.0 && dz > 0.0, v.source << ": cannot turn a volume without slices");
+  // The original's corners (voxel centres) in D; in-plane, the covered voxels' box and the
+  // margin when a cover is given.
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(HUGE_VAL), hi = -lo;
+  for (int corner = 0; corner < 8; ++corner) {
+    const Eigen::Vector3d ijk((corner & 1) ? v.size.x() - 1 : 0, (corner & 2) ? v.size.y() - 1 : 0,
+                              (corner & 4) ? v.size.z() - 1 : 0);
+    const Eigen::Vector3d p_D = X_DP * v.PatientPoint(ijk.x(), ijk.y(), ijk.z());
+    lo = lo.cwiseMin(p_D);
+    hi = hi.cwiseMax(p_D);
+  }
+  if (cover != nullptr && cover->count() > 0) {
+    Eigen::Vector2d in_lo = Eigen::Vector2d::Constant(HUGE_VAL), in_hi = -in_lo;
+    for (int k = 0; k < v.size.z(); ++k) {
+      for (int j = 0; j < v.size.y(); ++j) {
+        for (int i = 0; i < v.size.x(); ++i) {
+          if (!cover->inside[v.Index(i, j, k)]) continue;
+          const Eigen::Vector2d p_D = (X_DP * v.PatientPoint(i, j, k)).head<2>();
+          in_lo = in_lo.cwiseMin(p_D);
+          in_hi = in_hi.cwiseMax(p_D);
+        }
+      }
+    }
+    lo.head<2>() = lo.head<2>().cwiseMax(in_lo - Eigen::Vector2d::Constant(margin * step));
+    hi.head<2>() = hi.head<2>().cwiseMin(in_hi + Eigen::Vector2d::Constant(margin * step));
+  }
+  Volume out;
+  out.hounsfield = v.hounsfield;
+  out.source = v.source;
+  out.files = v.files;
+  out.size = Eigen::Vector3i(static_cast<int>(std::floor((hi.x() - lo.x()) / step + 1e-9)) + 1,
+                             static_cast<int>(std::floor((hi.y() - lo.y()) / step + 1e-9)) + 1,
+                             v.size[axial]);
+  out.index_to_P =
+      Eigen::Vector3d(step, step, (hi.z() - lo.z()) / std::max(1, v.size[axial] - 1)).asDiagonal();
+  if (v.size[axial] == 1) out.index_to_P(2, 2) = dz;
+  out.origin_P = lo;
+  out.values.assign(static_cast<std::size_t>(out.size.x()) * out.size.y() * out.size.z(), fill);
+  const Eigen::Isometry3d X_PD = X_DP.inverse();
+  const Eigen::Matrix3d to_index = v.index_to_P.inverse();
+#pragma omp parallel for schedule(static)
+  for (int k = 0; k < out.size.z(); ++k) {
+    for (int j = 0; j < out.size.y(); ++j) {
+      for (int i = 0; i < out.size.x(); ++i) {
+        const Eigen::Vector3d f = to_index * (X_PD * out.PatientPoint(i, j, k) - v.origin_P);
+        const long a = std::lround(f.x()), b = std::lround(f.y()), c = std::lround(f.z());
+        if (a < 0 || b < 0 || c < 0 || a >= v.size.x() || b >= v.size.y() || c >= v.size.z())
+          continue;
+        out.values[out.Index(i, j, k)] =
+            v.values[v.Index(static_cast<int>(a), static_cast<int>(b), static_cast<int>(c))];
+      }
+    }
+  }
+  return out;
+}
+
 }  // namespace trocar::patient

@@ -126,6 +126,32 @@ struct Segmentation {
 /// @throws trocar::Error naming the volume when the body or the bone comes out empty.
 Segmentation Segment(const Volume& ct, const SegmentationOptions& options = {});
 
+/// The patient's roll about the long axis in the scanner: how far the principal axis of the
+/// body's cross-section (its width, left to right, the longer one in a chest or an abdomen) is
+/// turned from the scan's left-right axis.
+struct BodyRoll {
+  /// rad about +z_P, in (−π/2, π/2]: positive turns the left side toward the back (LPS), down
+  /// for a patient lying on the back.
+  double angle = 0.0;
+  double aspect = 1.0;  ///< the cross-section's width over its depth (square root of the ratio of
+                        ///< the principal moments)
+  Eigen::Vector3d centre_P = Eigen::Vector3d::Zero();  ///< the body's centroid
+};
+
+/// The body mask's second moments in the axial plane, over all its voxels.
+BodyRoll MeasureBodyRoll(const Volume& ct, const Mask& body);
+
+/// Moves a volume's geometry by X_DP: the same voxels, their patient points mapped into frame D.
+void MoveVolumeFrame(const Eigen::Isometry3d& X_DP, Volume* v);
+
+/// The volume resampled (nearest voxel: its values as they are) onto a grid whose axes are frame
+/// D's, which X_DP turns about z_P: the original's in-plane spacing (the finer one) and its
+/// slices, over the voxels of `cover` (a mask on `v`; null: the whole of it) turned into D and
+/// `margin` voxels around them in-plane; `fill` outside the original. Its geometry maps into D
+/// (`index_to_P`, `origin_P`).
+Volume ResampleTurned(const Volume& v, const Eigen::Isometry3d& X_DP, float fill,
+                      const Mask* cover = nullptr, int margin = 8);
+
 /// A mask from another volume (e.g. TotalSegmentator's heart.nii.gz) resampled, nearest voxel,
 /// onto `grid` through both volumes' patient geometry. @throws trocar::Error when the mask does
 /// not overlap the grid at all.

@@ -509,6 +509,94 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
   }
 }
 
+// A patient lying rolled about the long axis in the scanner (a wedge under one side): the
+// sorting reads left-right and front-back along the scan's axes, and rolled 8-15 degrees the
+// whole phantom rib cage lost ribs and the numbers of one side or both (9-12 ribs a side). The
+// import measures the roll from the body's cross-section and sorts in a frame turned upright; the
+// model comes back in the CT's frame, so each named space lies along the rolled phantom's space
+// of that name.
+TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLies) {
+  for (const double degrees : {-8.0, 12.0, -15.0}) {
+    SCOPED_TRACE(degrees);
+    patient::PhantomParameters p;
+    p.seed = 9;
+    p.ribs_per_side = 12;
+    p.rib_spacing = 0.028;
+    p.length = 0.15 + 1.04 * 11 * p.rib_spacing;
+    p.voxel_size = 0.003;
+    p.field_of_view = 0.6;
+    p.wall_thickness = 0.02;
+    p.ribs_reach_spine = p.shoulders = true;
+    const patient::Phantom ph = patient::GeneratePhantom(p);
+    // The phantom turned about the grid's centre line, nearest voxel, on the same grid.
+    const Eigen::Matrix3d R =
+        Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    const Eigen::Vector3d centre = ph.ct.PatientPoint(ph.ct.size.x() / 2, ph.ct.size.y() / 2, 0);
+    auto roll = [&](const Eigen::Vector3d& q) {
+      Eigen::Vector3d r = q;
+      r.head<2>() = centre.head<2>() + (R * (q - centre)).head<2>();
+      return r;
+    };
+    patient::Volume rolled = ph.ct;
+    const Eigen::Matrix3d to_index = ph.ct.index_to_P.inverse();
+    for (int k = 0; k < rolled.size.z(); ++k) {
+      for (int j = 0; j < rolled.size.y(); ++j) {
+        for (int i = 0; i < rolled.size.x(); ++i) {
+          Eigen::Vector3d q = ph.ct.PatientPoint(i, j, k);
+          q.head<2>() = centre.head<2>() + (R.transpose() * (q - centre)).head<2>();
+          const Eigen::Vector3d f = to_index * (q - ph.ct.origin_P);
+          const long a = std::lround(f.x()), b = std::lround(f.y());
+          const bool in = a >= 0 && b >= 0 && a < rolled.size.x() && b < rolled.size.y();
+          rolled.values[rolled.Index(i, j, k)] =
+              in ? ph.ct.values[ph.ct.Index(static_cast<int>(a), static_cast<int>(b), k)]
+                 : -1000.0f;
+        }
+      }
+    }
+    const std::string dir =
+        testing::TempDir() + "/trocar-rolled-" + std::to_string(std::lround(degrees));
+    std::filesystem::remove_all(dir);
+    std::filesystem::create_directories(dir);
+    patient::WriteNrrd(rolled, dir + "/ct.nrrd");
+    std::ofstream(dir + "/patient.yaml")
+        << "name: rolled\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true, right: true}\n"
+        << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
+    const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
+    const patient::PatientModel& m = *imported.model;
+    bool said = false;
+    for (const auto& line : imported.report.checks)
+      said = said || line.find("rolled") != std::string::npos;
+    EXPECT_TRUE(said);
+    std::map<char, int> named;
+    for (const auto& c : m.port_candidates) {
+      SCOPED_TRACE(c.name);
+      ASSERT_EQ(c.name.rfind("ICS-", 0), 0u);
+      const int side = c.name[4] == 'L' ? +1 : -1;
+      const int number = std::stoi(c.name.substr(5));
+      ASSERT_GE(number, 1);
+      ASSERT_LE(number, 11);
+      EXPECT_NE(c.source.find("numbered (confidence 0.95"), std::string::npos) << c.source;
+      ++named[c.name[4]];
+      patient::Curve truth;
+      for (const auto& q : ph.truth.intercostal_spaces[(side > 0 ? 0 : 11) + number - 1])
+        truth.push_back(roll(q));
+      for (const auto& q : c.skin) EXPECT_LT(DistanceToPolyline(q, truth), 3 * p.voxel_size);
+    }
+    EXPECT_GE(named['L'], 9);
+    EXPECT_GE(named['R'], 9);
+    // The skin where the CT has it: its vertices' box is the body's, in the CT's frame.
+    const patient::Structure* skin = m.Find("skin");
+    ASSERT_NE(skin, nullptr);
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(HUGE_VAL), hi = -lo;
+    for (const auto& v : skin->mesh.vertices) {
+      lo = lo.cwiseMin(v);
+      hi = hi.cwiseMax(v);
+    }
+    EXPECT_LT((lo - m.body_min_P).head<2>().cwiseAbs().maxCoeff(), 2 * p.voxel_size);
+    EXPECT_LT((hi - m.body_max_P).head<2>().cwiseAbs().maxCoeff(), 2 * p.voxel_size);
+  }
+}
+
 }  // namespace
 }  // namespace trocar
 
