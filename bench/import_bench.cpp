@@ -17,6 +17,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iostream>
 #include <string>
 #include <vector>
@@ -74,6 +75,27 @@ Run Measure(const std::string& dir, bool cached) {
   return run;
 }
 
+// Runs `make` in a child process: the bench's own process never starts OpenMP's threads (a child
+// forked after them may hang in its first parallel region; resampling a case is parallel).
+bool InChild(const std::function<void()>& make) {
+  std::fflush(stdout);
+  const pid_t pid = fork();
+  if (pid == 0) {
+    int code = 0;
+    try {
+      make();
+    } catch (const std::exception& e) {
+      std::cerr << "import_bench: " << e.what() << "\n";
+      code = 1;
+    }
+    std::fflush(stdout);
+    _exit(code);
+  }
+  int status = 0;
+  waitpid(pid, &status, 0);
+  return pid > 0 && WIFEXITED(status) && WEXITSTATUS(status) == 0;
+}
+
 double Median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   return v[v.size() / 2];
@@ -108,18 +130,19 @@ bool Bench(const std::string& dir, int repetitions) {
 std::string ClinicalPhantomCase(bool on_table = false) {
   const std::string dir = std::string(TROCAR_SOURCE_DIR) + "/out/bench/phantom-512x512x300" +
                           (on_table ? "-on-table" : "");
-  if (!std::filesystem::exists(dir + "/patient.yaml")) {
-    trocar::patient::PhantomParameters p;
-    if (on_table) p.table_gap = -0.004;
-    p.field_of_view = 0.38;
-    p.voxel_size = p.field_of_view / 512;
-    p.slice_spacing = 0.0012;
-    p.length = 0.36;
-    const auto phantom = trocar::patient::GeneratePhantom(p);
-    std::printf("generated %s: %d x %d x %d voxels\n", dir.c_str(), phantom.ct.size.x(),
-                phantom.ct.size.y(), phantom.ct.size.z());
-    trocar::patient::WritePhantomCase(phantom, dir);
-  }
+  if (!std::filesystem::exists(dir + "/patient.yaml") && !InChild([&] {
+        trocar::patient::PhantomParameters p;
+        if (on_table) p.table_gap = -0.004;
+        p.field_of_view = 0.38;
+        p.voxel_size = p.field_of_view / 512;
+        p.slice_spacing = 0.0012;
+        p.length = 0.36;
+        const auto phantom = trocar::patient::GeneratePhantom(p);
+        std::printf("generated %s: %d x %d x %d voxels\n", dir.c_str(), phantom.ct.size.x(),
+                    phantom.ct.size.y(), phantom.ct.size.z());
+        trocar::patient::WritePhantomCase(phantom, dir);
+      }))
+    throw trocar::Error("could not generate " + dir);
   return dir;
 }
 
@@ -127,22 +150,24 @@ std::string ClinicalPhantomCase(bool on_table = false) {
 // annotated spaces: the windowed path (convex body fill, the rib cage's layer), generated once.
 std::string WindowedClinicalCase(const std::string& clinical) {
   const std::string dir = std::string(TROCAR_SOURCE_DIR) + "/out/bench/windowed-512";
-  if (!std::filesystem::exists(dir + "/patient.yaml")) {
-    trocar::patient::Volume ct = trocar::patient::LoadVolume(clinical + "/ct.nrrd");
-    for (float& v : ct.values) v = std::clamp((v + 160.0f) / 400.0f * 255.0f, 0.0f, 255.0f);
-    ct.hounsfield = false;
-    std::filesystem::create_directories(dir + "/markups");
-    trocar::patient::WriteNrrd(ct, dir + "/ct.nrrd");
-    std::filesystem::copy_file(clinical + "/markups/LAD.mrk.json", dir + "/markups/LAD.mrk.json",
-                               std::filesystem::copy_options::overwrite_existing);
-    std::ofstream(dir + "/patient.yaml.tmp")
-        << "name: windowed-512\nct: ct.nrrd\nunits: raw\nthresholds: {body: 20, bone: 200}\n"
-        << "heart: {contrast: false}\n"
-        << "targets:\n  - {name: LAD, markups: markups/LAD.mrk.json, surface: skin}\n"
-        << "intercostal: {left: true}\n";
-    std::filesystem::rename(dir + "/patient.yaml.tmp", dir + "/patient.yaml");
-    std::printf("generated %s from %s\n", dir.c_str(), clinical.c_str());
-  }
+  if (!std::filesystem::exists(dir + "/patient.yaml") && !InChild([&] {
+        trocar::patient::Volume ct = trocar::patient::LoadVolume(clinical + "/ct.nrrd");
+        for (float& v : ct.values) v = std::clamp((v + 160.0f) / 400.0f * 255.0f, 0.0f, 255.0f);
+        ct.hounsfield = false;
+        std::filesystem::create_directories(dir + "/markups");
+        trocar::patient::WriteNrrd(ct, dir + "/ct.nrrd");
+        std::filesystem::copy_file(clinical + "/markups/LAD.mrk.json",
+                                   dir + "/markups/LAD.mrk.json",
+                                   std::filesystem::copy_options::overwrite_existing);
+        std::ofstream(dir + "/patient.yaml.tmp")
+            << "name: windowed-512\nct: ct.nrrd\nunits: raw\nthresholds: {body: 20, bone: 200}\n"
+            << "heart: {contrast: false}\n"
+            << "targets:\n  - {name: LAD, markups: markups/LAD.mrk.json, surface: skin}\n"
+            << "intercostal: {left: true}\n";
+        std::filesystem::rename(dir + "/patient.yaml.tmp", dir + "/patient.yaml");
+        std::printf("generated %s from %s\n", dir.c_str(), clinical.c_str());
+      }))
+    throw trocar::Error("could not generate " + dir);
   return dir;
 }
 
@@ -151,25 +176,27 @@ std::string WindowedClinicalCase(const std::string& clinical) {
 // second segmentation on a resampled grid), generated once.
 std::string RolledClinicalCase(const std::string& clinical) {
   const std::string dir = std::string(TROCAR_SOURCE_DIR) + "/out/bench/rolled-512";
-  if (!std::filesystem::exists(dir + "/patient.yaml")) {
-    const trocar::patient::Volume ct = trocar::patient::LoadVolume(clinical + "/ct.nrrd");
-    const Eigen::Vector3d centre =
-        ct.PatientPoint(0.5 * (ct.size.x() - 1), 0.5 * (ct.size.y() - 1), 0.0);
-    const Eigen::Isometry3d X_turn =
-        Eigen::Translation3d(centre) *
-        Eigen::AngleAxisd(12.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()) *
-        Eigen::Translation3d(-centre);
-    // Resampled onto a grid along the turned frame, then read as the patient frame: the anatomy
-    // turned on an axis-aligned grid.
-    const trocar::patient::Volume rolled = trocar::patient::ResampleTurned(ct, X_turn, -1000.0f);
-    std::filesystem::create_directories(dir);
-    trocar::patient::WriteNrrd(rolled, dir + "/ct.nrrd");
-    std::ofstream(dir + "/patient.yaml.tmp")
-        << "name: rolled-512\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true}\n";
-    std::filesystem::rename(dir + "/patient.yaml.tmp", dir + "/patient.yaml");
-    std::printf("generated %s from %s: %d x %d x %d voxels\n", dir.c_str(), clinical.c_str(),
-                rolled.size.x(), rolled.size.y(), rolled.size.z());
-  }
+  if (!std::filesystem::exists(dir + "/patient.yaml") && !InChild([&] {
+        const trocar::patient::Volume ct = trocar::patient::LoadVolume(clinical + "/ct.nrrd");
+        const Eigen::Vector3d centre =
+            ct.PatientPoint(0.5 * (ct.size.x() - 1), 0.5 * (ct.size.y() - 1), 0.0);
+        const Eigen::Isometry3d X_turn =
+            Eigen::Translation3d(centre) *
+            Eigen::AngleAxisd(12.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()) *
+            Eigen::Translation3d(-centre);
+        // Resampled onto a grid along the turned frame, then read as the patient frame: the anatomy
+        // turned on an axis-aligned grid.
+        const trocar::patient::Volume rolled =
+            trocar::patient::ResampleTurned(ct, X_turn, -1000.0f);
+        std::filesystem::create_directories(dir);
+        trocar::patient::WriteNrrd(rolled, dir + "/ct.nrrd");
+        std::ofstream(dir + "/patient.yaml.tmp")
+            << "name: rolled-512\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true}\n";
+        std::filesystem::rename(dir + "/patient.yaml.tmp", dir + "/patient.yaml");
+        std::printf("generated %s from %s: %d x %d x %d voxels\n", dir.c_str(), clinical.c_str(),
+                    rolled.size.x(), rolled.size.y(), rolled.size.z());
+      }))
+    throw trocar::Error("could not generate " + dir);
   return dir;
 }
 

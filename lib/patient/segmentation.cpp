@@ -610,22 +610,38 @@ Mask ResampleMask(const Volume& mask_volume, const Volume& grid, double threshol
 
 BodyRoll MeasureBodyRoll(const Volume& ct, const Mask& body) {
   // Moments in index space, carried into the patient frame through the grid's geometry.
+  // Per row (j, k fixed) only the count and the sums of i and i² go voxel by voxel.
   const int nx = ct.size.x(), ny = ct.size.y(), nz = ct.size.z();
   double n = 0.0;
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   Eigen::Matrix3d products = Eigen::Matrix3d::Zero();
   for (int k = 0; k < nz; ++k) {
     for (int j = 0; j < ny; ++j) {
-      const std::size_t row = static_cast<std::size_t>(nx) * (j + static_cast<std::size_t>(ny) * k);
+      const std::uint8_t* row =
+          &body.inside[static_cast<std::size_t>(nx) * (j + static_cast<std::size_t>(ny) * k)];
+      std::int64_t count = 0, si = 0, sii = 0;
       for (int i = 0; i < nx; ++i) {
-        if (!body.inside[row + i]) continue;
-        const Eigen::Vector3d q(i, j, k);
-        n += 1.0;
-        sum += q;
-        products += q * q.transpose();
+        const std::int64_t in = row[i] != 0;
+        count += in;
+        si += in * i;
+        sii += in * i * i;
       }
+      if (count == 0) continue;
+      const double c = static_cast<double>(count), a = static_cast<double>(si),
+                   b = static_cast<double>(j), d = static_cast<double>(k);
+      n += c;
+      sum += Eigen::Vector3d(a, c * b, c * d);
+      products(0, 0) += static_cast<double>(sii);
+      products(0, 1) += a * b;
+      products(0, 2) += a * d;
+      products(1, 1) += c * b * b;
+      products(1, 2) += c * b * d;
+      products(2, 2) += c * d * d;
     }
   }
+  products(1, 0) = products(0, 1);
+  products(2, 0) = products(0, 2);
+  products(2, 1) = products(1, 2);
   BodyRoll roll;
   if (n < 2.0) return roll;
   const Eigen::Vector3d mean = sum / n;
