@@ -212,9 +212,9 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
   // A patient lying rolled about the long axis (a wedge under one side, a scoliotic chest): the
   // sorting by shape reads left-right and front-back along the scan's axes, and at 8-15 degrees
   // lost ribs and their numbers. The body's cross-section (wider than deep) gives the roll; the
-  // import then works in a frame D turned upright about the body's centroid (the same voxels,
-  // their geometry turned), with every input given in P carried into D and the model carried
-  // back into P at the end.
+  // import then works in a frame D turned upright about the body's centroid (the CT resampled
+  // onto a grid along D's axes), with every input given in P carried into D and the model
+  // carried back into P at the end.
   Eigen::Isometry3d X_DP = Eigen::Isometry3d::Identity();
   bool upright = false;
   stage("roll", [&] {
@@ -230,8 +230,8 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
            Eigen::AngleAxisd(-roll.angle, Eigen::Vector3d::UnitZ()) *
            Eigen::Translation3d(-roll.centre_P);
     // The scan's values as they are (nearest voxel), on a grid along D's axes (the sorting also
-    // reads the grid's rows).
-    // Over the body and a margin (a whole turned grid is up to 40 % larger).
+    // reads the grid's rows), over the body and a margin (a whole turned grid is up to 40 %
+    // larger).
     ct = ResampleTurned(ct, X_DP, *std::min_element(ct.values.begin(), ct.values.end()), &seg.body);
     seg = Segment(ct, c.seg);
     upright = true;
