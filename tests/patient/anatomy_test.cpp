@@ -13,6 +13,7 @@
 #include "common/error.hpp"
 #include "patient/intercostal.hpp"
 #include "patient/label_map.hpp"
+#include "patient/markups.hpp"
 #include "patient/patient_model.hpp"
 #include "patient/sanity.hpp"
 #include "patient/segmentation.hpp"
@@ -514,7 +515,8 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
 // whole phantom rib cage lost ribs and the numbers of one side or both (9-12 ribs a side). The
 // import measures the roll from the body's cross-section and sorts in a frame turned upright; the
 // model comes back in the CT's frame, so each named space lies along the rolled phantom's space
-// of that name.
+// of that name, and a heart mask and a target given in the CT's frame come back where they were
+// given (left unturned, the mask's heart lay 4.7 mm off; the target 25 points off).
 TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLies) {
   for (const double degrees : {-8.0, 12.0, -15.0}) {
     SCOPED_TRACE(degrees);
@@ -558,11 +560,65 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
     std::filesystem::remove_all(dir);
     std::filesystem::create_directories(dir);
     patient::WriteNrrd(rolled, dir + "/ct.nrrd");
+    // At 12 degrees the inputs given in the CT's frame too: a heart mask (the phantom's heart,
+    // rolled, on the CT's grid) and the LAD annotated with its normals. They come back where
+    // they were given: turned into the upright frame with the CT, and back with the model.
+    const bool inputs = degrees == 12.0;
+    patient::Curve lad;
+    std::vector<Eigen::Vector3d> lad_normals;
+    long heart_voxels = 0;
+    if (inputs) {
+      patient::Volume heart = rolled;
+      heart.hounsfield = false;
+      for (int k = 0; k < heart.size.z(); ++k) {
+        for (int j = 0; j < heart.size.y(); ++j) {
+          for (int i = 0; i < heart.size.x(); ++i) {
+            Eigen::Vector3d q = heart.PatientPoint(i, j, k);
+            q.head<2>() = centre.head<2>() + (R.transpose() * (q - centre)).head<2>();
+            const bool in = ((q - ph.truth.heart_centre).cwiseQuotient(ph.truth.heart_semi_axes))
+                                .squaredNorm() <= 1.0;
+            heart.values[heart.Index(i, j, k)] = in ? 1.0f : 0.0f;
+            heart_voxels += in;
+          }
+        }
+      }
+      patient::WriteNrrd(heart, dir + "/heart.nrrd");
+      patient::Markup m;
+      m.name = "LAD";
+      m.type = "Curve";
+      for (const auto& q : ph.truth.lad) m.points.push_back(roll(q));
+      for (const auto& n : ph.truth.lad_normals) m.normals.push_back(R * n);
+      lad = m.points;
+      lad_normals = m.normals;
+      patient::WriteMarkups({m}, dir + "/lad.mrk.json");
+    }
     std::ofstream(dir + "/patient.yaml")
         << "name: rolled\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true, right: true}\n"
-        << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
+        << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n"
+        << (inputs ? "heart: {mask: heart.nrrd}\ntargets:\n"
+                     "  - {name: LAD, markups: lad.mrk.json, surface: heart, normals: file}\n"
+                   : "");
     const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
     const patient::PatientModel& m = *imported.model;
+    if (inputs) {
+      ASSERT_EQ(m.targets.size(), 1u);
+      ASSERT_EQ(m.targets[0].points.size(), lad.size());
+      ASSERT_EQ(m.targets[0].normals.size(), lad.size());
+      for (std::size_t i = 0; i < lad.size(); ++i) {
+        EXPECT_LT((m.targets[0].points[i] - lad[i]).norm(), 1e-9);
+        EXPECT_LT((m.targets[0].normals[i] - lad_normals[i]).norm(), 1e-9);
+      }
+      const patient::Structure* heart = m.Find("heart");
+      ASSERT_NE(heart, nullptr);
+      EXPECT_NEAR(heart->volume, heart_voxels * std::abs(rolled.index_to_P.determinant()),
+                  0.05 * heart->volume);
+      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+      for (const auto& v : heart->mesh.vertices) mean += v;
+      mean /= static_cast<double>(heart->mesh.vertices.size());
+      EXPECT_LT((mean - roll(ph.truth.heart_centre)).head<2>().norm(), p.voxel_size)
+          << "the heart's surface centred at " << mean.transpose() << ", the mask's at "
+          << roll(ph.truth.heart_centre).transpose();
+    }
     bool said = false;
     for (const auto& line : imported.report.checks)
       said = said || line.find("rolled") != std::string::npos;
