@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <set>
 
@@ -453,6 +454,32 @@ TEST(ShapeAnatomy, AWholePhantomRibCageIsNumberedOneToTwelveOverSeedsAndSizes) {
   }
 }
 
+// The port candidates of a whole phantom rib cage (12 ribs a side) are its intercostal spaces
+// named from numbered ribs: ICS-L1 … ICS-L11 and ICS-R…, each within `tolerance` of the generated
+// space of its name (carried into the CT's frame by `to_ct`), at least nine a side.
+void ExpectSpacesNamedAlongTheGeneratedOnes(
+    const patient::PatientModel& m, const patient::Phantom& ph, double tolerance,
+    const std::function<Eigen::Vector3d(const Eigen::Vector3d&)>& to_ct) {
+  std::map<char, int> named;
+  for (const auto& c : m.port_candidates) {
+    SCOPED_TRACE(c.name);
+    ASSERT_EQ(c.name.rfind("ICS-", 0), 0u);
+    const int side = c.name[4] == 'L' ? +1 : -1;
+    const int number = std::stoi(c.name.substr(5));
+    ASSERT_GE(number, 1);
+    ASSERT_LE(number, 11);
+    EXPECT_NE(c.source.find("numbered (confidence 0.95"), std::string::npos) << c.source;
+    ++named[c.name[4]];
+    // The generated space below rib `number` on that side (left first, 11 a side).
+    patient::Curve truth;
+    for (const auto& q : ph.truth.intercostal_spaces[(side > 0 ? 0 : 11) + number - 1])
+      truth.push_back(to_ct(q));
+    for (const auto& q : c.skin) EXPECT_LT(DistanceToPolyline(q, truth), tolerance);
+  }
+  EXPECT_GE(named['L'], 9);
+  EXPECT_GE(named['R'], 9);
+}
+
 // The same whole rib cages imported as cases without annotated ports: the intercostal spaces
 // found are named from the ribs' numbers (ICS-L1 … ICS-L11, ICS-R…), each one lying along the
 // generated space of its name, and say what the names rest on. The upper arms lie against the
@@ -491,22 +518,8 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
     p.wall_thickness = 0.02;
     p.ribs_reach_spine = p.shoulders = true;
     const patient::Phantom ph = patient::GeneratePhantom(p);
-    std::map<char, int> named;
-    for (const auto& c : m.port_candidates) {
-      SCOPED_TRACE(c.name);
-      ASSERT_EQ(c.name.rfind("ICS-", 0), 0u);
-      const int side = c.name[4] == 'L' ? +1 : -1;
-      const int number = std::stoi(c.name.substr(5));
-      ASSERT_GE(number, 1);
-      ASSERT_LE(number, 11);
-      EXPECT_NE(c.source.find("numbered (confidence 0.95"), std::string::npos) << c.source;
-      ++named[c.name[4]];
-      // The generated space below rib `number` on that side (left first, 11 a side).
-      const auto& truth = ph.truth.intercostal_spaces[(side > 0 ? 0 : 11) + number - 1];
-      for (const auto& q : c.skin) EXPECT_LT(DistanceToPolyline(q, truth), 3 * z.voxel);
-    }
-    EXPECT_GE(named['L'], 9);
-    EXPECT_GE(named['R'], 9);
+    ExpectSpacesNamedAlongTheGeneratedOnes(m, ph, 3 * z.voxel,
+                                           [](const Eigen::Vector3d& q) { return q; });
   }
 }
 
@@ -623,23 +636,7 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
     for (const auto& line : imported.report.checks)
       said = said || line.find("rolled") != std::string::npos;
     EXPECT_TRUE(said);
-    std::map<char, int> named;
-    for (const auto& c : m.port_candidates) {
-      SCOPED_TRACE(c.name);
-      ASSERT_EQ(c.name.rfind("ICS-", 0), 0u);
-      const int side = c.name[4] == 'L' ? +1 : -1;
-      const int number = std::stoi(c.name.substr(5));
-      ASSERT_GE(number, 1);
-      ASSERT_LE(number, 11);
-      EXPECT_NE(c.source.find("numbered (confidence 0.95"), std::string::npos) << c.source;
-      ++named[c.name[4]];
-      patient::Curve truth;
-      for (const auto& q : ph.truth.intercostal_spaces[(side > 0 ? 0 : 11) + number - 1])
-        truth.push_back(roll(q));
-      for (const auto& q : c.skin) EXPECT_LT(DistanceToPolyline(q, truth), 3 * p.voxel_size);
-    }
-    EXPECT_GE(named['L'], 9);
-    EXPECT_GE(named['R'], 9);
+    ExpectSpacesNamedAlongTheGeneratedOnes(m, ph, 3 * p.voxel_size, roll);
     // The skin where the CT has it: its vertices' box is the body's, in the CT's frame.
     const patient::Structure* skin = m.Find("skin");
     ASSERT_NE(skin, nullptr);
