@@ -530,8 +530,10 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
 // import measures the roll from the body's cross-section and sorts in a frame turned upright; the
 // model comes back in the CT's frame, so each named space lies along the rolled phantom's space
 // of that name, and a heart mask and a target given in the CT's frame come back where they were
-// given (left unturned, the mask's heart lay 4.7 mm off; the target 25 points off). A label map
-// given on the CT's grid names the spaces by its ribs, and the ribs' surface lies on them.
+// given (left unturned, the mask's heart lay 4.7 mm off; the target 25 points off). Rolled on a
+// wedge on a flat CT table, the table (turned in the upright frame) is left out of the body. A
+// label map given on the CT's grid names the spaces by its ribs, and the ribs' surface lies on
+// them.
 TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLies) {
   for (const double degrees : {-8.0, 12.0, -15.0}) {
     SCOPED_TRACE(degrees);
@@ -545,6 +547,16 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
     p.wall_thickness = 0.02;
     p.ribs_reach_spine = p.shoulders = true;
     const patient::Phantom ph = patient::GeneratePhantom(p);
+    // At -8 degrees the patient lies rolled on a flat CT table (on a wedge): the table is not
+    // turned, and the lower side of the back touches its carbon top.
+    const bool table = degrees == -8.0;
+    patient::Phantom on_table;
+    if (table) {
+      patient::PhantomParameters q = p;
+      q.table_gap = 0.0;
+      on_table = patient::GeneratePhantom(q);
+      ASSERT_EQ(on_table.ct.values.size(), ph.ct.values.size());
+    }
     // The phantom turned about the grid's centre line, nearest voxel, on the same grid.
     const Eigen::Matrix3d R =
         Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitZ()).toRotationMatrix();
@@ -556,6 +568,8 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
     };
     patient::Volume rolled = ph.ct;
     const Eigen::Matrix3d to_index = ph.ct.index_to_P.inverse();
+    double back = -HUGE_VAL;  // the patient's back (LPS +y), without the table
+    long touching = 0;
     for (int k = 0; k < rolled.size.z(); ++k) {
       for (int j = 0; j < rolled.size.y(); ++j) {
         for (int i = 0; i < rolled.size.x(); ++i) {
@@ -564,12 +578,22 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
           const Eigen::Vector3d f = to_index * (q - ph.ct.origin_P);
           const long a = std::lround(f.x()), b = std::lround(f.y());
           const bool in = a >= 0 && b >= 0 && a < rolled.size.x() && b < rolled.size.y();
-          rolled.values[rolled.Index(i, j, k)] =
-              in ? ph.ct.values[ph.ct.Index(static_cast<int>(a), static_cast<int>(b), k)]
-                 : -1000.0f;
+          float& value = rolled.values[rolled.Index(i, j, k)];
+          value = in ? ph.ct.values[ph.ct.Index(static_cast<int>(a), static_cast<int>(b), k)]
+                     : -1000.0f;
+          const long here = rolled.Index(i, j, k);
+          if (value > -500.0f) back = std::max(back, rolled.PatientPoint(i, j, k).y());
+          if (table && on_table.ct.values[here] != ph.ct.values[here]) {
+            // The table, where the turned patient is not; where he is, he presses on it.
+            if (value > -500.0f)
+              ++touching;
+            else
+              value = on_table.ct.values[here];
+          }
         }
       }
     }
+    if (table) ASSERT_GT(touching, 100) << "the table does not touch the patient";
     const std::string dir =
         testing::TempDir() + "/trocar-rolled-" + std::to_string(std::lround(degrees));
     std::filesystem::remove_all(dir);
@@ -675,10 +699,15 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
           << "the heart's surface centred at " << mean.transpose() << ", the mask's at "
           << roll(ph.truth.heart_centre).transpose();
     }
-    bool said = false;
-    for (const auto& line : imported.report.checks)
+    bool said = false, table_said = false;
+    for (const auto& line : imported.report.checks) {
       said = said || line.find("rolled") != std::string::npos;
+      table_said = table_said || line.find("(a CT table") != std::string::npos;
+    }
     EXPECT_TRUE(said);
+    EXPECT_EQ(table_said, table);
+    // The body is the patient's: its box ends at his back, not at the table behind it.
+    EXPECT_NEAR(m.body_max_P.y(), back, 1.5 * p.voxel_size);
     ExpectSpacesNamedAlongTheGeneratedOnes(
         m, ph, 3 * p.voxel_size, roll, labels ? "intercostal:labels" : "numbered (confidence 0.95");
     if (labels) {
