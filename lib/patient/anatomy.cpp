@@ -1056,16 +1056,27 @@ void ClassifyBonesOnce(const Volume& ct, Segmentation* seg, const AnatomyOptions
       }
       return any;
     };
+    // Until no piece moves: a piece taken out leaves the pieces behind it to be judged against
+    // the ribs. An arm's cortex broken into strips along its length (a scan resampled, nearest
+    // voxel, 20 degrees turned) has its strips in each other's shadow by less than the gap where
+    // no rib crosses their rays; judged once, one 1-voxel strip through the whole scan stayed a
+    // "rib" and the side lost its numbers.
     auto take_outer = [&] {
-      const Layer outer = layer_fractions(true);
-      for (const Component& c : pieces) {
-        // Outside: much of it behind other bone; or, where its rays meet other bone at all (a
-        // long arm bone beside the chest meets ribs only in the slices they cross), mostly
-        // behind it.
-        const bool behind = outer.fraction[c.label] > o.shoulder_fraction ||
-                            (outer.shared[c.label] >= o.shoulder_shared_min &&
-                             outer.of_shared[c.label] >= o.shoulder_of_shared);
-        if (kind[c.label] == 1 && behind) kind[c.label] = 4;
+      for (bool moved = true; moved;) {
+        moved = false;
+        const Layer outer = layer_fractions(true);
+        for (const Component& c : pieces) {
+          // Outside: much of it behind other bone; or, where its rays meet other bone at all (a
+          // long arm bone beside the chest meets ribs only in the slices they cross), mostly
+          // behind it.
+          const bool behind = outer.fraction[c.label] > o.shoulder_fraction ||
+                              (outer.shared[c.label] >= o.shoulder_shared_min &&
+                               outer.of_shared[c.label] >= o.shoulder_of_shared);
+          if (kind[c.label] == 1 && behind) {
+            kind[c.label] = 4;
+            moved = true;
+          }
+        }
       }
     };
     // Inside means inside the ribs, not inside the shoulder girdle: a first rib under its

@@ -657,6 +657,17 @@ BodyRoll MeasureBodyRoll(const Volume& ct, const Mask& body) {
   return roll;
 }
 
+double GridObliquity(const Volume& v) {
+  double worst = 0.0;
+  for (int axis = 0; axis < 3; ++axis) {
+    const Eigen::Vector3d u = v.index_to_P.col(axis);
+    const double length = u.norm();
+    if (!(length > 0.0)) continue;
+    worst = std::max(worst, std::acos(std::min(1.0, u.cwiseAbs().maxCoeff() / length)));
+  }
+  return worst;
+}
+
 void MoveVolumeFrame(const Eigen::Isometry3d& X_DP, Volume* v) {
   v->origin_P = X_DP * v->origin_P;
   v->index_to_P = X_DP.linear() * v->index_to_P;
@@ -697,12 +708,15 @@ Volume ResampleTurned(const Volume& v, const Eigen::Isometry3d& X_DP, float fill
   out.hounsfield = v.hounsfield;
   out.source = v.source;
   out.files = v.files;
-  out.size = Eigen::Vector3i(static_cast<int>(std::floor((hi.x() - lo.x()) / step + 1e-9)) + 1,
-                             static_cast<int>(std::floor((hi.y() - lo.y()) / step + 1e-9)) + 1,
-                             v.size[axial]);
+  // Slices dz apart over the corners' heights: the original's count unless its slices are
+  // sheared along the table (a gantry tilt), whose corners reach further.
+  const int slices =
+      v.size[axial] == 1 ? 1 : static_cast<int>(std::floor((hi.z() - lo.z()) / dz + 0.5)) + 1;
+  out.size =
+      Eigen::Vector3i(static_cast<int>(std::floor((hi.x() - lo.x()) / step + 1e-9)) + 1,
+                      static_cast<int>(std::floor((hi.y() - lo.y()) / step + 1e-9)) + 1, slices);
   out.index_to_P =
-      Eigen::Vector3d(step, step, (hi.z() - lo.z()) / std::max(1, v.size[axial] - 1)).asDiagonal();
-  if (v.size[axial] == 1) out.index_to_P(2, 2) = dz;
+      Eigen::Vector3d(step, step, slices > 1 ? (hi.z() - lo.z()) / (slices - 1) : dz).asDiagonal();
   out.origin_P = lo;
   out.values.assign(static_cast<std::size_t>(out.size.x()) * out.size.y() * out.size.z(), fill);
   const Eigen::Isometry3d X_PD = X_DP.inverse();

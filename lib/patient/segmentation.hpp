@@ -141,14 +141,21 @@ struct BodyRoll {
 /// The body mask's second moments in the axial plane, over all its voxels.
 BodyRoll MeasureBodyRoll(const Volume& ct, const Mask& body);
 
+/// How far the grid's index axes are turned from the patient's axes (rad): the largest angle
+/// between an index axis and the patient axis nearest it. 0 for a grid along the patient's axes
+/// in any order and sense (a sagittal stack, a mirrored axis); an oblique reconstruction, a header
+/// written after a registration or a gantry tilt (slices sheared along the table) turn them.
+double GridObliquity(const Volume& v);
+
 /// Moves a volume's geometry by X_DP: the same voxels, their patient points mapped into frame D.
 void MoveVolumeFrame(const Eigen::Isometry3d& X_DP, Volume* v);
 
 /// The volume resampled (nearest voxel: its values as they are) onto a grid whose axes are frame
 /// D's, which X_DP turns about z_P: the original's in-plane spacing (the finer one) and its
 /// slices, over the voxels of `cover` (a mask on `v`; null: the whole of it) turned into D and
-/// `margin` voxels around them in-plane; `fill` outside the original. Its geometry maps into D
-/// (`index_to_P`, `origin_P`).
+/// `margin` voxels around them in-plane; `fill` outside the original. Its slices are as far apart
+/// along z as the original's (a sheared, gantry-tilted stack comes out along z). Its geometry maps
+/// into D (`index_to_P`, `origin_P`).
 Volume ResampleTurned(const Volume& v, const Eigen::Isometry3d& X_DP, float fill,
                       const Mask* cover = nullptr, int margin = 8);
 

@@ -526,7 +526,9 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
 
 // A patient lying rolled about the long axis in the scanner (a wedge under one side): the
 // sorting reads left-right and front-back along the scan's axes, and rolled 8-15 degrees the
-// whole phantom rib cage lost ribs and the numbers of one side or both (9-12 ribs a side). The
+// whole phantom rib cage lost ribs and the numbers of one side or both (9-12 ribs a side); at 25
+// degrees a strip of the arm's cortex, broken off by the resampling, stayed a "rib" until the
+// girdle rule was repeated to a fixed point (13 pieces a side, not numbered). The
 // import measures the roll from the body's cross-section and sorts in a frame turned upright; the
 // model comes back in the CT's frame, so each named space lies along the rolled phantom's space
 // of that name, and a heart mask and a target given in the CT's frame come back where they were
@@ -535,7 +537,7 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
 // label map given on the CT's grid names the spaces by its ribs, and the ribs' surface lies on
 // them.
 TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLies) {
-  for (const double degrees : {-8.0, 12.0, -15.0}) {
+  for (const double degrees : {-8.0, 12.0, -15.0, 25.0}) {
     SCOPED_TRACE(degrees);
     patient::PhantomParameters p;
     p.seed = 9;
@@ -740,6 +742,112 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
     }
     EXPECT_LT((lo - m.body_min_P).head<2>().cwiseAbs().maxCoeff(), 2 * p.voxel_size);
     EXPECT_LT((hi - m.body_max_P).head<2>().cwiseAbs().maxCoeff(), 2 * p.voxel_size);
+  }
+}
+
+// A CT whose grid is turned from the patient's axes: an oblique header (a reconstruction along
+// the body's axes, a file written after a registration) or a gantry tilt (slices sheared along
+// the table). The patient lies straight in the patient frame while the grid's rows run across
+// him, and the sorting reads the rows: on a grid turned 12 degrees the left side kept 2 of its 12
+// ribs. The import resamples such a grid along the patient's axes (along the upright frame when
+// the patient is rolled as well), finds the scan's cut faces on its own grid (they lie slanted
+// across the turned one) and keeps port candidates off them.
+TEST(ShapeAnatomy, AnObliqueGridIsResampledAlongThePatientsAxes) {
+  patient::PhantomParameters p;
+  p.seed = 9;
+  p.ribs_per_side = 12;
+  p.rib_spacing = 0.028;
+  p.length = 0.15 + 1.04 * 11 * p.rib_spacing;
+  p.voxel_size = 0.003;
+  p.field_of_view = 0.6;
+  p.wall_thickness = 0.02;
+  p.ribs_reach_spine = p.shoulders = true;
+  const patient::Phantom ph = patient::GeneratePhantom(p);
+  struct Case {
+    double grid, roll, tilt;  // degrees: the grid turned about z, the patient rolled, the tilt
+    int crop;                 // voxels cut off each side of the grid's first axis
+  };
+  for (const Case& t : {Case{20, 0, 0, 25}, Case{-12, 15, 0, 0}, Case{0, 0, 15, 0}}) {
+    SCOPED_TRACE(::testing::Message() << "grid " << t.grid << ", roll " << t.roll << ", tilt "
+                                      << t.tilt << ", crop " << t.crop);
+    auto turn = [](double degrees) {
+      return Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    };
+    const Eigen::Matrix3d A = turn(t.grid), R = turn(t.roll);
+    const Eigen::Vector3d centre = ph.ct.PatientPoint(ph.ct.size.x() / 2, ph.ct.size.y() / 2, 0);
+    auto roll = [&](const Eigen::Vector3d& q) {
+      Eigen::Vector3d r = q;
+      r.head<2>() = centre.head<2>() + (R * (q - centre)).head<2>();
+      return r;
+    };
+    // The scan's grid: the phantom's turned about its centre line, its first axis cropped, its
+    // column axis tilted about x (slices stacked along z); each voxel the phantom's nearest to
+    // where the (rolled) patient has that point.
+    patient::Volume ct = ph.ct;
+    ct.index_to_P = A * ph.ct.index_to_P;
+    ct.origin_P = centre + A * (ph.ct.origin_P - centre) + ct.index_to_P.col(0) * t.crop;
+    ct.size.x() -= 2 * t.crop;
+    if (t.tilt != 0.0) {
+      const double a = t.tilt * M_PI / 180.0, dy = ct.index_to_P.col(1).norm();
+      const Eigen::Vector3d mid =
+          ct.PatientPoint(ct.size.x() / 2, ct.size.y() / 2, ct.size.z() / 2);
+      ct.index_to_P.col(1) = dy * Eigen::Vector3d(0.0, std::cos(a), std::sin(a));
+      ct.origin_P += mid - ct.PatientPoint(ct.size.x() / 2, ct.size.y() / 2, ct.size.z() / 2);
+    }
+    ct.values.assign(static_cast<std::size_t>(ct.size.x()) * ct.size.y() * ct.size.z(), -1000.0f);
+    const Eigen::Matrix3d to_index = ph.ct.index_to_P.inverse();
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          Eigen::Vector3d q = ct.PatientPoint(i, j, k);
+          q.head<2>() = centre.head<2>() + (R.transpose() * (q - centre)).head<2>();
+          const Eigen::Vector3d f = to_index * (q - ph.ct.origin_P);
+          const Eigen::Vector3i n(std::lround(f.x()), std::lround(f.y()), std::lround(f.z()));
+          if ((n.array() >= 0).all() && (n.array() < ph.ct.size.array()).all())
+            ct.values[ct.Index(i, j, k)] = ph.ct.values[ph.ct.Index(n.x(), n.y(), n.z())];
+        }
+      }
+    }
+    const std::string dir = testing::TempDir() + "/trocar-oblique";
+    std::filesystem::remove_all(dir);
+    std::filesystem::create_directories(dir);
+    patient::WriteNrrd(ct, dir + "/ct.nrrd");
+    std::ofstream(dir + "/patient.yaml")
+        << "name: oblique\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true, right: true}\n"
+        << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
+    const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
+    const patient::PatientModel& m = *imported.model;
+    const double turned = std::max({std::abs(t.grid), std::abs(t.tilt)});
+    std::ostringstream said;
+    said << "CT: its grid is turned " << std::fixed << std::setprecision(1) << turned
+         << " degrees from the patient's axes";
+    int turned_lines = 0, rolled_lines = 0;
+    for (const auto& line : imported.report.checks) {
+      turned_lines += line.rfind(said.str(), 0) == 0;
+      rolled_lines += line.find("lies rolled") != std::string::npos;
+    }
+    EXPECT_EQ(turned_lines, 1) << ::testing::PrintToString(imported.report.checks);
+    EXPECT_EQ(rolled_lines, t.roll != 0.0 ? 1 : 0);
+    ExpectSpacesNamedAlongTheGeneratedOnes(m, ph, 3 * p.voxel_size, roll);
+    // The cut faces are the scan's: top and bottom (slanted across the resampled grid when
+    // tilted), and both sides when cropped; no port candidate within the margin of them.
+    std::vector<std::string> faces = {"superior", "inferior"};
+    if (t.crop > 0) faces = {"right", "left", "superior", "inferior"};
+    EXPECT_EQ(m.cut_faces, faces);
+    const Eigen::Matrix3d to_ct_index = ct.index_to_P.inverse();
+    int near_side = 0;
+    for (const auto& c : m.port_candidates) {
+      for (const auto& q : c.skin) {
+        const Eigen::Vector3d f = to_ct_index * (q - ct.origin_P);
+        const double h = ct.index_to_P.col(0).norm();
+        const double side = std::min(f.x() + 0.5, ct.size.x() - 0.5 - f.x()) * h;
+        const double dz = ct.index_to_P.col(2).norm();
+        const double end = std::min(f.z() + 0.5, ct.size.z() - 0.5 - f.z()) * dz;
+        near_side += (t.crop > 0 && side < patient::PatientModel::kCutFaceMargin) ||
+                     end < patient::PatientModel::kCutFaceMargin;
+      }
+    }
+    EXPECT_EQ(near_side, 0);
   }
 }
 
@@ -1468,5 +1576,6 @@ TEST(ShapeAnatomy, ARealCtSortsAlikeWhicheverOrderItsAxesAreStoredIn) {
   EXPECT_EQ(differ, 0) << differ << " of " << bone << " voxels sorted otherwise";
   EXPECT_EQ(a.anatomy, b.anatomy);
 }
+
 }  // namespace
 }  // namespace trocar
