@@ -604,7 +604,8 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
             << " mm: points up to " << std::lround(r.limit * 1e3) << " mm deep kept";
         if (r.dropped > 0)
           s << "; " << r.dropped << " rays stay in the body further than "
-            << std::lround(r.limit * 1e3) << " mm (an arm against the chest): no port there";
+            << std::lround(r.limit * 1e3)
+            << " mm (an arm against the chest, a breast: too deep for a port): no port there";
         report.checks.push_back(s.str());
       }
       for (const auto& space : spaces) {
@@ -698,7 +699,7 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
         if (rays_kept == 0 && rays_under_arm > 0)
           w << ": between the ribs, all " << rays_under_arm
             << " rays out to the skin stay in the body further than the chest wall's reach (an "
-               "arm against the chest)";
+               "arm against the chest, a breast)";
       }
       w << "; annotate them (port_candidates: in patient.yaml) or give a label map (labels:)";
       report.warnings.push_back(w.str());
