@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "common/error.hpp"
+#include "common/limits.hpp"
 
 namespace trocar::patient {
 
@@ -709,12 +710,20 @@ Volume ResampleTurned(const Volume& v, const Eigen::Isometry3d& X_DP, float fill
   out.source = v.source;
   out.files = v.files;
   // Slices dz apart over the corners' heights: the original's count unless its slices are
-  // sheared along the table (a gantry tilt), whose corners reach further.
+  // sheared along the table (a gantry tilt), whose corners reach further. A header sheared
+  // beyond any scanner's tilt asks for a grid too large: refused by the voxel limit, naming it.
+  auto count = [&](double n, const char* axis) {
+    TROCAR_THROW_UNLESS(n >= 1.0 && n <= 1e6, v.source
+                                                  << ": resampled along the patient's axes, its "
+                                                  << axis << " axis would hold " << n
+                                                  << " voxels: check the header's directions");
+    return static_cast<int>(n);
+  };
   const int slices =
-      v.size[axial] == 1 ? 1 : static_cast<int>(std::floor((hi.z() - lo.z()) / dz + 0.5)) + 1;
-  out.size =
-      Eigen::Vector3i(static_cast<int>(std::floor((hi.x() - lo.x()) / step + 1e-9)) + 1,
-                      static_cast<int>(std::floor((hi.y() - lo.y()) / step + 1e-9)) + 1, slices);
+      v.size[axial] == 1 ? 1 : count(std::floor((hi.z() - lo.z()) / dz + 0.5) + 1.0, "z");
+  out.size = Eigen::Vector3i(count(std::floor((hi.x() - lo.x()) / step + 1e-9) + 1.0, "x"),
+                             count(std::floor((hi.y() - lo.y()) / step + 1e-9) + 1.0, "y"), slices);
+  CheckedVoxelCount(out.size, v.source + ": the grid resampled along the patient's axes");
   out.index_to_P =
       Eigen::Vector3d(step, step, slices > 1 ? (hi.z() - lo.z()) / (slices - 1) : dz).asDiagonal();
   out.origin_P = lo;

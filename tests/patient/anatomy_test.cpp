@@ -524,6 +524,50 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
   }
 }
 
+// The whole phantom rib cage with shoulder blades, collarbones and arms that the rolled and the
+// oblique tests turn, generated once.
+const patient::Phantom& WholeCageWithShoulders() {
+  static const patient::Phantom phantom = [] {
+    patient::PhantomParameters p;
+    p.seed = 9;
+    p.ribs_per_side = 12;
+    p.rib_spacing = 0.028;
+    p.length = 0.15 + 1.04 * 11 * p.rib_spacing;
+    p.voxel_size = 0.003;
+    p.field_of_view = 0.6;
+    p.wall_thickness = 0.02;
+    p.ribs_reach_spine = p.shoulders = true;
+    return patient::GeneratePhantom(p);
+  }();
+  return phantom;
+}
+
+// A turn about the patient's z axis through a grid's centre line (the slices' middle).
+struct TurnAboutZ {
+  Eigen::Vector3d centre;
+  Eigen::Matrix3d R;
+  TurnAboutZ(const patient::Volume& grid, double degrees)
+      : centre(grid.PatientPoint(grid.size.x() / 2, grid.size.y() / 2, 0)),
+        R(Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitZ())) {}
+  Eigen::Vector3d operator()(const Eigen::Vector3d& q) const { return Apply(R, q); }
+  Eigen::Vector3d Back(const Eigen::Vector3d& q) const { return Apply(R.transpose(), q); }
+
+ private:
+  Eigen::Vector3d Apply(const Eigen::Matrix3d& M, const Eigen::Vector3d& q) const {
+    Eigen::Vector3d r = q;
+    r.head<2>() = centre.head<2>() + (M * (q - centre)).head<2>();
+    return r;
+  }
+};
+
+// The value of `v`'s voxel nearest the patient point q, or `outside` beyond its grid.
+float NearestValue(const patient::Volume& v, const Eigen::Vector3d& q, float outside) {
+  const Eigen::Vector3d f = v.index_to_P.inverse() * (q - v.origin_P);
+  const Eigen::Vector3i n(std::lround(f.x()), std::lround(f.y()), std::lround(f.z()));
+  if ((n.array() < 0).any() || (n.array() >= v.size.array()).any()) return outside;
+  return v.values[v.Index(n.x(), n.y(), n.z())];
+}
+
 // A patient lying rolled about the long axis in the scanner (a wedge under one side): the
 // sorting reads left-right and front-back along the scan's axes, and rolled 8-15 degrees the
 // whole phantom rib cage lost ribs and the numbers of one side or both (9-12 ribs a side); at 25
@@ -537,18 +581,10 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
 // label map given on the CT's grid names the spaces by its ribs, and the ribs' surface lies on
 // them.
 TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLies) {
+  const patient::Phantom& ph = WholeCageWithShoulders();
+  const patient::PhantomParameters& p = ph.parameters;
   for (const double degrees : {-8.0, 12.0, -15.0, 25.0}) {
     SCOPED_TRACE(degrees);
-    patient::PhantomParameters p;
-    p.seed = 9;
-    p.ribs_per_side = 12;
-    p.rib_spacing = 0.028;
-    p.length = 0.15 + 1.04 * 11 * p.rib_spacing;
-    p.voxel_size = 0.003;
-    p.field_of_view = 0.6;
-    p.wall_thickness = 0.02;
-    p.ribs_reach_spine = p.shoulders = true;
-    const patient::Phantom ph = patient::GeneratePhantom(p);
     // At -8 degrees the patient lies rolled on a flat CT table (on a wedge): the table is not
     // turned, and the lower side of the back touches its carbon top.
     const bool table = degrees == -8.0;
@@ -560,30 +596,16 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
       ASSERT_EQ(on_table.ct.values.size(), ph.ct.values.size());
     }
     // The phantom turned about the grid's centre line, nearest voxel, on the same grid.
-    const Eigen::Matrix3d R =
-        Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-    const Eigen::Vector3d centre = ph.ct.PatientPoint(ph.ct.size.x() / 2, ph.ct.size.y() / 2, 0);
-    auto roll = [&](const Eigen::Vector3d& q) {
-      Eigen::Vector3d r = q;
-      r.head<2>() = centre.head<2>() + (R * (q - centre)).head<2>();
-      return r;
-    };
+    const TurnAboutZ roll(ph.ct, degrees);
     patient::Volume rolled = ph.ct;
-    const Eigen::Matrix3d to_index = ph.ct.index_to_P.inverse();
     double back = -HUGE_VAL;  // the patient's back (LPS +y), without the table
     long touching = 0;
     for (int k = 0; k < rolled.size.z(); ++k) {
       for (int j = 0; j < rolled.size.y(); ++j) {
         for (int i = 0; i < rolled.size.x(); ++i) {
-          Eigen::Vector3d q = ph.ct.PatientPoint(i, j, k);
-          q.head<2>() = centre.head<2>() + (R.transpose() * (q - centre)).head<2>();
-          const Eigen::Vector3d f = to_index * (q - ph.ct.origin_P);
-          const long a = std::lround(f.x()), b = std::lround(f.y());
-          const bool in = a >= 0 && b >= 0 && a < rolled.size.x() && b < rolled.size.y();
-          float& value = rolled.values[rolled.Index(i, j, k)];
-          value = in ? ph.ct.values[ph.ct.Index(static_cast<int>(a), static_cast<int>(b), k)]
-                     : -1000.0f;
           const long here = rolled.Index(i, j, k);
+          float& value = rolled.values[here];
+          value = NearestValue(ph.ct, roll.Back(rolled.PatientPoint(i, j, k)), -1000.0f);
           if (value > -500.0f) back = std::max(back, rolled.PatientPoint(i, j, k).y());
           if (table && on_table.ct.values[here] != ph.ct.values[here]) {
             // The table, where the turned patient is not; where he is, he presses on it.
@@ -614,8 +636,7 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
       for (int k = 0; k < heart.size.z(); ++k) {
         for (int j = 0; j < heart.size.y(); ++j) {
           for (int i = 0; i < heart.size.x(); ++i) {
-            Eigen::Vector3d q = heart.PatientPoint(i, j, k);
-            q.head<2>() = centre.head<2>() + (R.transpose() * (q - centre)).head<2>();
+            const Eigen::Vector3d q = roll.Back(heart.PatientPoint(i, j, k));
             const bool in = ((q - ph.truth.heart_centre).cwiseQuotient(ph.truth.heart_semi_axes))
                                 .squaredNorm() <= 1.0;
             heart.values[heart.Index(i, j, k)] = in ? 1.0f : 0.0f;
@@ -628,7 +649,7 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
       m.name = "LAD";
       m.type = "Curve";
       for (const auto& q : ph.truth.lad) m.points.push_back(roll(q));
-      for (const auto& n : ph.truth.lad_normals) m.normals.push_back(R * n);
+      for (const auto& n : ph.truth.lad_normals) m.normals.push_back(roll.R * n);
       lad = m.points;
       lad_normals = m.normals;
       patient::WriteMarkups({m}, dir + "/lad.mrk.json");
@@ -653,8 +674,7 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
       for (int k = 0; k < map.size.z(); ++k) {
         for (int j = 0; j < map.size.y(); ++j) {
           for (int i = 0; i < map.size.x(); ++i) {
-            Eigen::Vector3d q = map.PatientPoint(i, j, k);
-            q.head<2>() = centre.head<2>() + (R.transpose() * (q - centre)).head<2>();
+            const Eigen::Vector3d q = roll.Back(map.PatientPoint(i, j, k));
             float& label = map.values[map.Index(i, j, k)];
             if (((q - ph.truth.heart_centre).cwiseQuotient(ph.truth.heart_semi_axes))
                     .squaredNorm() <= 1.0)
@@ -753,16 +773,8 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
 // the patient is rolled as well), finds the scan's cut faces on its own grid (they lie slanted
 // across the turned one) and keeps port candidates off them.
 TEST(ShapeAnatomy, AnObliqueGridIsResampledAlongThePatientsAxes) {
-  patient::PhantomParameters p;
-  p.seed = 9;
-  p.ribs_per_side = 12;
-  p.rib_spacing = 0.028;
-  p.length = 0.15 + 1.04 * 11 * p.rib_spacing;
-  p.voxel_size = 0.003;
-  p.field_of_view = 0.6;
-  p.wall_thickness = 0.02;
-  p.ribs_reach_spine = p.shoulders = true;
-  const patient::Phantom ph = patient::GeneratePhantom(p);
+  const patient::Phantom& ph = WholeCageWithShoulders();
+  const patient::PhantomParameters& p = ph.parameters;
   struct Case {
     double grid, roll, tilt;  // degrees: the grid turned about z, the patient rolled, the tilt
     int crop;                 // voxels cut off each side of the grid's first axis
@@ -770,22 +782,13 @@ TEST(ShapeAnatomy, AnObliqueGridIsResampledAlongThePatientsAxes) {
   for (const Case& t : {Case{20, 0, 0, 25}, Case{-12, 15, 0, 0}, Case{0, 0, 15, 0}}) {
     SCOPED_TRACE(::testing::Message() << "grid " << t.grid << ", roll " << t.roll << ", tilt "
                                       << t.tilt << ", crop " << t.crop);
-    auto turn = [](double degrees) {
-      return Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-    };
-    const Eigen::Matrix3d A = turn(t.grid), R = turn(t.roll);
-    const Eigen::Vector3d centre = ph.ct.PatientPoint(ph.ct.size.x() / 2, ph.ct.size.y() / 2, 0);
-    auto roll = [&](const Eigen::Vector3d& q) {
-      Eigen::Vector3d r = q;
-      r.head<2>() = centre.head<2>() + (R * (q - centre)).head<2>();
-      return r;
-    };
+    const TurnAboutZ grid(ph.ct, t.grid), roll(ph.ct, t.roll);
     // The scan's grid: the phantom's turned about its centre line, its first axis cropped, its
     // column axis tilted about x (slices stacked along z); each voxel the phantom's nearest to
     // where the (rolled) patient has that point.
     patient::Volume ct = ph.ct;
-    ct.index_to_P = A * ph.ct.index_to_P;
-    ct.origin_P = centre + A * (ph.ct.origin_P - centre) + ct.index_to_P.col(0) * t.crop;
+    ct.index_to_P = grid.R * ph.ct.index_to_P;
+    ct.origin_P = grid(ph.ct.origin_P) + ct.index_to_P.col(0) * t.crop;
     ct.size.x() -= 2 * t.crop;
     if (t.tilt != 0.0) {
       const double a = t.tilt * M_PI / 180.0, dy = ct.index_to_P.col(1).norm();
@@ -794,17 +797,12 @@ TEST(ShapeAnatomy, AnObliqueGridIsResampledAlongThePatientsAxes) {
       ct.index_to_P.col(1) = dy * Eigen::Vector3d(0.0, std::cos(a), std::sin(a));
       ct.origin_P += mid - ct.PatientPoint(ct.size.x() / 2, ct.size.y() / 2, ct.size.z() / 2);
     }
-    ct.values.assign(static_cast<std::size_t>(ct.size.x()) * ct.size.y() * ct.size.z(), -1000.0f);
-    const Eigen::Matrix3d to_index = ph.ct.index_to_P.inverse();
+    ct.values.assign(static_cast<std::size_t>(ct.size.x()) * ct.size.y() * ct.size.z(), 0.0f);
     for (int k = 0; k < ct.size.z(); ++k) {
       for (int j = 0; j < ct.size.y(); ++j) {
         for (int i = 0; i < ct.size.x(); ++i) {
-          Eigen::Vector3d q = ct.PatientPoint(i, j, k);
-          q.head<2>() = centre.head<2>() + (R.transpose() * (q - centre)).head<2>();
-          const Eigen::Vector3d f = to_index * (q - ph.ct.origin_P);
-          const Eigen::Vector3i n(std::lround(f.x()), std::lround(f.y()), std::lround(f.z()));
-          if ((n.array() >= 0).all() && (n.array() < ph.ct.size.array()).all())
-            ct.values[ct.Index(i, j, k)] = ph.ct.values[ph.ct.Index(n.x(), n.y(), n.z())];
+          ct.values[ct.Index(i, j, k)] =
+              NearestValue(ph.ct, roll.Back(ct.PatientPoint(i, j, k)), -1000.0f);
         }
       }
     }
@@ -848,6 +846,28 @@ TEST(ShapeAnatomy, AnObliqueGridIsResampledAlongThePatientsAxes) {
       }
     }
     EXPECT_EQ(near_side, 0);
+  }
+}
+
+// A crafted header, its slices a micrometre apart and tilted 45 degrees, would ask the resampling
+// along the patient's axes for a million slices (4 x 10^9 voxels): refused by the voxel limit,
+// naming the volume, before anything is allocated.
+TEST(ShapeAnatomy, AGridShearedBeyondAnyTiltIsRefusedNamingIt) {
+  patient::Volume v;
+  v.source = "sheared.nrrd";
+  v.size = Eigen::Vector3i(4, 1000, 4);
+  v.index_to_P.col(0) = Eigen::Vector3d(0.001, 0.0, 0.0);
+  v.index_to_P.col(1) = Eigen::Vector3d(0.0, 0.001, 0.001);
+  v.index_to_P.col(2) = Eigen::Vector3d(0.0, 0.0, 1e-6);
+  v.values.assign(4 * 1000 * 4, 0.0f);
+  EXPECT_NEAR(patient::GridObliquity(v), M_PI / 4, 1e-9);  // the import would resample it
+  try {
+    patient::ResampleTurned(v, Eigen::Isometry3d::Identity(), -1000.0f);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("sheared.nrrd"), std::string::npos) << what;
+    EXPECT_NE(what.find("resampled along the patient's axes"), std::string::npos) << what;
   }
 }
 
