@@ -55,6 +55,35 @@ inline int FreePort() {
   return ntohs(a.sin_port);
 }
 
+/// True in a build under a sanitizer (ASan, TSan; gcc or clang).
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+inline constexpr bool kSanitized = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+inline constexpr bool kSanitized = true;
+#else
+inline constexpr bool kSanitized = false;
+#endif
+#else
+inline constexpr bool kSanitized = false;
+#endif
+
+/// The cases a slow property test runs: all of them in Release; under a sanitizer only those at
+/// the positions `sanitized` names (chosen so that every path the cases take still runs
+/// instrumented: a table, a label map, a crop...), because each whole-phantom import costs minutes
+/// there. The Release run of the same test takes every case.
+template <class Case>
+std::vector<Case> Cases(std::vector<Case> all, std::initializer_list<std::size_t> sanitized) {
+  if (!kSanitized) return all;
+  std::vector<Case> kept;
+  for (const std::size_t i : sanitized) kept.push_back(all.at(i));
+  return kept;
+}
+
+/// How many random trials a property test draws: `release` in Release, `sanitized` under a
+/// sanitizer (the same seeded sequence, cut short).
+constexpr int Trials(int release, int sanitized) { return kSanitized ? sanitized : release; }
+
 inline std::string SourcePath(const std::string& relative) {
   return std::string(TROCAR_SOURCE_DIR) + "/" + relative;
 }

@@ -106,7 +106,7 @@ TEST(TriangleBvh, AnswersAsBruteForceOverEveryTriangle) {
   for (int leaf : {1, 4, 16}) {
     const TriangleBvh bvh(mesh, leaf);
     ASSERT_EQ(bvh.triangle_count(), static_cast<int>(mesh.triangles.size()));
-    for (int trial = 0; trial < 150; ++trial) {
+    for (int trial = 0; trial < test::Trials(150, 40); ++trial) {
       // Segments and points inside, across and outside the surface; boxes turned every way.
       const Vector3d a = RandomPoint(rng, 0.2);
       const Vector3d b = trial % 7 == 0 ? a : a + RandomPoint(rng, 0.1);
@@ -180,7 +180,7 @@ TEST(TriangleBvh, JointSearchFindsTheNearestOfManyQueries) {
   const TriangleMesh m1 = Bumpy(rng, 30, 50), m2 = Bumpy(rng, 20, 30);
   const TriangleBvh b1(m1), b2(m2);
   TriangleBvh::Scratch scratch;
-  for (int trial = 0; trial < 80; ++trial) {
+  for (int trial = 0; trial < test::Trials(80, 25); ++trial) {
     std::vector<MeshQuery> queries;
     double expected = std::numeric_limits<double>::infinity();
     int expected_query = -1;

@@ -404,8 +404,10 @@ TEST(ShapeAnatomy, AWholePhantomRibCageIsNumberedOneToTwelveOverSeedsAndSizes) {
     unsigned seed;
     double width, depth, spacing, voxel;
   };
-  for (const Size& z : {Size{1, 0.34, 0.24, 0.028, 0.003}, Size{2, 0.30, 0.22, 0.025, 0.0025},
-                        Size{3, 0.38, 0.26, 0.030, 0.0035}, Size{4, 0.34, 0.24, 0.027, 0.003}}) {
+  for (const Size& z :
+       test::Cases<Size>({Size{1, 0.34, 0.24, 0.028, 0.003}, Size{2, 0.30, 0.22, 0.025, 0.0025},
+                          Size{3, 0.38, 0.26, 0.030, 0.0035}, Size{4, 0.34, 0.24, 0.027, 0.003}},
+                         {1, 2})) {
     SCOPED_TRACE(z.seed);
     patient::PhantomParameters p;
     p.seed = z.seed;
@@ -492,8 +494,10 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
     unsigned seed;
     double width, spacing, voxel, depth = 0.24, fat = 0.012;
   };
-  for (const Size& z : {Size{6, 0.34, 0.028, 0.003}, Size{7, 0.31, 0.026, 0.0035},
-                        Size{8, 0.44, 0.028, 0.0035, 0.32, 0.06}}) {
+  // Under a sanitizer: the lean cage and the obese one (test::Cases).
+  for (const Size& z : test::Cases<Size>({Size{6, 0.34, 0.028, 0.003}, Size{7, 0.31, 0.026, 0.0035},
+                                          Size{8, 0.44, 0.028, 0.0035, 0.32, 0.06}},
+                                         {1, 2})) {
     SCOPED_TRACE(z.seed);
     const std::string dir = testing::TempDir() + "/trocar-whole-cage-" + std::to_string(z.seed);
     std::filesystem::remove_all(dir);
@@ -583,7 +587,8 @@ float NearestValue(const patient::Volume& v, const Eigen::Vector3d& q, float out
 TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLies) {
   const patient::Phantom& ph = WholeCageWithShoulders();
   const patient::PhantomParameters& p = ph.parameters;
-  for (const double degrees : {-8.0, 12.0, -15.0, 25.0}) {
+  // Under a sanitizer: the table's roll and the label map's (test::Cases).
+  for (const double degrees : test::Cases<double>({-8.0, 12.0, -15.0, 25.0}, {0, 2})) {
     SCOPED_TRACE(degrees);
     // At -8 degrees the patient lies rolled on a flat CT table (on a wedge): the table is not
     // turned, and the lower side of the back touches its carbon top.
@@ -1169,7 +1174,10 @@ TEST(ShapeAnatomy, Lidc2InjectedContrastIsVesselsNotSternum) {
 // (raw_cortex_core_radius 0), the vein is bone: the test can fail. With solid bones, the ribs
 // hold the ball and the 7 mm core stays (a wide window's ribs are no contrast).
 TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCortex) {
-  for (const auto& [seed, voxel] : {std::pair{3u, 0.002}, std::pair{8u, 0.0025}}) {
+  for (const auto& cs :
+       test::Cases<std::pair<unsigned, double>>({{3u, 0.002}, {8u, 0.0025}}, {1})) {
+    const unsigned seed = cs.first;  // plain names: lambdas below capture them (C++17)
+    const double voxel = cs.second;
     SCOPED_TRACE(seed);
     patient::PhantomParameters p;
     p.seed = seed;
@@ -1338,8 +1346,10 @@ namespace {
 // stretches at bone brightness and 3 cm ones below the bone threshold, above the layer's floor (as
 // a rib's partial-volume cortex reads in LIDC2's window); the girdle's bone reads bright.
 TEST(ShapeAnatomy, AShoulderGirdleOutsideTheLayerIsKeptOutOfFragmentaryRibs) {
-  for (const auto& [seed, voxel] :
-       {std::pair{2u, 0.002}, std::pair{5u, 0.0025}, std::pair{7u, 0.003}, std::pair{9u, 0.0025}}) {
+  for (const auto& cs : test::Cases<std::pair<unsigned, double>>(
+           {{2u, 0.002}, {5u, 0.0025}, {7u, 0.003}, {9u, 0.0025}}, {2})) {
+    const unsigned seed = cs.first;  // plain names: lambdas below capture them (C++17)
+    const double voxel = cs.second;
     SCOPED_TRACE(seed);
     patient::PhantomParameters p;
     p.seed = seed;
@@ -1497,9 +1507,10 @@ TEST(ShapeAnatomy, TheSortingDoesNotDependOnTheOrderTheFileStoresItsAxesIn) {
     std::array<int, 3> order;
     std::array<bool, 3> flip;
   };
-  for (const Case& c :
-       {Case{4, {2, 0, 1}, {false, false, false}}, Case{8, {1, 2, 0}, {true, false, true}},
-        Case{9, {0, 2, 1}, {false, true, false}}}) {
+  for (const Case& c : test::Cases<Case>(
+           {Case{4, {2, 0, 1}, {false, false, false}}, Case{8, {1, 2, 0}, {true, false, true}},
+            Case{9, {0, 2, 1}, {false, true, false}}},
+           {1})) {
     SCOPED_TRACE(c.seed);
     patient::PhantomParameters p;
     p.seed = c.seed;
