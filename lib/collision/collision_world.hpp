@@ -2,7 +2,7 @@
 /// @file
 /// Collision checking between the robot's arms, the patient and the table (FCL, kept private).
 ///
-/// Model/state split (design.md): a CollisionWorld holds the immutable shared geometry — one BVH
+/// Model/state split (docs/architecture.md): a CollisionWorld holds the immutable shared geometry — one BVH
 /// per patient structure and per robot mesh, primitives for capsules and boxes, and for each
 /// patient structure our own exact hierarchy (triangle_bvh.hpp) that answers the robot's
 /// capsules, spheres and boxes against it — and the rules (allowed pairs, ports). A

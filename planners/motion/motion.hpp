@@ -1,14 +1,14 @@
 #pragma once
 /// @file
-/// Verified motions (design.md, "Motion planning"): OMPL plans in one arm's active joint space,
-/// from the arm's start pose (the plan's nominal pose: the instrument just inside its port) to
-/// a target sample, with every state checked by the collision world — the other arms held at
-/// their nominal configuration, the instrument allowed to touch the skin only at its own port
+/// Verified motions (../shared/design.md, "Verification and batch"): OMPL plans in one arm's active
+/// joint space, from the arm's start pose (the plan's nominal pose: the instrument just inside its
+/// port) to a target sample, with every state checked by the collision world — the other arms held
+/// at their nominal configuration, the instrument allowed to touch the skin only at its own port
 /// (collision_world.hpp, "Ports"), closures solved by forward kinematics inside the check. Goal
 /// states come from the port-placement problem's damped-least-squares inverse kinematics with
-/// seeded restarts. A returned path is simplified, then re-checked state by state at a finer
-/// step than the planner's before it is reported: a path the re-check rejects is a failure,
-/// never a solution.
+/// seeded restarts. A returned path is simplified, then re-checked state by state at a finer step
+/// than the planner's before it is reported: a path the re-check rejects is a failure, never a
+/// solution.
 ///
 /// Threads: a MotionContext is one thread's scratch (robot state, collision checker); the
 /// problem, placement and world are shared and immutable.

@@ -1,12 +1,12 @@
 #pragma once
 /// @file
-/// The port-placement problem (design.md, "Port placement"): a decision vector — for each arm
-/// a port on one of the patient's candidate curves, plus the cart's pose on the floor — is turned
-/// into a placement (setup joints solved, instruments aimed), and scored term by term: target
-/// coverage, dexterity, approach angle, triangulation, the endoscope's view, port spacing and
-/// clearances. Each term is reported with its raw value and unit and a score in [0, 1]; the
-/// total is their weighted sum. Evaluation is a pure function of the decision (seeded solvers,
-/// no state carried between calls), so a plan is reproducible and any thread may evaluate it.
+/// The port-placement problem (../shared/design.md, "Port placement"): a decision vector — for each
+/// arm a port on one of the patient's candidate curves, plus the cart's pose on the floor — is
+/// turned into a placement (setup joints solved, instruments aimed), and scored term by term:
+/// target coverage, dexterity, approach angle, triangulation, the endoscope's view, port spacing
+/// and clearances. Each term is reported with its raw value and unit and a score in [0, 1]; the
+/// total is their weighted sum. Evaluation is a pure function of the decision (seeded solvers, no
+/// state carried between calls), so a plan is reproducible and any thread may evaluate it.
 
 #include <Eigen/Geometry>
 #include <memory>
