@@ -494,7 +494,7 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
     unsigned seed;
     double width, spacing, voxel, depth = 0.24, fat = 0.012;
   };
-  // Under a sanitizer: the lean cage and the obese one (test::Cases).
+  // Under a sanitizer: the small cage and the obese one (test::Cases).
   for (const Size& z : test::Cases<Size>({Size{6, 0.34, 0.028, 0.003}, Size{7, 0.31, 0.026, 0.0035},
                                           Size{8, 0.44, 0.028, 0.0035, 0.32, 0.06}},
                                          {1, 2})) {
