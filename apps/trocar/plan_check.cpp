@@ -129,20 +129,25 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       }
     }
     const Eigen::Isometry3d X_PW = patient.X_WP.inverse();
-    auto allowance = [&](const Eigen::Vector3d& pivot_W) {
-      double depth = 0.0;
-      if (skin_bvh) {
-        const auto c = skin_bvh->Closest(X_PW * pivot_W, X_PW * pivot_W);
-        if (c.found()) depth = c.distance;
-      }
-      return depth + world->options().port_radius;
+    // The pivot's depth under the skin, and the port rule's allowance (port_rules.hpp).
+    auto depth = [&](const Eigen::Vector3d& pivot_W) {
+      if (!skin_bvh) return 0.0;
+      const auto c = skin_bvh->Closest(X_PW * pivot_W, X_PW * pivot_W);
+      return c.found() ? c.distance : 0.0;
+    };
+    std::vector<Eigen::Vector3d> incisions_W;  // per arm, of the plan being checked
+    auto allowance = [&](std::size_t a, const Eigen::Vector3d& pivot_W) {
+      const double track = a < incisions_W.size()
+                               ? planners::PortTrackLength(depth(pivot_W), pivot_W, incisions_W[a])
+                               : depth(pivot_W);
+      return track + world->options().port_radius;
     };
     auto collisions = [&](const robot::RobotState& state,
                           const std::vector<Eigen::Vector3d>& pivots_W) {
       checker.SetRobotState(state);
       for (std::size_t a = 0; a < world_port.size() && a < pivots_W.size(); ++a) {
         if (world_port[a] >= 0)
-          checker.SetPortPosition(world_port[a], pivots_W[a], allowance(pivots_W[a]));
+          checker.SetPortPosition(world_port[a], pivots_W[a], allowance(a, pivots_W[a]));
       }
       const collision::CollisionReport report = checker.Check();
       std::string text;
@@ -195,6 +200,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       const robot::RobotState nominal = state;
       // Ports: on their candidate curve, RCMs at them.
       std::vector<Eigen::Vector3d> pivots;
+      incisions_W.clear();
       const json& ports = field(plan, "ports");
       TROCAR_THROW_UNLESS(ports.size() == arms.size(), path << ": " << tag << ports.size()
                                                             << " ports for " << arms.size()
@@ -204,6 +210,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         const Eigen::Vector3d p_W = Vec(field(port, "p_W"), "ports[].p_W");
         const Eigen::Vector3d p_P = Vec(field(port, "p_P"), "ports[].p_P");
         const std::string arm_name = field(arms[a], "name").get<std::string>();
+        incisions_W.push_back(p_W);
         claims += 2;
         if ((patient.X_WP * p_P - p_W).norm() > kSlack)
           fail(tag + arm_name + ": port p_W is not X_WP p_P");
@@ -237,9 +244,8 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           fail(tag + arm_name + ": the pivot is " + Mm((rcm_W - p_W).norm()) +
                " from the skin port");
         ++claims;
-        if (allowance(rcm_W) - world->options().port_radius > planners::kMaxPivotDepth + kSlack)
-          fail(tag + arm_name + ": the pivot is " +
-               Mm(allowance(rcm_W) - world->options().port_radius) + " under the skin (at most " +
+        if (depth(rcm_W) > planners::kMaxPivotDepth + kSlack)
+          fail(tag + arm_name + ": the pivot is " + Mm(depth(rcm_W)) + " under the skin (at most " +
                Mm(planners::kMaxPivotDepth) + ")");
         if (rcm.empty()) continue;
         ++claims;

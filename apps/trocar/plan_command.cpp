@@ -7,6 +7,7 @@
 #include <iomanip>
 #include <iostream>
 #include <memory>
+#include <sstream>
 
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
@@ -70,6 +71,7 @@ int RunPlan(PlanOptions o) {
   const planners::PortPlacementProblem problem(patient, robot, problem_options);
   const bool terminal = !o.quiet && isatty(STDERR_FILENO);
   if (!o.quiet) {
+    std::cout << "planned in " << patient->operation.Describe() << "\n";
     std::cout << "patient " << patient->name << (imported.report.from_cache ? " (cached model)" : "")
               << ": " << patient->targets.size() << " targets, " << problem.samples().size()
               << " target samples, " << patient->port_candidates.size()
@@ -120,13 +122,26 @@ int RunPlan(PlanOptions o) {
                             });
 
   std::cout << std::fixed;
+  // What the robustness score is the mean over (optimizer.cpp): the heart over its operative range,
+  // or, in the CT's state, the targets moved along each axis.
+  std::string robustness = "not re-scored";
+  if (o.optimizer.robustness_shift > 0) {
+    std::ostringstream r;
+    const patient::OperativeState& op = patient->operation;
+    if (op.moves()) {
+      r << std::fixed << std::setprecision(1) << "heart " << op.heart_shift_min * 1e3 << "-"
+        << op.heart_shift_max * 1e3 << " mm";
+    } else {
+      r << std::fixed << std::setprecision(0) << "targets moved " << o.optimizer.robustness_shift * 1e3 << " mm";
+    }
+    robustness = r.str();
+  }
   for (std::size_t k = 0; k < result.plans.size(); ++k) {
     const auto& plan = result.plans[k];
     const auto& ev = plan.evaluation;
     std::cout << "\nplan " << k + 1 << ": score " << std::setprecision(3) << ev.score << " (rank "
-              << plan.rank_score << ", with targets moved " << std::setprecision(0)
-              << o.optimizer.robustness_shift * 1e3 << " mm: " << std::setprecision(3)
-              << plan.robust_score << "), " << planners::ToString(ev.status) << "\n";
+              << plan.rank_score << ", " << robustness << ": " << plan.robust_score << "), "
+              << planners::ToString(ev.status) << "\n";
     for (std::size_t a = 0; a < plan.placement.sites.size(); ++a) {
       const auto& site = plan.placement.sites[a];
       const Eigen::Vector3d p = site.p_P * 1e3;

@@ -29,6 +29,12 @@ struct EdgeCounts {
   long boundary = 0, non_manifold = 0, total = 0;
 };
 EdgeCounts CountEdges(const TriangleMesh& mesh);
+/// The point of triangle (a, b, c) nearest to p (Ericson, Real-Time Collision Detection, 5.1.5).
+Eigen::Vector3d ClosestPointOnTriangle(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
+                                       const Eigen::Vector3d& b, const Eigen::Vector3d& c);
+/// Distance from p to the mesh's surface by visiting every triangle (for a few queries on a mesh
+/// without a hierarchy; collision/triangle_bvh.hpp answers many); infinity for an empty mesh.
+double DistanceToMesh(const TriangleMesh& mesh, const Eigen::Vector3d& p);
 /// Axis-aligned bounds of the vertices.
 void MeshBounds(const TriangleMesh& mesh, Eigen::Vector3d* min, Eigen::Vector3d* max);
 

@@ -1,5 +1,6 @@
 #include "patient/case_file.hpp"
 
+#include <cctype>
 #include <tuple>
 #include <cmath>
 #include <filesystem>
@@ -9,6 +10,107 @@
 #include "common/yaml_util.hpp"
 
 namespace trocar::patient {
+
+namespace {
+
+// A quantity with an optional unit suffix ("12.5 mm", "1.2 cm", "0.0125"; "8 mmHg", "8"): the
+// value in `base` units (m, mmHg). A unit not in `units` is an error naming it.
+double Quantity(const YamlReader& y, const YAML::Node& node, const std::string& path,
+                const std::vector<std::pair<std::string, double>>& units) {
+  TROCAR_THROW_UNLESS(node.IsScalar(), y.Where(node, path) << ": expected a number with a unit");
+  std::string text = node.Scalar();
+  double scale = 1.0;
+  for (const auto& [unit, factor] : units) {
+    if (text.size() > unit.size() && text.compare(text.size() - unit.size(), unit.size(), unit) == 0) {
+      text = text.substr(0, text.size() - unit.size());
+      scale = factor;
+      break;
+    }
+  }
+  std::size_t used = 0;
+  double value = 0.0;
+  try {
+    value = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  while (used < text.size() && std::isspace(static_cast<unsigned char>(text[used]))) ++used;
+  std::string expected;
+  for (const auto& u : units) expected += (expected.empty() ? "" : ", ") + u.first;
+  TROCAR_THROW_UNLESS(used == text.size() && used > 0 && std::isfinite(value),
+                      y.Where(node, path) << ": '" << node.Scalar()
+                                          << "' is not a number with a unit (" << expected << ")");
+  return value * scale;
+}
+
+// operation: none | {co2: 8 mmHg, lung: isolated|ventilated, heart_shift: 12.5 mm,
+//                    heart_shift_range: [10 mm, 15 mm]} (docs/operative-state.md).
+void ReadOperation(const YamlReader& y, const YAML::Node& o, OperativeState* state) {
+  if (o.IsScalar()) {
+    TROCAR_THROW_UNLESS(o.Scalar() == "none" || o.Scalar() == "operative",
+                        y.Where(o, "operation") << ": '" << o.Scalar()
+                                                << "': expected none (plan in the CT's state), "
+                                                   "operative, or a map of the state's values");
+    state->applied = o.Scalar() != "none";
+    return;
+  }
+  y.ExpectMap(o, "operation", {"co2", "lung", "heart_shift", "heart_shift_range"});
+  const std::vector<std::pair<std::string, double>> length = {{"mm", 1e-3}, {"cm", 1e-2}, {"m", 1.0}};
+  if (o["co2"]) {
+    state->co2_mmhg = Quantity(y, o["co2"], "operation.co2", {{"mmHg", 1.0}});
+    TROCAR_THROW_UNLESS(state->co2_mmhg >= 0.0 && state->co2_mmhg <= kMaxCo2Mmhg,
+                        y.Where(o["co2"], "operation.co2")
+                            << ": " << state->co2_mmhg << " mmHg is outside 0-" << kMaxCo2Mmhg
+                            << " mmHg (robotic TECAB insufflates 5-12 mmHg; 0: no CO2)");
+  }
+  if (o["lung"]) {
+    const std::string lung = y.String(o["lung"], "operation.lung");
+    TROCAR_THROW_UNLESS(lung == "isolated" || lung == "ventilated",
+                        y.Where(o["lung"], "operation.lung")
+                            << ": '" << lung << "': expected isolated (one-lung ventilation, the "
+                               "left lung isolated) or ventilated");
+    state->left_lung_isolated = lung == "isolated";
+  }
+  auto shift = [&](const YAML::Node& n, const std::string& path) {
+    const double v = Quantity(y, n, path, length);
+    TROCAR_THROW_UNLESS(v >= 0.0 && v <= kMaxHeartShift,
+                        y.Where(n, path) << ": " << v * 1e3 << " mm is outside 0-"
+                                         << kMaxHeartShift * 1e3 << " mm");
+    return v;
+  };
+  if (o["heart_shift_range"]) {
+    const YAML::Node r = o["heart_shift_range"];
+    TROCAR_THROW_UNLESS(r.IsSequence() && r.size() == 2,
+                        y.Where(r, "operation.heart_shift_range")
+                            << ": expected [min, max], e.g. [10 mm, 15 mm]");
+    state->heart_shift_min = shift(r[0], "operation.heart_shift_range[0]");
+    state->heart_shift_max = shift(r[1], "operation.heart_shift_range[1]");
+    TROCAR_THROW_UNLESS(state->heart_shift_min <= state->heart_shift_max,
+                        y.Where(r, "operation.heart_shift_range")
+                            << ": min " << state->heart_shift_min * 1e3 << " mm > max "
+                            << state->heart_shift_max * 1e3 << " mm");
+    if (!o["heart_shift"])
+      state->heart_shift = 0.5 * (state->heart_shift_min + state->heart_shift_max);
+  }
+  if (o["heart_shift"]) {
+    state->heart_shift = shift(o["heart_shift"], "operation.heart_shift");
+    if (!o["heart_shift_range"]) {
+      // A planned value alone: the range keeps its width around it.
+      const double half = 0.5 * (state->heart_shift_max - state->heart_shift_min);
+      state->heart_shift_min = std::max(0.0, state->heart_shift - half);
+      state->heart_shift_max = std::min(kMaxHeartShift, state->heart_shift + half);
+    }
+    TROCAR_THROW_UNLESS(state->heart_shift >= state->heart_shift_min - 1e-12 &&
+                            state->heart_shift <= state->heart_shift_max + 1e-12,
+                        y.Where(o["heart_shift"], "operation.heart_shift")
+                            << ": " << state->heart_shift * 1e3
+                            << " mm is outside its range heart_shift_range ["
+                            << state->heart_shift_min * 1e3 << ", " << state->heart_shift_max * 1e3
+                            << "] mm");
+  }
+}
+
+}  // namespace
 
 CaseSpec ReadCase(const std::string& case_dir) {
   CaseSpec c;
@@ -22,7 +124,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
   y.ExpectMap(root, "patient.yaml",
               {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
                "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation",
-               "bones", "vessels"});  // plan: read by trocar plan
+               "bones", "vessels", "operation"});  // plan: read by trocar plan
   c.name = root["name"] ? y.String(root["name"], "name")
                         : std::filesystem::path(case_dir).filename().string();
   c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
@@ -172,6 +274,7 @@ CaseSpec ReadCase(const std::string& case_dir) {
                             << ": " << c.left_side_up * 180 / M_PI
                             << " deg is outside -45..45 deg (write e.g. '25 deg')");
   }
+  if (root["operation"]) ReadOperation(y, root["operation"], &c.operation);
   if (root["table"]) {
     const YAML::Node t = root["table"];
     y.ExpectMap(t, "table", {"height", "width", "length"});

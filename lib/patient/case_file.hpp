@@ -51,6 +51,7 @@ struct CaseSpec {
   bool check_orientation = true;
   HeartOptions heart;
   double left_side_up = 0.0;
+  OperativeState operation;  // the literature's defaults unless `operation:` says otherwise
   Table table;
   std::vector<TargetSpec> targets;
   std::vector<std::string> port_markups;

@@ -115,7 +115,10 @@ constexpr double kRollMinDegrees = 5.0, kRollMaxDegrees = 30.0, kRollMinAspect =
 // ribs). Under it the header's numbers are rounding, not a reconstruction's choice.
 constexpr double kObliqueGridDegrees = 1.0;
 
-ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& options) {
+namespace {
+
+// The model in the CT's state, built or loaded from the cache.
+ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const ImportOptions& options) {
   using Clock = std::chrono::steady_clock;
   std::vector<std::pair<std::string, double>> timings;
   auto stage = [&](const std::string& name, const std::function<void()>& f) {
@@ -123,7 +126,6 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
     f();
     timings.emplace_back(name, std::chrono::duration<double>(Clock::now() - t0).count());
   };
-  CaseSpec c = ReadCase(case_dir);
   if (c.has_phantom && !std::filesystem::exists(c.ct)) {
     stage("generate phantom", [&] {
       WritePhantomCase(GeneratePhantom(c.phantom), case_dir, CtFormat::kNrrdLps,
@@ -746,7 +748,36 @@ ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& opt
   // Said for this import only (the cache just written is sound).
   if (!cache_damage.empty()) report.warnings.push_back(cache_damage);
   report.timings = timings;
-  return {std::make_shared<const PatientModel>(std::move(m)), std::move(report)};
+  ImportedPatient built;
+  built.model = std::make_shared<const PatientModel>(std::move(m));
+  built.report = std::move(report);
+  return built;
+}
+
+}  // namespace
+
+ImportedPatient ImportCase(const std::string& case_dir, const ImportOptions& options) {
+  const CaseSpec c = ReadCase(case_dir);
+  ImportedPatient out = ImportCtState(case_dir, c, options);
+  out.ct_model = out.model;
+  if (options.ct_state) return out;
+  // The operation's world: a copy with the heart and the targets on it moved.
+  auto operative = std::make_shared<PatientModel>(*out.model);
+  ApplyOperativeState(c.operation, operative.get());
+  std::ostringstream line;
+  line << "operation: " << c.operation.Describe();
+  const OperativeChange& change = operative->operative_change;
+  if (!change.structures.empty() || !change.targets.empty()) {
+    line << "; moved " << std::fixed << std::setprecision(1) << change.d_P.norm() * 1e3
+         << " mm (patient frame " << change.d_P.x() * 1e3 << ", " << change.d_P.y() * 1e3 << ", "
+         << change.d_P.z() * 1e3 << " mm):";
+    for (const auto& n : change.structures) line << " " << n;
+    for (const auto& n : change.targets) line << " " << n;
+    line << "; fixed: the chest wall, skin, bones and the targets in the wall";
+  }
+  out.report.checks.push_back(line.str());
+  out.model = std::move(operative);
+  return out;
 }
 
 PatientModel ImportPatient(const std::string& case_dir, const ImportOptions& options) {

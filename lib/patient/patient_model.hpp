@@ -13,6 +13,7 @@
 #include <Eigen/Geometry>
 
 #include "common/mesh.hpp"
+#include "patient/operative_state.hpp"
 #include "patient/phantom.hpp"
 
 namespace trocar::patient {
@@ -60,6 +61,10 @@ struct PatientModel {
   double left_side_up = 0.0;  ///< rad
   Eigen::Vector3d body_min_P = Eigen::Vector3d::Zero(), body_max_P = Eigen::Vector3d::Zero();
   std::string ct_source;      ///< the CT it was built from
+  /// The state the model is in (operative_state.hpp): the CT's, or the operation's (the heart and
+  /// the targets on it moved), and what that moved. Set by ImportCase after the cached build.
+  OperativeState operation = OperativeState::CtState();
+  OperativeChange operative_change;
   /// Faces of the scan's box the body is cut by ("superior", "left", ...): the skin there is a
   /// crop face; no port candidate lies within `kCutFaceMargin` of one.
   std::vector<std::string> cut_faces;
@@ -86,19 +91,26 @@ struct ImportReport {
 
 /// An imported patient: the model, immutable and shared by whatever plans on it, and the report.
 struct ImportedPatient {
+  /// In the operation's state (patient.yaml `operation:`, defaults from the literature) unless
+  /// ImportOptions::ct_state.
   std::shared_ptr<const PatientModel> model;
+  /// The same patient in the CT's state (what the scan shows), for showing beside the model.
+  std::shared_ptr<const PatientModel> ct_model;
   ImportReport report;
 };
 
 struct ImportOptions {
   bool use_cache = true;   ///< read `cache/model.bin` when its key matches the inputs
   bool write_cache = true;
+  /// The model in the CT's state: the operative state (patient.yaml `operation:`) not applied.
+  bool ct_state = false;
 };
 
 /// Reads `case_dir/patient.yaml`, builds (or loads from the cache) the model: CT import,
 /// segmentation, heart (mask or contrast), surfaces within their triangle budgets, targets with
 /// normals (from the markups' orientations or the nearest surface), port candidates (annotated
-/// curves, else intercostal spaces found from the ribs), pose on the table. A phantom case whose
+/// curves, else intercostal spaces found from the ribs), pose on the table; then the operative
+/// state (operative_state.hpp) is applied to a copy (not cached: it is cheap). A phantom case whose
 /// CT is missing is generated first. The cache (`case_dir/cache/`: model.bin, one STL per
 /// structure, ports and targets as markups) is keyed by the contents of every input file.
 /// @throws trocar::Error naming the file and field for bad input.

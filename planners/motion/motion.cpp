@@ -36,7 +36,6 @@
 #include <ompl/geometric/planners/rrt/RRTXstatic.h>
 #include <ompl/geometric/planners/rrt/RRTsharp.h>
 #include <ompl/geometric/planners/rrt/RRTstar.h>
-#include <ompl/geometric/planners/rrt/SORRTstar.h>
 #include <ompl/geometric/planners/rrt/TRRT.h>
 #include <ompl/geometric/planners/sbl/SBL.h>
 #include <ompl/geometric/planners/sst/SST.h>
@@ -85,7 +84,9 @@ const std::map<std::string, std::pair<std::string, Allocator>>& Registry() {
       {"rrt", {"RRT", Make<og::RRT>()}},
       {"rrtstar", {"RRTstar", Make<og::RRTstar>()}},
       {"informedrrtstar", {"InformedRRTstar", Make<og::InformedRRTstar>()}},
-      {"sorrtstar", {"SORRTstar", Make<og::SORRTstar>()}},
+      // SORRTstar is not offered: Debian's OMPL 1.6 loops in OrderedInfSampler::sampleUniform
+      // (rejection sampling of the informed set, never asking the termination condition) once a
+      // path is found on the operative-world plans; seen as a test that never ended (issue #41).
       {"rrtsharp", {"RRTsharp", Make<og::RRTsharp>()}},
       {"rrtxstatic", {"RRTXstatic", Make<og::RRTXstatic>()}},
       {"lazyrrt", {"LazyRRT", Make<og::LazyRRT>()}},

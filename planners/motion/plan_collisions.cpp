@@ -4,6 +4,7 @@
 
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
+#include "port_placement/port_rules.hpp"
 
 namespace trocar::planners {
 
@@ -45,7 +46,8 @@ PlanCollisions::PlanCollisions(const patient::PatientModel& patient,
       const auto c = skin->Closest(pivot_P, pivot_P);
       if (c.found()) depth = c.distance;
     }
-    allowance_.push_back(depth + world_->options().port_radius);
+    allowance_.push_back(PortTrackLength(depth, pivot_P, X_PW * plan.ports[a].p_W) +
+                         world_->options().port_radius);
   }
   pivots_.reserve(plan.ports.size());
   for (const StoredPort& port : plan.ports) pivots_.push_back(port.rcm_W);

@@ -2,7 +2,8 @@
 /// @file
 /// Collisions and clearance of the robot of a stored plan (plan_file.hpp), by the plan's rules
 /// (docs/plan-format.md, "Ports"): each instrument may touch the skin within its port's
-/// allowance around its pivot (the pivot's depth under the skin plus the world's port radius);
+/// allowance around its pivot (the cannula's track through the wall plus the world's port radius,
+/// port_rules.hpp);
 /// every other contact is a collision. For whatever shows or replays a plan's poses.
 
 #include <memory>

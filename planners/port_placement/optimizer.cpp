@@ -248,9 +248,10 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
   // --- Global stage -------------------------------------------------------------------------
   std::vector<Sample> archive;
   auto t_stage = Clock::now();
-  if (options.algorithm == "exhaustive") {
-    // Cannon et al. 2003: every assignment of grid sites to the arms scored by the port-only
-    // (geometric) terms; the best triads then get a grid of cart poses, fully evaluated.
+  // Cannon et al. 2003's grid: every assignment of grid sites to the arms scored by the port-only
+  // (geometric) terms; the best triads with a grid of cart poses, for full evaluation. It is the
+  // exhaustive baseline, and the first stage of the default global search (its seeds).
+  auto cannon_grid = [&](std::string* description) {
     const int curves = static_cast<int>(problem.patient().port_candidates.size());
     const std::vector<double> along = {0.1, 0.3, 0.5, 0.7, 0.9};
     std::vector<PortSite> grid;
@@ -302,7 +303,11 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
               << directions.size() << " cart directions x " << distances.size()
               << " distances (0.6, 0.9, 1.2 m), facing the ports: " << xs.size()
               << " full evaluations";
-    result.grid = grid_text.str();
+    *description = grid_text.str();
+    return xs;
+  };
+  if (options.algorithm == "exhaustive") {
+    const std::vector<std::vector<double>> xs = cannon_grid(&result.grid);
     archive.resize(xs.size());
 #pragma omp parallel num_threads(threads)
     {
@@ -327,9 +332,36 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       result.trace.push_back({static_cast<int>(i + 1), best});
     }
   } else {
+    // Seeds: Cannon's grid evaluated first (the port-only terms choose the triads at no robot
+    // cost), so that the search never ends below the exhaustive baseline; then the global
+    // algorithm's own starts over the whole box.
+    // A third of the global budget at most (the grid is ordered best triad first), the rest to
+    // the algorithm: the evaluations in all stay the option's.
+    std::vector<std::vector<double>> seeds = cannon_grid(&result.grid);
+    const std::size_t seed_budget = static_cast<std::size_t>(std::max(0, options.evaluations / 3));
+    if (seeds.size() > seed_budget) seeds.resize(seed_budget);
+    result.grid = "seeds (the first " + std::to_string(seeds.size()) + "): " + result.grid;
+    std::vector<Sample> seeded(seeds.size());
+#pragma omp parallel num_threads(threads)
+    {
+      Workspace ws(problem);
+#pragma omp for schedule(dynamic, 4)
+      for (int i = 0; i < static_cast<int>(seeds.size()); ++i) {
+        if (Clock::now() > deadline) {
+          out_of_time.store(true);
+          continue;
+        }
+        seeded[i] = {seeds[i], problem.Evaluate(problem.Decode(seeds[i]), &ws).score};
+        counter.fetch_add(1);
+      }
+    }
+    for (auto& s : seeded) {
+      if (!s.x.empty()) archive.push_back(std::move(s));
+    }
     const int starts = options.starts;
     std::vector<std::vector<Sample>> archives(starts);
-    const int per_start = std::max(1, options.evaluations / starts);
+    const int per_start =
+        std::max(1, (options.evaluations - static_cast<int>(seeds.size())) / starts);
     std::atomic<int> done_starts{0};
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (int s = 0; s < starts; ++s) {
@@ -346,9 +378,14 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       done_starts.fetch_add(1);
       progress(0.7 * counter.load() / (per_start * starts), "global " + options.algorithm);
     }
-    // Merge in start order; the trace interleaves the starts round-robin (as if run side by side).
+    // Merge in start order after the seeds; the trace interleaves the starts round-robin (as if
+    // run side by side).
     double best = -std::numeric_limits<double>::infinity();
     int total = 0;
+    for (const auto& s : archive) {
+      best = std::max(best, s.score);
+      result.trace.push_back({++total, best});
+    }
     std::size_t longest = 0;
     for (const auto& a : archives) longest = std::max(longest, a.size());
     for (std::size_t i = 0; i < longest; ++i) {
@@ -437,13 +474,19 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       distinct = distinct && Distinct(plan.placement, f.placement, options.distinct_distance);
     if (distinct) finals.push_back(std::move(plan));
   }
+  // Robustness: in the operation's world, over the range of the heart's displacement
+  // (patient::OperativeRobustnessShifts); in the CT's state, the option's shift along each axis.
   std::vector<Eigen::Vector3d> shifts;
   if (options.robustness_shift > 0) {
-    for (int axis = 0; axis < 3; ++axis) {
-      for (double sign : {1.0, -1.0})
-        shifts.push_back(sign * options.robustness_shift * Eigen::Vector3d::Unit(axis));
+    shifts = patient::OperativeRobustnessShifts(problem.patient());
+    if (shifts.empty() && !problem.patient().operation.moves()) {
+      for (int axis = 0; axis < 3; ++axis) {
+        for (double sign : {1.0, -1.0})
+          shifts.push_back(sign * options.robustness_shift * Eigen::Vector3d::Unit(axis));
+      }
     }
   }
+  const std::vector<bool> moving_target = problem.MovingTargets();
   // One collision world per shift, the organs the targets lie on moved with them.
   std::vector<std::shared_ptr<const collision::CollisionWorld>> shifted_worlds(shifts.size());
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
@@ -463,7 +506,11 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       Workspace moved_ws(problem, shifted_worlds[k]);
       std::vector<TargetSample> moved = problem.samples();
       const Eigen::Vector3d d_W = problem.patient().X_WP.linear() * d_P;
-      for (auto& s : moved) s.p_W += d_W;
+      for (auto& s : moved) {
+        if (s.target >= 0 && s.target < static_cast<int>(moving_target.size()) &&
+            moving_target[s.target])
+          s.p_W += d_W;
+      }
       PortPlacementProblem::EvaluateOptions shifted;
       shifted.full_solver = use_full;
       shifted.samples = &moved;

@@ -114,6 +114,24 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
                    {"robot_hash", inputs.robot_hash},
                    {"patient_model_hash", inputs.model_hash}};
   doc["patient"] = {{"name", patient.name}, {"X_WP", Matrix(patient.X_WP)}};
+  {
+    // The state the plans were made in (patient/operative_state.hpp; docs/operative-state.md).
+    const patient::OperativeState& op = patient.operation;
+    const patient::OperativeChange& change = patient.operative_change;
+    doc["operation"] = {{"state", op.applied ? "operative" : "ct"},
+                        {"description", op.Describe()},
+                        {"co2_mmHg", op.applied ? op.co2_mmhg : 0.0},
+                        {"left_lung_isolated", op.applied && op.left_lung_isolated},
+                        {"left_side_up_deg", patient.left_side_up * 180 / M_PI},
+                        {"heart_shift_m", op.moves() ? op.heart_shift : 0.0},
+                        {"heart_shift_range_m",
+                         op.moves() ? json::array({op.heart_shift_min, op.heart_shift_max})
+                                    : json::array({0.0, 0.0})},
+                        {"direction_P", Vec(change.direction_P)},
+                        {"d_P", Vec(change.d_P)},
+                        {"moved_structures", change.structures},
+                        {"moved_targets", change.targets}};
+  }
   json arms = json::array();
   for (const auto& arm : problem.arms()) {
     json joints = json::array();

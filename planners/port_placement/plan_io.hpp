@@ -8,15 +8,12 @@
 #include <string>
 
 #include "port_placement/optimizer.hpp"
+#include "port_placement/port_rules.hpp"
 
 namespace trocar::planners {
 
 /// Version of the plan format written by PlanJson.
 constexpr int kPlanFormatVersion = 2;
-/// A port's incision is at most this far from its site on the candidate curve (m).
-constexpr double kMaxIncisionOffset = 0.06;
-/// A pivot lies at most this deep under the skin (m).
-constexpr double kMaxPivotDepth = 0.06;
 
 /// What a plan was made from, by path and content hash, so that `trocar check --plan` can tell
 /// whether it still describes the same patient and robot.

@@ -13,7 +13,7 @@
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/jacobian.hpp"
 #include "patient/patient_model.hpp"
-#include "port_placement/plan_io.hpp"
+#include "port_placement/port_rules.hpp"
 
 namespace trocar::planners {
 
@@ -331,27 +331,28 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
 double PortPlacementProblem::MaxReach(int arm) const { return max_reach_.at(arm); }
 
 std::vector<std::string> PortPlacementProblem::MovingStructures() const {
-  // An organ carries a target when the target's points lie on it: their median distance to its
-  // surface under 1 cm. The skin and bones never move with the targets.
-  constexpr double kOnSurface = 0.01;
+  // An organ carries a target when the target's points lie on it (patient::TargetLiesOn); the
+  // chest wall, skin and bones never move with the targets (patient::IsMobileStructure).
   std::vector<std::string> names;
   for (const auto& s : patient_->structures) {
-    const bool fixed = s.name == "skin" || s.name.rfind("rib", 0) == 0 || s.name == "sternum" ||
-                       s.name == "spine";
-    if (fixed || s.mesh.triangles.empty()) continue;
-    const collision::TriangleBvh bvh(s.mesh);
-    for (const auto& t : patient_->targets) {
-      std::vector<double> d;
-      for (const auto& p : t.points) d.push_back(bvh.Closest(p, p).distance);
-      if (d.empty()) continue;
-      std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
-      if (d[d.size() / 2] < kOnSurface) {
+    if (!patient::IsMobileStructure(s.name) || s.mesh.triangles.empty()) continue;
+    for (int t = 0; t < static_cast<int>(patient_->targets.size()); ++t) {
+      if (patient::TargetLiesOn(*patient_, t, s.name)) {
         names.push_back(s.name);
         break;
       }
     }
   }
   return names;
+}
+
+std::vector<bool> PortPlacementProblem::MovingTargets() const {
+  std::vector<bool> moving(patient_->targets.size(), false);
+  for (const std::string& name : MovingStructures()) {
+    for (int t = 0; t < static_cast<int>(moving.size()); ++t)
+      moving[t] = moving[t] || patient::TargetLiesOn(*patient_, t, name);
+  }
+  return moving;
 }
 
 std::shared_ptr<const collision::CollisionWorld> PortPlacementProblem::WorldWithTargetsMoved(
@@ -452,12 +453,12 @@ bool GapUnder(const collision::TriangleBvh& ribs, const Eigen::Vector3d& skin_P,
   return best < kReach;
 }
 
-// How far from its pivot a shaft may touch the skin: the pivot's depth under the skin plus the
-// port radius (docs/plan-format.md, "Ports").
+// How far from its pivot a shaft may touch the skin: the cannula's track through the wall plus the
+// port radius (port_rules.hpp; docs/plan-format.md, "Ports").
 double PortSkinAllowance(const collision::TriangleBvh& skin_P, const Eigen::Vector3d& pivot_P,
-                         double port_radius) {
+                         const Eigen::Vector3d& incision_P, double port_radius) {
   const auto c = skin_P.Closest(pivot_P, pivot_P);
-  return (c.found() ? c.distance : 0.0) + port_radius;
+  return PortTrackLength(c.found() ? c.distance : 0.0, pivot_P, incision_P) + port_radius;
 }
 
 // Where the ray from `from_P` along `out_P` first leaves the skin (bisection on the segment's
@@ -548,7 +549,7 @@ PortSite PortPlacementProblem::Site(int candidate, double s) const {
   }
   site.p_W = patient_->X_WP * site.p_P;
   site.skin_allowance =
-      skin_ ? PortSkinAllowance(*skin_, patient_->X_WP.inverse() * site.p_rcm_W,
+      skin_ ? PortSkinAllowance(*skin_, patient_->X_WP.inverse() * site.p_rcm_W, site.p_P,
                                 world_->options().port_radius)
             : world_->options().port_radius;
   return site;

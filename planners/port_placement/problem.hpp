@@ -227,9 +227,13 @@ class PortPlacementProblem {
   }
 
   /// The structures that move with the targets: the organs some target lies on (median distance
-  /// of its points to the surface under 1 cm), but never the skin or bones (ribs, sternum, spine).
+  /// of its points to the surface under 1 cm), but never the chest wall, skin or bones
+  /// (patient::IsMobileStructure).
   /// On the bundled cases: the heart, under the LAD.
   std::vector<std::string> MovingStructures() const;
+  /// Per patient target: whether it lies on one of the MovingStructures (the LAD on the heart;
+  /// not the LIMA in the chest wall). Only those move in the robustness check.
+  std::vector<bool> MovingTargets() const;
   /// The collision world with the MovingStructures translated by d_P (patient frame, m): the
   /// robustness check moves the organ with its targets.
   std::shared_ptr<const collision::CollisionWorld> WorldWithTargetsMoved(

@@ -712,7 +712,11 @@ TEST(TrocarVerify, AddsMotionsThatCheckConfirmsAndCatchesATamperedPath) {
   WriteFileAtomically(out + "/tampered.json", doc.dump(1));
   const CommandRun bad = Trocar("check --plan " + out + "/tampered.json");
   EXPECT_EQ(bad.exit_code, 3) << bad.output;
-  EXPECT_NE(bad.output.find("claimed verified, but"), std::string::npos) << bad.output;
+  // The tip driven 24 cm in: in collision along the way, or (in the operation's world the heart
+  // has fallen back, and the thorax has room) ending far from its target. Either fails the claim.
+  EXPECT_TRUE(bad.output.find("claimed verified, but") != std::string::npos ||
+              bad.output.find("ends with the tool tip") != std::string::npos)
+      << bad.output;
   // A waypoint far outside its joint's range: a failed claim at once, not billions of states.
   doc = nlohmann::json::parse(ReadTextFile(out + "/tampered.json"));
   for (auto& p : doc["plans"]) {

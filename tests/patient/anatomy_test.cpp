@@ -510,7 +510,7 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
         << ", body_depth: " << z.depth << ", fat_thickness: " << z.fat << ", length: " << length
         << ", ribs_per_side: 12, rib_spacing: " << z.spacing << ", voxel_size: " << z.voxel
         << ", wall_thickness: 0.02, ribs_reach_spine: true, shoulders: true}\n";
-    const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+    const patient::PatientModel m = patient::ImportPatient(dir, {false, false, true});
     patient::PhantomParameters p;
     p.seed = z.seed;
     p.body_width = z.width;
@@ -706,7 +706,7 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
                      "  - {name: LAD, markups: lad.mrk.json, surface: heart, normals: file}\n"
                    : "")
         << (labels ? "labels: {file: labels.nrrd, names: labels.json}\n" : "");
-    const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
+    const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false, true});
     const patient::PatientModel& m = *imported.model;
     if (inputs) {
       ASSERT_EQ(m.targets.size(), 1u);
@@ -819,7 +819,7 @@ TEST(ShapeAnatomy, AnObliqueGridIsResampledAlongThePatientsAxes) {
     std::ofstream(dir + "/patient.yaml")
         << "name: oblique\nct: ct.nrrd\nunits: hounsfield\nintercostal: {left: true, right: true}\n"
         << "surfaces: {skin: 3000, ribs: 4000, heart: 2000}\n";
-    const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
+    const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false, true});
     const patient::PatientModel& m = *imported.model;
     const double turned = std::max({std::abs(t.grid), std::abs(t.tilt)});
     std::ostringstream said;
@@ -1076,7 +1076,7 @@ TEST(ShapeAnatomy, AWindowedVolumeWithNumberedRibsKeepsItsNamedSpaces) {
       << "name: windowed\nct: ct.nrrd\nunits: raw\nthresholds: {body: 15, bone: 166}\n"
       << "heart: {contrast: false}\nintercostal: {left: true, right: true}\n"
       << "surfaces: {skin: 3000, ribs: 4000}\n";
-  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  const patient::PatientModel m = patient::ImportPatient(dir, {false, false, true});
   std::map<char, int> named;
   for (const auto& c : m.port_candidates) {
     SCOPED_TRACE(c.name);

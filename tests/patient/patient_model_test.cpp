@@ -56,7 +56,7 @@ TEST(PatientModel, APatientLyingOnTheTableImportsAsWithoutIt) {
     std::ofstream(JoinPath(dir, "patient.yaml"))
         << "ct: ct.nrrd\nunits: hounsfield\ntargets:\n"
         << "  - {name: LAD, markups: markups/LAD.mrk.json, surface: heart}\n";
-    return patient::ImportCase(dir, {false, false});
+    return patient::ImportCase(dir, {false, false, true});
   };
   const patient::ImportedPatient alone = import("none", NAN);
   for (double gap : {0.0, -0.005}) {
@@ -302,7 +302,7 @@ TEST(PatientModel, SerialisationRejectsOtherKeysAndGarbage) {
 
 void ExpectImportError(const std::string& dir, const std::string& needle) {
   try {
-    patient::ImportPatient(dir, {false, false});
+    patient::ImportPatient(dir, {false, false, true});
     ADD_FAILURE() << "no error for " << needle;
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
@@ -336,12 +336,12 @@ TEST(PatientModel, Lidc2StoredSagittallyImportsAsItself) {
   fs::create_directories(dir);
   const std::string yaml = Lidc2CaseWithoutAnnotatedSpaces();  // the spaces found, compared
   std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: " << ct_path << "\n" << yaml;
-  const patient::ImportedPatient axial = patient::ImportCase(dir, {false, false});
+  const patient::ImportedPatient axial = patient::ImportCase(dir, {false, false, true});
   const test::Stored sagittal =
       test::StoreOtherwise(patient::LoadVolume(ct_path), {2, 0, 1}, {false, true, true});
   patient::WriteNrrd(sagittal.ct, JoinPath(dir, "sagittal.nrrd"));
   std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: sagittal.nrrd\n" << yaml;
-  const patient::ImportedPatient other = patient::ImportCase(dir, {false, false});
+  const patient::ImportedPatient other = patient::ImportCase(dir, {false, false, true});
   const patient::PatientModel &a = *axial.model, &b = *other.model;
   ASSERT_EQ(a.structures.size(), b.structures.size());
   for (std::size_t s = 0; s < a.structures.size(); ++s) {
@@ -396,9 +396,9 @@ TEST(PatientModel, CtNumbersWithoutTheirInterceptAreConvertedAndSaid) {
   patient::WriteNrrd(stored, JoinPath(dir, "stored.nrrd"));
   const std::string sides = "intercostal: {left: true, right: true}\n";
   std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: " << ct_path << "\n" << sides;
-  const patient::ImportedPatient a = patient::ImportCase(dir, {false, false});
+  const patient::ImportedPatient a = patient::ImportCase(dir, {false, false, true});
   std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: stored.nrrd\n" << sides;
-  const patient::ImportedPatient b = patient::ImportCase(dir, {false, false});
+  const patient::ImportedPatient b = patient::ImportCase(dir, {false, false, true});
   int said = 0;
   for (const std::string& w : b.report.warnings)
     said += w.find("stored.nrrd: no value below 0") != std::string::npos &&
@@ -453,7 +453,7 @@ TEST(PatientModel, ALayerThatCannotBeChartedIsAWarningOnlyWhenThePortsAreAnnotat
       "intercostal: {left: true}\n";
   ASSERT_NE(yaml.size(), yaml_without_ports.size());  // the phantom's case annotates its ports
   std::ofstream(JoinPath(dir, "patient.yaml")) << yaml << windowed;
-  const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
+  const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false, true});
   int said = 0;
   for (const std::string& w : imported.report.warnings) {
     said += w.find("the rib cage's layer could not be charted") != std::string::npos &&
@@ -481,7 +481,7 @@ TEST(PatientModel, ACropHoldingTooLittleRibCageSaysWhatTheScanSpansAndWhatToGive
   std::ofstream(JoinPath(dir, "patient.yaml"))
       << "ct: " << ct << "\nintercostal: {left: true, right: true}\n";
   try {
-    patient::ImportPatient(dir, {false, false});
+    patient::ImportPatient(dir, {false, false, true});
     ADD_FAILURE() << "no error";
   } catch (const Error& e) {
     const std::string what = e.what();
@@ -558,7 +558,7 @@ TEST(PatientModel, BundledDefaultCaseFileIsValid) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   fs::copy_file(test::SourcePath("patients/phantom-default/patient.yaml"), JoinPath(dir, "patient.yaml"));
-  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  const patient::PatientModel m = patient::ImportPatient(dir, {false, false, true});
   EXPECT_TRUE(IsRegularFile(JoinPath(dir, "ct.nrrd")));
   EXPECT_EQ(m.targets.size(), 2u);
   EXPECT_EQ(m.port_candidates.size(), 8u);
@@ -702,7 +702,7 @@ TEST(PatientModel, Lidc2SpacesFoundInAWindowedScanLieOnTheAnnotatedOnes) {
   fs::create_directories(dir);
   std::ofstream(JoinPath(dir, "patient.yaml")) << "ct: " << ct_path << "\n"
                                                << Lidc2CaseWithoutAnnotatedSpaces();
-  const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false});
+  const patient::ImportedPatient imported = patient::ImportCase(dir, {false, false, true});
   const patient::PatientModel& m = *imported.model;
   // The rib floor is measured: 0.4 of the way from the wall's soft tissue (77) to the bone
   // threshold (160).
@@ -783,7 +783,7 @@ TEST(PatientModel, Lidc2SpacesFoundInAWindowedScanLieOnTheAnnotatedOnes) {
   }
   std::ofstream(JoinPath(dir, "patient.yaml"), std::ios::trunc) << yaml;
   EXPECT_NE(
-      layer_check(patient::ImportCase(dir, {false, false}).report).find("ribs at or above 125.0"),
+      layer_check(patient::ImportCase(dir, {false, false, true}).report).find("ribs at or above 125.0"),
       std::string::npos);
 }
 

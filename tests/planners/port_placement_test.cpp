@@ -1,6 +1,7 @@
 // Port placement: arms found from the robot description, the problem's bad input, determinism
 // across thread counts, plans whose claims hold, and a verdict for a patient no plan serves.
 #include <gtest/gtest.h>
+#include <filesystem>
 
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -9,7 +10,10 @@
 #include "collision/collision_world.hpp"
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
+#include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
+#include "patient/case_file.hpp"
+#include "patient/operative_state.hpp"
 #include "patient/patient_model.hpp"
 #include "patient/phantom.hpp"
 #include "port_placement/arms.hpp"
@@ -167,7 +171,7 @@ TEST(PortPlacementProblem, PivotsLieMidGapBetweenTheRibsAndIncisionsOnTheSkinAlo
     return best;
   };
   const Eigen::Vector3d aim_P = X_PW * problem.aim_W();
-  int sites = 0;
+  int sites = 0, oblique = 0;
   for (std::size_t c = 0; c < model.port_candidates.size(); ++c) {
     for (double s = 0.05; s < 1.0; s += 0.1) {
       const PortSite site = problem.Site(static_cast<int>(c), s);
@@ -192,14 +196,20 @@ TEST(PortPlacementProblem, PivotsLieMidGapBetweenTheRibsAndIncisionsOnTheSkinAlo
         EXPECT_LT((v - v.dot(u) * u).norm(), 0.002);
         EXPECT_GT(v.dot(u), 0.0);
       }
-      // The skin allowance is the pivot's depth under the skin plus the port radius.
+      // The skin allowance is the cannula's track through the wall (the pivot to the incision,
+      // at least the pivot's depth under the skin) plus the port radius: an oblique trocar runs
+      // through more wall than the depth straight down.
+      const double depth = skin.Closest(pivot_P, pivot_P).distance;
+      const double track = (site.p_P - pivot_P).norm();
       EXPECT_NEAR(site.skin_allowance,
-                  skin.Closest(pivot_P, pivot_P).distance + problem.world()->options().port_radius,
-                  1e-12);
+                  std::max(depth, track) + problem.world()->options().port_radius, 1e-12);
+      EXPECT_GE(site.skin_allowance, depth + problem.world()->options().port_radius);
+      if (track > depth + 0.002) ++oblique;
       ++sites;
     }
   }
   EXPECT_GT(sites, 50);
+  EXPECT_GT(oblique, 0) << "no site whose incision lies farther than the skin straight above";
 }
 
 // Robustness moves the organ the targets lie on with them (the heart under the LAD), never the
@@ -425,6 +435,134 @@ TEST(OptimizePorts, ReachedSamplesAreReallyReachedAndCollisionFree) {
     }
   }
   RecordProperty("reached_samples_checked", checked);
+}
+
+}  // namespace
+}  // namespace trocar::planners
+
+namespace trocar::planners {
+namespace {
+
+// The operation's world (patient/operative_state.hpp): the bundled case, planned with the
+// literature's defaults, has its heart and the LAD on it moved 12.5 mm along gravity at the
+// patient's pose (posterior, and toward the right with the left side raised); the skin, the ribs,
+// the sternum, the spine and the LIMA in the chest wall stay where the CT shows them.
+TEST(OperativeState, TheHeartAndTheTargetsOnItFallAlongGravityTheWallStays) {
+  const std::string dir = SourcePath("patients/phantom-default");
+  patient::ImportOptions ct_options;
+  ct_options.ct_state = true;
+  const patient::ImportedPatient ct = patient::ImportCase(dir, ct_options);
+  const patient::ImportedPatient op = patient::ImportCase(dir);
+  EXPECT_FALSE(ct.model->operation.applied);
+  ASSERT_TRUE(op.model->operation.moves());
+  const Eigen::Vector3d g_P = patient::GravityInPatient(*op.model);
+  // Supine with the left side raised 25 degrees: down is posterior (+y) and to the right (-x).
+  EXPECT_NEAR(g_P.y(), std::cos(25 * M_PI / 180), 1e-9);
+  EXPECT_NEAR(g_P.x(), -std::sin(25 * M_PI / 180), 1e-9);
+  const Eigen::Vector3d d_P = op.model->operative_change.d_P;
+  EXPECT_NEAR(d_P.norm(), 0.0125, 1e-12);
+  EXPECT_NEAR(d_P.normalized().dot(g_P), 1.0, 1e-12);
+  EXPECT_EQ(op.model->operative_change.structures, std::vector<std::string>{"heart"});
+  EXPECT_EQ(op.model->operative_change.targets, std::vector<std::string>{"LAD"});
+  ASSERT_EQ(op.model->structures.size(), ct.model->structures.size());
+  for (std::size_t s = 0; s < ct.model->structures.size(); ++s) {
+    const auto& a = ct.model->structures[s].mesh.vertices;
+    const auto& b = op.model->structures[s].mesh.vertices;
+    ASSERT_EQ(a.size(), b.size());
+    const bool heart = ct.model->structures[s].name == "heart";
+    double worst = 0;
+    for (std::size_t v = 0; v < a.size(); ++v)
+      worst = std::max(worst, (b[v] - a[v] - (heart ? d_P : Eigen::Vector3d::Zero())).norm());
+    EXPECT_LT(worst, 1e-12) << ct.model->structures[s].name;
+  }
+  for (std::size_t t = 0; t < ct.model->targets.size(); ++t) {
+    const bool lad = ct.model->targets[t].name == "LAD";
+    for (std::size_t i = 0; i < ct.model->targets[t].points.size(); ++i) {
+      EXPECT_LT((op.model->targets[t].points[i] - ct.model->targets[t].points[i] -
+                 (lad ? d_P : Eigen::Vector3d::Zero()))
+                    .norm(),
+                1e-12)
+          << ct.model->targets[t].name;
+    }
+  }
+  // The state is in the model's hash (a plan made in one state does not fit the other) and is
+  // said in the import's checks.
+  EXPECT_NE(HashPatientModel(*ct.model), HashPatientModel(*op.model));
+  bool said = false;
+  for (const auto& c : op.report.checks) said = said || c.find("operation: operative") == 0;
+  EXPECT_TRUE(said);
+}
+
+// The robustness check spans the displacement's range: the heart at either end of it along its
+// direction, and half its width either way across; the plans' shifts are exactly those, and only
+// the targets on the heart move in them.
+TEST(OperativeState, RobustnessSpansTheRangeOfTheHeartsDisplacement) {
+  const auto model = Phantom();
+  const std::vector<Eigen::Vector3d> shifts = patient::OperativeRobustnessShifts(*model);
+  ASSERT_EQ(shifts.size(), 6u);
+  const Eigen::Vector3d g = model->operative_change.direction_P;
+  const patient::OperativeState& s = model->operation;
+  EXPECT_NEAR((model->operative_change.d_P + shifts[0]).dot(g), s.heart_shift_min, 1e-12);
+  EXPECT_NEAR((model->operative_change.d_P + shifts[1]).dot(g), s.heart_shift_max, 1e-12);
+  for (std::size_t k = 2; k < shifts.size(); ++k) {
+    EXPECT_NEAR(shifts[k].dot(g), 0.0, 1e-12);
+    EXPECT_NEAR(shifts[k].norm(), 0.5 * (s.heart_shift_max - s.heart_shift_min), 1e-12);
+  }
+  const PortPlacementProblem problem(model, Cart(), {});
+  const std::vector<bool> moving = problem.MovingTargets();
+  ASSERT_EQ(moving.size(), model->targets.size());
+  for (std::size_t t = 0; t < moving.size(); ++t)
+    EXPECT_EQ(moving[t], model->targets[t].name == "LAD") << model->targets[t].name;
+  PortPlacementOptions o = Small(2);
+  o.top_k = 1;
+  const PortPlacementResult result = OptimizePorts(problem, o);
+  ASSERT_FALSE(result.plans.empty());
+  ASSERT_EQ(result.plans[0].shifts.size(), shifts.size());
+  for (std::size_t k = 0; k < shifts.size(); ++k)
+    EXPECT_LT((result.plans[0].shifts[k].d_P - shifts[k]).norm(), 1e-12);
+}
+
+// patient.yaml's `operation:`: none plans in the CT's state; values out of their physical range,
+// units that are not theirs and an inverted range are refused, naming the field.
+TEST(OperativeState, TheCaseFileStatesItAndBadValuesAreNamed) {
+  const std::string dir = testing::TempDir() + "/trocar-operation";
+  std::filesystem::create_directories(dir);
+  auto read = [&](const std::string& operation) {
+    WriteFileAtomically(dir + "/patient.yaml",
+                        "ct: ct.nrrd\nphantom: {seed: 1}\noperation: " + operation + "\n");
+    return patient::ReadCase(dir).operation;
+  };
+  EXPECT_FALSE(read("none").applied);
+  EXPECT_FALSE(read("none").moves());
+  const patient::OperativeState d = read("operative");
+  EXPECT_TRUE(d.moves());
+  EXPECT_DOUBLE_EQ(d.co2_mmhg, 8.0);
+  EXPECT_DOUBLE_EQ(d.heart_shift_min, 0.010);
+  EXPECT_DOUBLE_EQ(d.heart_shift_max, 0.015);
+  const patient::OperativeState e = read("{co2: 10 mmHg, heart_shift_range: [1 cm, 20 mm]}");
+  EXPECT_DOUBLE_EQ(e.co2_mmhg, 10.0);
+  EXPECT_DOUBLE_EQ(e.heart_shift, 0.015);
+  EXPECT_FALSE(read("{co2: 0 mmHg, lung: ventilated}").moves());
+  auto refused = [&](const std::string& operation, const std::string& field) {
+    try {
+      read(operation);
+    } catch (const Error& error) {
+      return std::string(error.what()).find(field) != std::string::npos &&
+             std::string(error.what()).find("patient.yaml") != std::string::npos;
+    }
+    return false;
+  };
+  EXPECT_TRUE(refused("{co2: 40 mmHg}", "operation.co2"));
+  EXPECT_TRUE(refused("{co2: -1}", "operation.co2"));
+  EXPECT_TRUE(refused("{co2: 8 bar}", "operation.co2"));
+  EXPECT_TRUE(refused("{heart_shift: 9 cm}", "operation.heart_shift"));
+  EXPECT_TRUE(refused("{heart_shift: nan mm}", "operation.heart_shift"));
+  EXPECT_TRUE(refused("{heart_shift_range: [15 mm, 10 mm]}", "operation.heart_shift_range"));
+  EXPECT_TRUE(refused("{heart_shift: 30 mm, heart_shift_range: [10 mm, 15 mm]}",
+                      "operation.heart_shift"));
+  EXPECT_TRUE(refused("{lung: collapsed}", "operation.lung"));
+  EXPECT_TRUE(refused("sideways", "operation"));
+  EXPECT_TRUE(refused("{pressure: 8}", "pressure"));
 }
 
 }  // namespace

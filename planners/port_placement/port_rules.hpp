@@ -1,0 +1,28 @@
+#pragma once
+/// @file
+/// The rules a port obeys, shared by the problem that makes plans and by the readers that check
+/// them (`trocar check --plan`): how far the incision may lie from its site, how deep the pivot,
+/// and where an instrument may touch the skin. docs/plan-format.md ("Ports") states them.
+
+#include <Eigen/Core>
+#include <algorithm>
+
+namespace trocar::planners {
+
+/// A port's incision is at most this far from its site on the candidate curve (m).
+constexpr double kMaxIncisionOffset = 0.06;
+/// A pivot lies at most this deep under the skin (m).
+constexpr double kMaxPivotDepth = 0.06;
+
+/// The cannula's track through the chest wall (m): from the pivot between the ribs out to the
+/// incision, or, when the incision is nearer than the skin straight above (it never is on a
+/// sound plan), the pivot's depth under the skin. An instrument of the port may touch the skin
+/// (the soft wall, which yields around the cannula) within this length plus the port radius of
+/// the pivot: a trocar inserted obliquely runs through more wall than the depth straight down,
+/// and the wall it runs through is where the cannula is.
+inline double PortTrackLength(double pivot_depth, const Eigen::Vector3d& pivot,
+                              const Eigen::Vector3d& incision) {
+  return std::max(pivot_depth, (incision - pivot).norm());
+}
+
+}  // namespace trocar::planners
