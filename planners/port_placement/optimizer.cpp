@@ -306,9 +306,11 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     *description = grid_text.str();
     return xs;
   };
-  if (options.algorithm == "exhaustive") {
-    const std::vector<std::vector<double>> xs = cannon_grid(&result.grid);
-    archive.resize(xs.size());
+  // Full evaluations of given decisions, in parallel, in their order (those past the deadline
+  // left out), each counted toward the progress shown as `stage` out of `total` evaluations.
+  auto evaluate_all = [&](const std::vector<std::vector<double>>& xs, const std::string& stage,
+                          double total) {
+    std::vector<Sample> out(xs.size());
 #pragma omp parallel num_threads(threads)
     {
       Workspace ws(problem);
@@ -318,14 +320,18 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
           out_of_time.store(true);
           continue;
         }
-        archive[i] = {xs[i], problem.Evaluate(problem.Decode(xs[i]), &ws).score};
+        out[i] = {xs[i], problem.Evaluate(problem.Decode(xs[i]), &ws).score};
         const int done = counter.fetch_add(1) + 1;
-        progress(0.7 * done / xs.size(), "exhaustive grid");
+        progress(0.7 * done / std::max(1.0, total), stage);
       }
     }
-    archive.erase(
-        std::remove_if(archive.begin(), archive.end(), [](const Sample& s) { return s.x.empty(); }),
-        archive.end());
+    out.erase(std::remove_if(out.begin(), out.end(), [](const Sample& s) { return s.x.empty(); }),
+              out.end());
+    return out;
+  };
+  if (options.algorithm == "exhaustive") {
+    const std::vector<std::vector<double>> xs = cannon_grid(&result.grid);
+    archive = evaluate_all(xs, "exhaustive grid", static_cast<double>(xs.size()));
     double best = -std::numeric_limits<double>::infinity();
     for (std::size_t i = 0; i < archive.size(); ++i) {
       best = std::max(best, archive[i].score);
@@ -341,23 +347,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     const std::size_t seed_budget = static_cast<std::size_t>(std::max(0, options.evaluations / 3));
     if (seeds.size() > seed_budget) seeds.resize(seed_budget);
     result.grid = "seeds (the first " + std::to_string(seeds.size()) + "): " + result.grid;
-    std::vector<Sample> seeded(seeds.size());
-#pragma omp parallel num_threads(threads)
-    {
-      Workspace ws(problem);
-#pragma omp for schedule(dynamic, 4)
-      for (int i = 0; i < static_cast<int>(seeds.size()); ++i) {
-        if (Clock::now() > deadline) {
-          out_of_time.store(true);
-          continue;
-        }
-        seeded[i] = {seeds[i], problem.Evaluate(problem.Decode(seeds[i]), &ws).score};
-        counter.fetch_add(1);
-      }
-    }
-    for (auto& s : seeded) {
-      if (!s.x.empty()) archive.push_back(std::move(s));
-    }
+    archive = evaluate_all(seeds, "seeds: Cannon's grid", options.evaluations);
     const int starts = options.starts;
     std::vector<std::vector<Sample>> archives(starts);
     const int per_start =
