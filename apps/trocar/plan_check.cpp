@@ -163,8 +163,25 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       sample_points.push_back(Vec(field(s, "p_W"), "target_samples[].p_W"));
     }
     int claims = 0;
-    for (const auto& plan : field(doc, "plans")) {
-      const std::string tag = "plan " + std::to_string(field(plan, "rank").get<int>()) + ": ";
+    // The ranked plans, then the baselines beside them (the template, a surgeon's ports): every
+    // claim of each is checked the same way.
+    std::vector<std::pair<const json*, std::string>> to_check;
+    for (const auto& plan : field(doc, "plans"))
+      to_check.push_back({&plan, "plan " + std::to_string(field(plan, "rank").get<int>()) + ": "});
+    if (doc.contains("baselines")) {
+      TROCAR_THROW_UNLESS(doc["baselines"].is_array(), path << ": baselines: expected an array");
+      for (const auto& b : doc["baselines"]) {
+        TROCAR_THROW_UNLESS(b.is_object(), path << ": baselines[]: expected an object");
+        TROCAR_THROW_UNLESS(b.contains("placed") && b["placed"].is_boolean(),
+                            path << ": baselines[].placed: expected true or false");
+        TROCAR_THROW_UNLESS(b.contains("kind") && b["kind"].is_string(),
+                            path << ": baselines[].kind: expected a string");
+        if (b["placed"].get<bool>())
+          to_check.push_back({&field(b, "plan"), "baseline " + b["kind"].get<std::string>() + ": "});
+      }
+    }
+    for (const auto& [plan_ptr, tag] : to_check) {
+      const json& plan = *plan_ptr;
       const std::size_t failures_before = failures.size();
       robot::RobotState state(*robot);
       // Cart on the floor.

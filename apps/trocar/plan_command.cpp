@@ -34,7 +34,18 @@ struct PlanOptions {
   planners::MotionOptions motion;
   int motion_threads = 0;
   bool quiet = false;
+  /// "optimise", "template" or a ports file (.mrk.json): where the plans' ports come from.
+  std::string ports = "optimise";
+  /// Beside optimised plans: "template", a ports file, or "none".
+  std::string baseline = "template";
 };
+
+// The template or a surgeon's ports file placed on the patient (fixed_ports.hpp).
+std::vector<planners::FixedPorts> GivenPorts(const planners::PortPlacementProblem& problem,
+                                             const std::string& what) {
+  if (what == "template") return planners::PlaceTemplate(problem, planners::TecabTemplate());
+  return {planners::ReadPortsFile(problem, what)};
+}
 
 std::string DefaultRobot() {
   std::string file = "robots/davinci-classic/cart.yaml";
@@ -53,6 +64,14 @@ int RunPlan(PlanOptions o) {
                       o.case_dir << ": not a case folder (expected a folder with patient.yaml)");
   if (o.robot.empty()) o.robot = DefaultRobot();
   TROCAR_THROW_UNLESS(IsRegularFile(o.robot), "--robot: " << o.robot << ": no such file");
+  TROCAR_THROW_UNLESS(o.ports == "optimise" || o.ports == "template" || IsRegularFile(o.ports),
+                      "--ports: '" << o.ports
+                                   << "' is neither 'optimise', 'template' nor a ports file "
+                                      "(3D Slicer point list .mrk.json) that exists");
+  TROCAR_THROW_UNLESS(o.baseline == "none" || o.baseline == "template" || IsRegularFile(o.baseline),
+                      "--baseline: '" << o.baseline
+                                      << "' is neither 'template', 'none' nor a ports file "
+                                         "(3D Slicer point list .mrk.json) that exists");
   planners::ProblemOptions problem_options;
   planners::ReadPlanConfig(o.case_dir, &problem_options);
   if (!o.arms.empty()) problem_options.arms = o.arms;
@@ -92,7 +111,44 @@ int RunPlan(PlanOptions o) {
                 << std::flush;
     };
   }
-  planners::PortPlacementResult result = planners::OptimizePorts(problem, o.optimizer);
+  // The plans: the optimiser's, or the ports given (placed before any search: a template that
+  // cannot be placed or a bad ports file is an error, nothing written).
+  const std::vector<planners::FixedPorts> given =
+      o.ports == "optimise" ? std::vector<planners::FixedPorts>{} : GivenPorts(problem, o.ports);
+  planners::PortPlacementResult result;
+  if (given.empty()) {
+    result = planners::OptimizePorts(problem, o.optimizer);
+  } else {
+    planners::FixedPortsPlan f = planners::PlanFixedPorts(problem, given, o.optimizer);
+    result.algorithm = "fixed ports";
+    result.local = o.optimizer.local;
+    result.evaluations = result.global_evaluations = f.evaluations;
+    result.best_global_score = f.plan.evaluation.score;
+    result.threads = f.threads;
+    result.grid = f.search;
+    result.ports_given = f.ports.kind + ": " + f.ports.name;
+    result.ports_where = f.ports.where;
+    result.verdict = f.verdict;
+    result.plans.push_back(std::move(f.plan));
+    for (const auto& n : f.ports.notes) std::cout << "note: " << n << "\n";
+  }
+  // Beside optimised plans, the baseline a surgeon would compare them with: the template placed
+  // on this patient (when its spaces are named: otherwise why not, in the plan file), or the
+  // surgeon's own ports.
+  if (given.empty() && o.baseline != "none") {
+    planners::Baseline b;
+    b.kind = o.baseline == "template" ? "template" : "surgeon";
+    b.name = o.baseline == "template" ? planners::TecabTemplate().title : o.baseline;
+    try {
+      b.fixed = planners::PlanFixedPorts(problem, GivenPorts(problem, o.baseline), o.optimizer);
+      b.placed = true;
+      result.evaluations += b.fixed.evaluations;
+    } catch (const Error& e) {
+      if (o.baseline != "template") throw;  // the user's own file: its error is theirs to see
+      b.why_not = e.what();
+    }
+    result.baselines.push_back(std::move(b));
+  }
   // Verified motions for every ranked plan (unless --no-verify), then the plans re-ranked with
   // the verified coverage in place of the claimed one.
   std::vector<planners::PlanVerification> verifications;
@@ -104,6 +160,15 @@ int RunPlan(PlanOptions o) {
                                                    o.motion_threads));
     }
     planners::RankByVerification(&result, &verifications);
+  }
+  std::vector<planners::PlanVerification> baseline_verifications;
+  if (!o.no_verify) {
+    for (const auto& b : result.baselines) {
+      if (!b.placed) continue;
+      if (o.optimizer.progress) o.optimizer.progress(0.99, "verifying the baseline");
+      baseline_verifications.push_back(planners::VerifyPlan(
+          problem, b.fixed.plan, o.motion, o.optimizer.suitable_fraction, o.motion_threads));
+    }
   }
   if (terminal) std::cerr << "\r" << std::string(70, ' ') << "\r" << std::flush;
 
@@ -117,8 +182,9 @@ int RunPlan(PlanOptions o) {
                             [&](const std::string& text) {
                               return verifications.empty()
                                          ? text
-                                         : planners::AddVerificationJson(text, problem,
-                                                                         verifications);
+                                         : planners::AddVerificationJson(
+                                               text, problem, verifications,
+                                               baseline_verifications);
                             });
 
   std::cout << std::fixed;
@@ -136,10 +202,10 @@ int RunPlan(PlanOptions o) {
     }
     robustness = r.str();
   }
-  for (std::size_t k = 0; k < result.plans.size(); ++k) {
-    const auto& plan = result.plans[k];
+  auto print_plan = [&](const std::string& title, const planners::RankedPlan& plan,
+                        const planners::PlanVerification* verification) {
     const auto& ev = plan.evaluation;
-    std::cout << "\nplan " << k + 1 << ": score " << std::setprecision(3) << ev.score << " (rank "
+    std::cout << "\n" << title << ": score " << std::setprecision(3) << ev.score << " (rank "
               << plan.rank_score << ", " << robustness << ": " << plan.robust_score << "), "
               << planners::ToString(ev.status) << "\n";
     for (std::size_t a = 0; a < plan.placement.sites.size(); ++a) {
@@ -159,7 +225,44 @@ int RunPlan(PlanOptions o) {
                 << std::setw(9) << t.unit << std::right << " score " << t.score << "  x "
                 << std::setprecision(2) << t.weight << "\n";
     }
-    if (k < verifications.size()) PrintVerification(verifications[k], std::cout);
+    if (verification) PrintVerification(*verification, std::cout);
+  };
+  if (!result.ports_given.empty()) {
+    std::cout << "\nports given: " << result.ports_given << "\n";
+    for (std::size_t a = 0; a < result.ports_where.size(); ++a)
+      std::cout << "  " << std::left << std::setw(6) << problem.arms()[a].name << std::right << " "
+                << result.ports_where[a] << "\n";
+  }
+  for (std::size_t k = 0; k < result.plans.size(); ++k)
+    print_plan("plan " + std::to_string(k + 1), result.plans[k],
+               k < verifications.size() ? &verifications[k] : nullptr);
+  std::size_t next_baseline = 0;
+  for (const auto& b : result.baselines) {
+    if (!b.placed) {
+      std::cout << "\nbaseline (" << b.kind << "): not placed: " << b.why_not << "\n";
+      continue;
+    }
+    const planners::PlanVerification* v = next_baseline < baseline_verifications.size()
+                                              ? &baseline_verifications[next_baseline++]
+                                              : nullptr;
+    std::cout << "\nbaseline: " << b.name << "\n";
+    for (std::size_t a = 0; a < b.fixed.ports.where.size(); ++a)
+      std::cout << "  " << std::left << std::setw(6) << problem.arms()[a].name << std::right << " "
+                << b.fixed.ports.where[a] << "\n";
+    for (const auto& n : b.fixed.ports.notes) std::cout << "  note: " << n << "\n";
+    print_plan("baseline " + b.kind, b.fixed.plan, v);
+    if (!result.plans.empty()) {
+      const auto& best = result.plans.front();
+      std::cout << "  plan 1 against the " << b.kind << ": score " << std::setprecision(3)
+                << best.evaluation.score << " vs " << b.fixed.plan.evaluation.score;
+      if (v && !verifications.empty())
+        std::cout << std::setprecision(0) << ", verified motions "
+                  << verifications.front().verified_coverage * 100 << " % vs "
+                  << v->verified_coverage * 100 << " %, samples served "
+                  << verifications.front().served_fraction * 100 << " % vs "
+                  << v->served_fraction * 100 << " %";
+      std::cout << "\n";
+    }
   }
   std::cout << "\nverdict: " << result.verdict.summary << "\n";
   for (const auto& r : result.verdict.reasons) std::cout << "  " << r << "\n";
@@ -220,6 +323,16 @@ void AddPlanCommand(CLI::App* app) {
                   "NAME=instrument|endoscope: an arm's role (default: from its frames)");
   cmd->add_option("--samples", o->samples,
                   "target samples per target (default: the case's, else 8)");
+  cmd->add_option("--ports", o->ports,
+                  "where the ports come from: optimise (the default), template (the published "
+                  "robotic TECAB template placed on this patient: docs/port-templates.md) or a "
+                  "3D Slicer point list FILE.mrk.json with one point per arm labelled with its "
+                  "name; given ports keep their place, the cart is searched for them")
+      ->capture_default_str();
+  cmd->add_option("--baseline", o->baseline,
+                  "beside optimised plans: template, a ports FILE.mrk.json, or none; scored and "
+                  "verified as the plans are, in the plan file's baselines")
+      ->capture_default_str();
   cmd->add_flag("--no-robustness", o->no_robustness, "skip re-scoring with the targets moved");
   cmd->add_flag("--no-verify", o->no_verify,
                 "skip the verified motions (OMPL) to every target sample of each plan");

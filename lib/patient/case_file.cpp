@@ -339,9 +339,19 @@ CaseSpec ReadCase(const std::string& case_dir) {
   }
   if (root["intercostal"]) {
     const YAML::Node ic = root["intercostal"];
-    y.ExpectMap(ic, "intercostal", {"left", "right"});
+    y.ExpectMap(ic, "intercostal", {"left", "right", "count_from"});
     if (ic["left"]) c.intercostal.left = y.Bool(ic["left"], "intercostal.left");
     if (ic["right"]) c.intercostal.right = y.Bool(ic["right"], "intercostal.right");
+    if (ic["count_from"]) {
+      // The user's count of spaces whose ribs the import cannot number (no rib 1 in view).
+      const double n = y.Number(ic["count_from"], "intercostal.count_from");
+      TROCAR_THROW_UNLESS(n == std::floor(n) && n >= 1 && n <= 11,
+                          y.Where(ic["count_from"], "intercostal.count_from")
+                              << ": " << n
+                              << " is not an intercostal space's number (expected a whole number "
+                                 "1 to 11: the number of the highest space found)");
+      c.intercostal.count_from = static_cast<int>(n);
+    }
   }
   if (root["surfaces"]) {
     const YAML::Node s = root["surfaces"];

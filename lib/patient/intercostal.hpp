@@ -31,6 +31,11 @@ struct IntercostalOptions {
   int min_points = 5;
   bool left = true;
   bool right = false;
+  /// Spaces on a side whose ribs the import cannot number (rib 1 not in view or not confirmed)
+  /// are named in order from the top, the highest found being ICS-<count_from>, when the case
+  /// file says so (`intercostal: {count_from: N}`: the user counted them); 0: they stay
+  /// "gap-L1", "gap-L2", ... Ribs numbered by the import or by labels are never renumbered.
+  int count_from = 0;
   /// The rib cage's layer (FindIntercostalSpacesInLayer, for windowed volumes): bone-bright
   /// voxels no deeper than `layer_depth` under the skin (m), the innermost of them along each ray
   /// (the ribs lie on the lungs; a shoulder blade or an arm lies outside them) smoothed over

@@ -632,6 +632,15 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
           candidate.source = source.str();
         } else if (upper > 0 || lower > 0) {
           continue;  // numbered ribs not consecutive (one not labelled or not found): no name fits
+        } else if (c.intercostal.count_from > 0) {
+          // Counted in order from the top as the case file says (the user's count, not ours).
+          const int n = c.intercostal.count_from + unnamed[space.side > 0 ? 0 : 1]++;
+          candidate.name = "ICS-" + side + std::to_string(n);
+          candidate.source = "intercostal (ribs not numbered: " +
+                             (numbering.basis.empty() ? std::string("no numbering") : numbering.basis) +
+                             "; counted in order from ICS-" + side +
+                             std::to_string(c.intercostal.count_from) +
+                             " as the case file states, intercostal.count_from)";
         } else {
           candidate.name = "gap-" + side + std::to_string(++unnamed[space.side > 0 ? 0 : 1]);
           candidate.source =

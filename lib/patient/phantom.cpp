@@ -301,13 +301,16 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
 
 namespace {
 
+// Curves named `name` and their number, joined by `separator` ("ICS-L" "" 3: the 3rd space, below
+// rib 3: the generator lays the ribs out from rib 1 down).
 std::vector<Markup> CurveMarkups(const std::string& name, const std::vector<Curve>& curves,
-                                 const std::vector<Eigen::Vector3d>& normals = {}) {
+                                 const std::vector<Eigen::Vector3d>& normals = {},
+                                 const std::string& separator = "-") {
   std::vector<Markup> out;
   for (std::size_t c = 0; c < curves.size(); ++c) {
     Markup m;
     m.type = "Curve";
-    m.name = curves.size() == 1 ? name : name + "-" + std::to_string(c + 1);
+    m.name = curves.size() == 1 ? name : name + separator + std::to_string(c + 1);
     m.points = curves[c];
     for (std::size_t i = 0; i < curves[c].size(); ++i) {
       m.labels.push_back(name + "-" + std::to_string(c + 1) + "-" + std::to_string(i + 1));
@@ -359,7 +362,7 @@ void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat f
   for (std::size_t s = 0; s < t.intercostal_spaces.size(); ++s) {
     if (t.intercostal_side[s] > 0) left.push_back(t.intercostal_spaces[s]);
   }
-  WriteMarkups(CurveMarkups("ICS-L", left), JoinPath(tmp, "markups/intercostal_left.mrk.json"));
+  WriteMarkups(CurveMarkups("ICS-L", left, {}, ""), JoinPath(tmp, "markups/intercostal_left.mrk.json"));
   nlohmann::json truth;
   for (const auto& rib : t.ribs) {
     nlohmann::json points = nlohmann::json::array();

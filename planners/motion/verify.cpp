@@ -207,8 +207,20 @@ json VerificationJson(const PortPlacementProblem& problem, const PlanVerificatio
 }  // namespace
 
 std::string AddVerificationJson(const std::string& plan_json, const PortPlacementProblem& problem,
-                                const std::vector<PlanVerification>& verifications) {
+                                const std::vector<PlanVerification>& verifications,
+                                const std::vector<PlanVerification>& baselines) {
   json doc = json::parse(plan_json);
+  if (!baselines.empty()) {
+    std::size_t next = 0;
+    for (json& b : doc.at("baselines")) {
+      if (!b.value("placed", false)) continue;
+      TROCAR_THROW_UNLESS(next < baselines.size(),
+                          "plan file: more placed baselines than verifications");
+      const PlanVerification& v = baselines[next++];
+      b["plan"]["verification"] = VerificationJson(problem, v);
+      b["verdict"]["verified"] = {{"suitable", v.suitable}, {"reasons", v.reasons}};
+    }
+  }
   json& plans = doc.at("plans");
   TROCAR_THROW_UNLESS(plans.size() == verifications.size(),
                       "plan file: " << plans.size() << " plans, " << verifications.size()

@@ -47,7 +47,10 @@ void RankByVerification(PortPlacementResult* result, std::vector<PlanVerificatio
 /// Adds each plan's "verification" object (motions with their waypoints, coverage, verdict) to
 /// a plan document made by PlanJson, plans in the same order as `verifications`, and the
 /// verified verdict to its "verdict". @return the new document's text.
+/// `baselines` (optional): the verifications of the document's placed baselines, in order (an
+/// entry per baseline; those not placed are skipped).
 std::string AddVerificationJson(const std::string& plan_json, const PortPlacementProblem& problem,
-                                const std::vector<PlanVerification>& verifications);
+                                const std::vector<PlanVerification>& verifications,
+                                const std::vector<PlanVerification>& baselines = {});
 
 }  // namespace trocar::planners

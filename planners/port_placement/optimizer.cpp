@@ -174,6 +174,181 @@ double GeometricScore(const PortPlacementProblem& problem, const std::vector<Por
          w.endoscope * (scopes ? view / (scopes * ns) : 1.0) + w.spacing * spacing_score;
 }
 
+// The final plans' detailed evaluations and robustness: in the operation's world, over the range
+// of the heart's displacement; in the CT's state, the options' shift along each axis. Sets each
+// plan's evaluation, shifts, robust and rank scores; returns the evaluations spent.
+int ScoreFinalPlans(const PortPlacementProblem& problem, const PortPlacementOptions& options,
+                    int threads, const std::function<void(double, const std::string&)>& progress,
+                    std::vector<RankedPlan>* finals_out) {
+  std::vector<RankedPlan>& finals = *finals_out;
+  // Robustness: in the operation's world, over the range of the heart's displacement
+  // (patient::OperativeRobustnessShifts); in the CT's state, the option's shift along each axis.
+  std::vector<Eigen::Vector3d> shifts;
+  if (options.robustness_shift > 0) {
+    shifts = patient::OperativeRobustnessShifts(problem.patient());
+    if (shifts.empty() && !problem.patient().operation.moves()) {
+      for (int axis = 0; axis < 3; ++axis) {
+        for (double sign : {1.0, -1.0})
+          shifts.push_back(sign * options.robustness_shift * Eigen::Vector3d::Unit(axis));
+      }
+    }
+  }
+  const std::vector<bool> moving_target = problem.MovingTargets();
+  // One collision world per shift, the organs the targets lie on moved with them.
+  std::vector<std::shared_ptr<const collision::CollisionWorld>> shifted_worlds(shifts.size());
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+  for (int k = 0; k < static_cast<int>(shifts.size()); ++k)
+    shifted_worlds[k] = problem.WorldWithTargetsMoved(shifts[k]);
+  int final_evaluations = 0;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(+ : final_evaluations)
+  for (int i = 0; i < static_cast<int>(finals.size()); ++i) {
+    Workspace ws(problem);
+    RankedPlan& plan = finals[i];
+    bool use_full = false;
+    plan.evaluation = EvaluateFinalPlan(problem, plan.placement, &ws, &use_full);
+    final_evaluations += 2;
+    double sum = 0;
+    for (std::size_t k = 0; k < shifts.size(); ++k) {
+      const Eigen::Vector3d& d_P = shifts[k];
+      Workspace moved_ws(problem, shifted_worlds[k]);
+      std::vector<TargetSample> moved = problem.samples();
+      const Eigen::Vector3d d_W = problem.patient().X_WP.linear() * d_P;
+      for (auto& s : moved) {
+        if (s.target >= 0 && s.target < static_cast<int>(moving_target.size()) &&
+            moving_target[s.target])
+          s.p_W += d_W;
+      }
+      PortPlacementProblem::EvaluateOptions shifted;
+      shifted.full_solver = use_full;
+      shifted.samples = &moved;
+      const Evaluation ev = problem.Evaluate(plan.placement, &moved_ws, shifted);
+      ++final_evaluations;
+      Shift shift;
+      shift.d_P = d_P;
+      shift.score = ev.score;
+      shift.coverage = ev.Find("coverage") ? ev.Find("coverage")->value : 0.0;
+      shift.served =
+          ev.served.empty()
+              ? 0.0
+              : static_cast<double>(std::count(ev.served.begin(), ev.served.end(), true)) /
+                    ev.served.size();
+      plan.shifts.push_back(shift);
+      sum += ev.score;
+    }
+    plan.robust_score = shifts.empty() ? plan.evaluation.score : sum / shifts.size();
+    plan.degradation = plan.evaluation.score - plan.robust_score;
+    plan.rank_score =
+        plan.evaluation.score - options.robustness_weight * std::max(0.0, plan.degradation);
+    progress(0.85 + 0.15 * (i + 1) / finals.size(), "robustness");
+  }
+  return final_evaluations;
+}
+
+// The verdict on the best of `plans` (ranked): which targets' stretches it does not serve, and why.
+Verdict JudgePlans(const PortPlacementProblem& problem, const std::vector<RankedPlan>& plans,
+                   const PortPlacementOptions& options) {
+  Verdict verdict;
+  const auto& targets = problem.patient().targets;
+  const auto& samples = problem.samples();
+  if (plans.empty() || plans[0].evaluation.status != PlacementStatus::kPlaced) {
+    verdict.suitable = false;
+    std::ostringstream why;
+    if (plans.empty()) {
+      why << "no placement was evaluated (time limit " << options.time_limit << " s)";
+      verdict.summary = "not suitable: " + why.str();
+    } else {
+      why << "no placement of the cart puts every arm at a port "
+          << (plans[0].evaluation.status == PlacementStatus::kInCollision
+                  ? "without collisions"
+                  : "within the setup joints' reach");
+      verdict.summary = "not suitable: " + why.str();
+      // The best attempt's message, one line: each arm's setup, then what collides.
+      std::istringstream lines(plans[0].evaluation.message);
+      std::string line, joined;
+      while (std::getline(lines, line)) {
+        const auto first = line.find_first_not_of(' ');
+        if (first == std::string::npos) continue;
+        joined += (joined.empty() ? "" : "; ") + line.substr(first);
+      }
+      why << "; the best: " << joined;
+    }
+    verdict.reasons.push_back(why.str());
+  } else {
+    const Evaluation& best = plans[0].evaluation;
+    verdict.suitable = true;
+    for (int t = 0; t < static_cast<int>(targets.size()); ++t) {
+      std::vector<int> idx;
+      for (int s = 0; s < static_cast<int>(samples.size()); ++s) {
+        if (samples[s].target == t) idx.push_back(s);
+      }
+      int served = 0;
+      for (int s : idx) served += best.served[s] ? 1 : 0;
+      const double fraction = idx.empty() ? 1.0 : static_cast<double>(served) / idx.size();
+      if (fraction >= options.suitable_fraction) continue;
+      verdict.suitable = false;
+      // Group consecutive unserved samples with the same reason into stretches of the target.
+      auto reason_of = [&](int s) {
+        for (const auto& r : best.reaches) {
+          if (r.sample == s && !r.reached) {
+            std::string why = r.reason;
+            // "from every candidate port" when no candidate point is within reach
+            if (why.rfind("insertion limit", 0) == 0) {
+              double nearest = std::numeric_limits<double>::infinity();
+              for (const auto& c : problem.patient().port_candidates) {
+                for (const auto& p : c.skin)
+                  nearest = std::min(nearest, (problem.patient().X_WP * p - samples[s].p_W).norm());
+              }
+              const double reach = problem.MaxReach(r.arm);
+              const auto& joint = problem.robot().joint(
+                  problem.robot().active_joints()[problem.arms()[r.arm].insertion_q]);
+              std::ostringstream w;
+              if (nearest > reach) {
+                w << "insertion limit (" << std::lround(joint.limits.upper * 1e3)
+                  << " mm) exceeded from every candidate port (the nearest is "
+                  << std::lround(nearest * 1e3) << " mm away, the tool reaches "
+                  << std::lround(reach * 1e3) << " mm)";
+              } else {
+                w << "insertion limit (" << std::lround(joint.limits.upper * 1e3)
+                  << " mm) exceeded from the chosen port";
+              }
+              why = w.str();
+            }
+            return problem.arms()[r.arm].name + ": " + why;
+          }
+        }
+        return std::string("not served");
+      };
+      std::size_t i = 0;
+      while (i < idx.size()) {
+        if (best.served[idx[i]]) {
+          ++i;
+          continue;
+        }
+        const std::string why = reason_of(idx[i]);
+        std::size_t j = i;
+        while (j + 1 < idx.size() && !best.served[idx[j + 1]] && reason_of(idx[j + 1]) == why) ++j;
+        std::ostringstream line;
+        line << targets[t].name << " " << std::lround(samples[idx[i]].arc_length * 1e3) << "–"
+             << std::lround(samples[idx[j]].arc_length * 1e3) << " mm from its origin: " << why;
+        verdict.reasons.push_back(line.str());
+        i = j + 1;
+      }
+    }
+    std::ostringstream summary;
+    if (verdict.suitable) {
+      summary << "suitable: every target is served (both instruments reach, the endoscope sees) on "
+                 "at least "
+              << std::lround(options.suitable_fraction * 100)
+              << " % of its length by the best plan";
+    } else {
+      summary << "not suitable: " << verdict.reasons.size() << " target stretch"
+              << (verdict.reasons.size() == 1 ? "" : "es") << " not served by the best plan";
+    }
+    verdict.summary = summary.str();
+  }
+  return verdict;
+}
+
 }  // namespace
 
 std::vector<std::string> GlobalAlgorithms() {
@@ -464,66 +639,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       distinct = distinct && Distinct(plan.placement, f.placement, options.distinct_distance);
     if (distinct) finals.push_back(std::move(plan));
   }
-  // Robustness: in the operation's world, over the range of the heart's displacement
-  // (patient::OperativeRobustnessShifts); in the CT's state, the option's shift along each axis.
-  std::vector<Eigen::Vector3d> shifts;
-  if (options.robustness_shift > 0) {
-    shifts = patient::OperativeRobustnessShifts(problem.patient());
-    if (shifts.empty() && !problem.patient().operation.moves()) {
-      for (int axis = 0; axis < 3; ++axis) {
-        for (double sign : {1.0, -1.0})
-          shifts.push_back(sign * options.robustness_shift * Eigen::Vector3d::Unit(axis));
-      }
-    }
-  }
-  const std::vector<bool> moving_target = problem.MovingTargets();
-  // One collision world per shift, the organs the targets lie on moved with them.
-  std::vector<std::shared_ptr<const collision::CollisionWorld>> shifted_worlds(shifts.size());
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-  for (int k = 0; k < static_cast<int>(shifts.size()); ++k)
-    shifted_worlds[k] = problem.WorldWithTargetsMoved(shifts[k]);
-  int final_evaluations = 0;
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(+ : final_evaluations)
-  for (int i = 0; i < static_cast<int>(finals.size()); ++i) {
-    Workspace ws(problem);
-    RankedPlan& plan = finals[i];
-    bool use_full = false;
-    plan.evaluation = EvaluateFinalPlan(problem, plan.placement, &ws, &use_full);
-    final_evaluations += 2;
-    double sum = 0;
-    for (std::size_t k = 0; k < shifts.size(); ++k) {
-      const Eigen::Vector3d& d_P = shifts[k];
-      Workspace moved_ws(problem, shifted_worlds[k]);
-      std::vector<TargetSample> moved = problem.samples();
-      const Eigen::Vector3d d_W = problem.patient().X_WP.linear() * d_P;
-      for (auto& s : moved) {
-        if (s.target >= 0 && s.target < static_cast<int>(moving_target.size()) &&
-            moving_target[s.target])
-          s.p_W += d_W;
-      }
-      PortPlacementProblem::EvaluateOptions shifted;
-      shifted.full_solver = use_full;
-      shifted.samples = &moved;
-      const Evaluation ev = problem.Evaluate(plan.placement, &moved_ws, shifted);
-      ++final_evaluations;
-      Shift shift;
-      shift.d_P = d_P;
-      shift.score = ev.score;
-      shift.coverage = ev.Find("coverage") ? ev.Find("coverage")->value : 0.0;
-      shift.served =
-          ev.served.empty()
-              ? 0.0
-              : static_cast<double>(std::count(ev.served.begin(), ev.served.end(), true)) /
-                    ev.served.size();
-      plan.shifts.push_back(shift);
-      sum += ev.score;
-    }
-    plan.robust_score = shifts.empty() ? plan.evaluation.score : sum / shifts.size();
-    plan.degradation = plan.evaluation.score - plan.robust_score;
-    plan.rank_score =
-        plan.evaluation.score - options.robustness_weight * std::max(0.0, plan.degradation);
-    progress(0.85 + 0.15 * (i + 1) / finals.size(), "robustness");
-  }
+  const int final_evaluations = ScoreFinalPlans(problem, options, threads, progress, &finals);
   std::stable_sort(finals.begin(), finals.end(), [](const RankedPlan& a, const RankedPlan& b) {
     return a.rank_score > b.rank_score;
   });
@@ -535,109 +651,151 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
                        final_evaluations;
   result.time_limit_hit = out_of_time.load();
 
-  // --- Verdict
-  // ------------------------------------------------------------------------------------
-  Verdict& verdict = result.verdict;
-  const auto& targets = problem.patient().targets;
-  const auto& samples = problem.samples();
-  if (result.plans.empty() || result.plans[0].evaluation.status != PlacementStatus::kPlaced) {
-    verdict.suitable = false;
-    std::ostringstream why;
-    if (result.plans.empty()) {
-      why << "no placement was evaluated (time limit " << options.time_limit << " s)";
-      verdict.summary = "not suitable: " + why.str();
-    } else {
-      why << "no placement of the cart puts every arm at a port "
-          << (result.plans[0].evaluation.status == PlacementStatus::kInCollision
-                  ? "without collisions"
-                  : "within the setup joints' reach");
-      verdict.summary = "not suitable: " + why.str();
-      // The best attempt's message, one line: each arm's setup, then what collides.
-      std::istringstream lines(result.plans[0].evaluation.message);
-      std::string line, joined;
-      while (std::getline(lines, line)) {
-        const auto first = line.find_first_not_of(' ');
-        if (first == std::string::npos) continue;
-        joined += (joined.empty() ? "" : "; ") + line.substr(first);
-      }
-      why << "; the best: " << joined;
-    }
-    verdict.reasons.push_back(why.str());
-  } else {
-    const Evaluation& best = result.plans[0].evaluation;
-    verdict.suitable = true;
-    for (int t = 0; t < static_cast<int>(targets.size()); ++t) {
-      std::vector<int> idx;
-      for (int s = 0; s < static_cast<int>(samples.size()); ++s) {
-        if (samples[s].target == t) idx.push_back(s);
-      }
-      int served = 0;
-      for (int s : idx) served += best.served[s] ? 1 : 0;
-      const double fraction = idx.empty() ? 1.0 : static_cast<double>(served) / idx.size();
-      if (fraction >= options.suitable_fraction) continue;
-      verdict.suitable = false;
-      // Group consecutive unserved samples with the same reason into stretches of the target.
-      auto reason_of = [&](int s) {
-        for (const auto& r : best.reaches) {
-          if (r.sample == s && !r.reached) {
-            std::string why = r.reason;
-            // "from every candidate port" when no candidate point is within reach
-            if (why.rfind("insertion limit", 0) == 0) {
-              double nearest = std::numeric_limits<double>::infinity();
-              for (const auto& c : problem.patient().port_candidates) {
-                for (const auto& p : c.skin)
-                  nearest = std::min(nearest, (problem.patient().X_WP * p - samples[s].p_W).norm());
-              }
-              const double reach = problem.MaxReach(r.arm);
-              const auto& joint = problem.robot().joint(
-                  problem.robot().active_joints()[problem.arms()[r.arm].insertion_q]);
-              std::ostringstream w;
-              if (nearest > reach) {
-                w << "insertion limit (" << std::lround(joint.limits.upper * 1e3)
-                  << " mm) exceeded from every candidate port (the nearest is "
-                  << std::lround(nearest * 1e3) << " mm away, the tool reaches "
-                  << std::lround(reach * 1e3) << " mm)";
-              } else {
-                w << "insertion limit (" << std::lround(joint.limits.upper * 1e3)
-                  << " mm) exceeded from the chosen port";
-              }
-              why = w.str();
-            }
-            return problem.arms()[r.arm].name + ": " + why;
-          }
-        }
-        return std::string("not served");
-      };
-      std::size_t i = 0;
-      while (i < idx.size()) {
-        if (best.served[idx[i]]) {
-          ++i;
-          continue;
-        }
-        const std::string why = reason_of(idx[i]);
-        std::size_t j = i;
-        while (j + 1 < idx.size() && !best.served[idx[j + 1]] && reason_of(idx[j + 1]) == why) ++j;
-        std::ostringstream line;
-        line << targets[t].name << " " << std::lround(samples[idx[i]].arc_length * 1e3) << "–"
-             << std::lround(samples[idx[j]].arc_length * 1e3) << " mm from its origin: " << why;
-        verdict.reasons.push_back(line.str());
-        i = j + 1;
-      }
-    }
-    std::ostringstream summary;
-    if (verdict.suitable) {
-      summary << "suitable: every target is served (both instruments reach, the endoscope sees) on "
-                 "at least "
-              << std::lround(options.suitable_fraction * 100)
-              << " % of its length by the best plan";
-    } else {
-      summary << "not suitable: " << verdict.reasons.size() << " target stretch"
-              << (verdict.reasons.size() == 1 ? "" : "es") << " not served by the best plan";
-    }
-    verdict.summary = summary.str();
-  }
+  // --- Verdict ---------------------------------------------------------------------------------
+  result.verdict = JudgePlans(problem, result.plans, options);
   stamp("total", t0);
   return result;
+}
+
+
+FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
+                              const std::vector<FixedPorts>& variants,
+                              const PortPlacementOptions& options) {
+  ValidateOptions(options);
+  TROCAR_THROW_UNLESS(!variants.empty(), "fixed ports: no ports to place");
+  const auto t0 = Clock::now();
+  const auto deadline = t0 + std::chrono::duration_cast<Clock::duration>(
+                                 std::chrono::duration<double>(options.time_limit));
+  const int threads = options.threads > 0 ? options.threads : omp_get_max_threads();
+  const int dim = problem.dimension();
+  const int cart = dim - 3;
+  const std::vector<double> lb = problem.lower_bounds(), ub = problem.upper_bounds();
+  auto progress = [&](double fraction, const std::string& stage) {
+    if (options.progress && omp_get_thread_num() == 0)
+      options.progress(std::clamp(fraction, 0.0, 1.0), stage);
+  };
+  // The ports' part of the decision vector, per variant.
+  std::vector<std::vector<double>> bases;
+  for (const FixedPorts& v : variants) {
+    TROCAR_THROW_UNLESS(v.sites.size() == problem.arms().size(),
+                        "fixed ports: " << v.sites.size() << " ports for "
+                                        << problem.arms().size() << " arms");
+    Placement p;
+    p.sites = v.sites;
+    std::vector<double> x = problem.Encode(p);
+    x.resize(cart);
+    bases.push_back(x);
+  }
+  // A grid of cart poses for each variant: the direction it comes from every 30 degrees, three
+  // distances across the options' range, facing the ports and turned either way by half the
+  // allowed offset.
+  std::vector<double> directions;
+  for (int k = 0; k < 12; ++k) directions.push_back(-M_PI + k * M_PI / 6);
+  const std::vector<double> distances = {
+      lb[cart + 1], 0.5 * (lb[cart + 1] + ub[cart + 1]), ub[cart + 1]};
+  const std::vector<double> offsets = {0.0, -0.5 * ub[cart + 2], 0.5 * ub[cart + 2]};
+  std::vector<std::pair<int, std::vector<double>>> xs;  // variant, decision
+  for (std::size_t v = 0; v < bases.size(); ++v) {
+    for (double from : directions) {
+      for (double d : distances) {
+        for (double o : offsets) {
+          std::vector<double> x = bases[v];
+          x.insert(x.end(), {from, d, o});
+          xs.push_back({static_cast<int>(v), x});
+        }
+      }
+    }
+  }
+  std::vector<double> scores(xs.size(), -std::numeric_limits<double>::infinity());
+  std::atomic<int> done{0};
+#pragma omp parallel num_threads(threads)
+  {
+    Workspace ws(problem);
+#pragma omp for schedule(dynamic, 4)
+    for (int i = 0; i < static_cast<int>(xs.size()); ++i) {
+      if (Clock::now() > deadline) continue;
+      scores[i] = problem.Evaluate(problem.Decode(xs[i].second), &ws).score;
+      progress(0.6 * (done.fetch_add(1) + 1) / xs.size(), "cart for the fixed ports");
+    }
+  }
+  int evaluations = static_cast<int>(xs.size());
+  const int best = static_cast<int>(std::max_element(scores.begin(), scores.end()) - scores.begin());
+  const int variant = xs[best].first;
+  std::vector<double> x_best = xs[best].second;
+  double score_best = scores[best];
+  // The cart's three coordinates polished locally (the ports stay where they were given).
+  if (options.local != "none" && options.polish_evaluations > 0 && Clock::now() < deadline) {
+    Workspace ws(problem);
+    struct Context {
+      const PortPlacementProblem* problem;
+      Workspace* ws;
+      std::vector<double> x;
+      int cart, evaluations, budget;
+      double best;
+      std::vector<double> x_best;
+      Clock::time_point deadline;
+    } c{&problem, &ws, x_best, cart, 0, options.polish_evaluations, score_best, x_best, deadline};
+    nlopt::opt opt(LocalAlgorithm(options.local), 3);
+    std::vector<double> plb(3), pub(3), x0(3), step(3);
+    for (int k = 0; k < 3; ++k) {
+      const double span = 0.15 * (ub[cart + k] - lb[cart + k]);
+      x0[k] = x_best[cart + k];
+      plb[k] = std::max(lb[cart + k], x0[k] - span);
+      pub[k] = std::min(ub[cart + k], x0[k] + span);
+      step[k] = 0.25 * (pub[k] - plb[k]);
+    }
+    opt.set_lower_bounds(plb);
+    opt.set_upper_bounds(pub);
+    opt.set_initial_step(step);
+    opt.set_maxeval(options.polish_evaluations);
+    opt.set_xtol_rel(1e-4);
+    opt.set_max_objective(
+        [](unsigned, const double* v, double*, void* data) -> double {
+          auto* c = static_cast<Context*>(data);
+          if (c->evaluations >= c->budget || Clock::now() > c->deadline) throw nlopt::forced_stop();
+          for (int k = 0; k < 3; ++k) c->x[c->cart + k] = v[k];
+          const double score = c->problem->Evaluate(c->problem->Decode(c->x), c->ws).score;
+          ++c->evaluations;
+          if (score > c->best) {
+            c->best = score;
+            c->x_best = c->x;
+          }
+          return score;
+        },
+        &c);
+    double value = 0.0;
+    try {
+      opt.optimize(x0, value);
+    } catch (const nlopt::forced_stop&) {
+    } catch (const nlopt::roundoff_limited&) {
+    } catch (const std::runtime_error&) {
+    }
+    evaluations += c.evaluations;
+    x_best = c.x_best;
+    score_best = c.best;
+  }
+  progress(0.7, "robustness");
+  FixedPortsPlan out;
+  out.ports = variants[variant];
+  out.variants = static_cast<int>(variants.size());
+  std::ostringstream search;
+  search << "cart searched for the given ports: " << xs.size() << " poses ("
+         << variants.size() << " assignment" << (variants.size() == 1 ? "" : "s")
+         << " of the ports to the arms x " << directions.size() << " directions x "
+         << distances.size() << " distances x " << offsets.size() << " headings), then "
+         << options.local << " on the best";
+  out.search = search.str();
+  std::vector<RankedPlan> finals(1);
+  finals[0].placement = problem.Decode(x_best);
+  // The sites as given (Decode recomputes them from the curve position: the same sites).
+  finals[0].placement.sites = variants[variant].sites;
+  evaluations += ScoreFinalPlans(problem, options, threads, progress, &finals);
+  out.plan = std::move(finals[0]);
+  out.evaluations = evaluations;
+  out.verdict = JudgePlans(problem, {out.plan}, options);
+  out.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  out.threads = threads;
+  return out;
 }
 
 }  // namespace trocar::planners

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "port_placement/fixed_ports.hpp"
 #include "port_placement/problem.hpp"
 
 namespace trocar::planners {
@@ -83,6 +84,8 @@ struct TracePoint {
   double best = 0.0;
 };
 
+struct Baseline;
+
 struct PortPlacementResult {
   std::vector<RankedPlan> plans;  ///< best first
   Verdict verdict;
@@ -95,6 +98,13 @@ struct PortPlacementResult {
   bool time_limit_hit = false;
   int threads = 1;
   std::string grid;  ///< the exhaustive baseline's grid, when it ran
+  /// Where the plans' ports came from when they were given, not optimised ("template: ...",
+  /// "surgeon: FILE"); empty for the optimiser's.
+  std::string ports_given;
+  std::vector<std::string> ports_where;  ///< per arm, with ports_given
+  /// Plans to compare the optimised ones with (the template placed on this patient, a surgeon's
+  /// ports), each searched, scored and judged as the optimiser's are.
+  std::vector<Baseline> baselines;
 };
 
 /// Runs the whole planning job on a problem.
@@ -108,6 +118,36 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
 /// with. `full_effort` (optional) tells which one it is.
 Evaluation EvaluateFinalPlan(const PortPlacementProblem& problem, const Placement& placement,
                              Workspace* workspace, bool* full_effort = nullptr);
+
+/// A plan for ports given by a template or a surgeon (fixed_ports.hpp): the cart's pose searched
+/// for them (the ports stay), then evaluated, re-scored for robustness and judged exactly as the
+/// optimiser's plans are.
+struct FixedPortsPlan {
+  RankedPlan plan;
+  FixedPorts ports;   ///< the assignment of the ports to the arms that was taken
+  int variants = 1;   ///< assignments tried
+  int evaluations = 0;
+  double seconds = 0.0;
+  int threads = 1;
+  Verdict verdict;    ///< as if this were the only plan
+  std::string search; ///< how the cart was searched
+};
+
+/// A plan to compare with: placed (its FixedPortsPlan), or why it could not be placed.
+struct Baseline {
+  std::string kind;  ///< "template", "surgeon"
+  std::string name;
+  bool placed = false;
+  std::string why_not;
+  FixedPortsPlan fixed;
+};
+
+/// The best cart pose for each of `variants` (the same ports given to the arms in different
+/// ways), the best variant taken. Deterministic: no random numbers.
+/// @throws trocar::Error for bad options (as OptimizePorts) or no variants.
+FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
+                              const std::vector<FixedPorts>& variants,
+                              const PortPlacementOptions& options);
 
 /// Checks options before any work (same errors as OptimizePorts).
 void ValidateOptions(const PortPlacementOptions& options);

@@ -100,6 +100,100 @@ std::string HashPatientModel(const patient::PatientModel& model) {
   return f.Text();
 }
 
+// One plan's entry in the plan file (docs/plan-format.md, "plans").
+static json PlanEntry(const PortPlacementProblem& problem, const RankedPlan& plan, int rank) {
+  const robot::RobotModel& robot = problem.robot();
+  const patient::PatientModel& patient = problem.patient();
+  const Evaluation& ev = plan.evaluation;
+  json ports = json::array();
+  for (std::size_t a = 0; a < plan.placement.sites.size(); ++a) {
+    const PortSite& site = plan.placement.sites[a];
+    ports.push_back({{"arm", problem.arms()[a].name},
+                     {"candidate", patient.port_candidates[site.candidate].name},
+                     {"s", site.s},
+                     {"curve_P", Vec(site.p_curve_P)},
+                     {"p_P", Vec(site.p_P)},
+                     {"p_W", Vec(site.p_W)},
+                     {"rcm_W", Vec(site.p_rcm_W)},
+                     {"skin_allowance", site.skin_allowance},
+                     {"pivot", site.in_gap ? "intercostal gap" : "rcm_depth toward the targets"}});
+  }
+  json setup = json::object();
+  json nominal = json::object();
+  for (int j = 0; j < robot.num_joints(); ++j) {
+    const robot::Joint& joint = robot.joint(j);
+    if (joint.movable() && joint.drive == robot::JointDrive::kHeld && ev.joint_values.size() > 0)
+      setup[joint.name] = ev.joint_values[joint.dof_index];
+    if (joint.movable() && joint.q_index >= 0 && ev.q_nominal.size() > 0)
+      nominal[joint.name] = ev.q_nominal[joint.q_index];
+  }
+  json terms = json::array();
+  for (const auto& t : ev.terms) {
+    terms.push_back({{"name", t.name},
+                     {"unit", t.unit},
+                     {"value", t.value},
+                     {"score", t.score},
+                     {"weight", t.weight},
+                     {"note", t.note}});
+  }
+  json reaches = json::array();
+  for (const auto& r : ev.reaches) {
+    const PlanArm& arm = problem.arms()[r.arm];
+    json q = json::object();
+    for (std::size_t c = 0;
+         c < arm.q_indices.size() && c < static_cast<std::size_t>(r.q_arm.size()); ++c) {
+      q[robot.joint(robot.active_joints()[arm.q_indices[c]]).name] = r.q_arm[c];
+    }
+    json entry = {{"sample", r.sample}, {"arm", arm.name}, {"reached", r.reached}, {"q", q}};
+    if (arm.role == ArmRole::kEndoscope) {
+      entry["seen"] = r.seen;
+      entry["off_axis_deg"] = r.approach * 180 / M_PI;
+    } else {
+      entry["tip_error_m"] = r.tip_error;
+      entry["dexterity"] = r.dexterity;
+      entry["approach_deg"] = r.approach * 180 / M_PI;
+    }
+    if (!r.reached) entry["reason"] = r.reason;
+    reaches.push_back(entry);
+  }
+  json shifts = json::array();
+  for (const auto& s : plan.shifts) {
+    shifts.push_back({{"shift_P", Vec(s.d_P)},
+                      {"score", s.score},
+                      {"coverage", s.coverage},
+                      {"served", s.served}});
+  }
+  json served = json::array();
+  for (bool b : ev.served) served.push_back(b);
+  json views = json::array();
+  for (const auto& v : ev.views) {
+    views.push_back(
+        {{"arm", problem.arms()[v.arm].name}, {"frame", v.frame}, {"axis_F", Vec(v.axis_F)}});
+  }
+  const Eigen::Isometry3d X_WB = plan.placement.X_WB();
+  return json{{"rank", rank},
+                   {"status", ToString(ev.status)},
+                   {"score", ev.score},
+                   {"rank_score", plan.rank_score},
+                   {"robust_score", plan.robust_score},
+                   {"degradation", plan.degradation},
+                   {"collisions_at_nominal", ev.collisions},
+                   {"message", ev.message},
+                   {"ports", ports},
+                   {"views", views},
+                   {"cart",
+                    {{"x", plan.placement.cart_x},
+                     {"y", plan.placement.cart_y},
+                     {"yaw_deg", plan.placement.cart_yaw * 180 / M_PI},
+                     {"X_WB", Matrix(X_WB)}}},
+                   {"setup_joints", setup},
+                   {"q_nominal", nominal},
+                   {"terms", terms},
+                   {"served", served},
+                   {"samples", reaches},
+                   {"robustness", shifts}};
+}
+
 std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementResult& result,
                      const PortPlacementOptions& options, const PlanInputs& inputs) {
   const robot::RobotModel& robot = problem.robot();
@@ -203,98 +297,32 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
   }
   doc["target_samples"] = samples;
   json plans = json::array();
-  for (std::size_t k = 0; k < result.plans.size(); ++k) {
-    const RankedPlan& plan = result.plans[k];
-    const Evaluation& ev = plan.evaluation;
-    json ports = json::array();
-    for (std::size_t a = 0; a < plan.placement.sites.size(); ++a) {
-      const PortSite& site = plan.placement.sites[a];
-      ports.push_back({{"arm", problem.arms()[a].name},
-                       {"candidate", patient.port_candidates[site.candidate].name},
-                       {"s", site.s},
-                       {"curve_P", Vec(site.p_curve_P)},
-                       {"p_P", Vec(site.p_P)},
-                       {"p_W", Vec(site.p_W)},
-                       {"rcm_W", Vec(site.p_rcm_W)},
-                       {"skin_allowance", site.skin_allowance},
-                       {"pivot", site.in_gap ? "intercostal gap" : "rcm_depth toward the targets"}});
-    }
-    json setup = json::object();
-    json nominal = json::object();
-    for (int j = 0; j < robot.num_joints(); ++j) {
-      const robot::Joint& joint = robot.joint(j);
-      if (joint.movable() && joint.drive == robot::JointDrive::kHeld && ev.joint_values.size() > 0)
-        setup[joint.name] = ev.joint_values[joint.dof_index];
-      if (joint.movable() && joint.q_index >= 0 && ev.q_nominal.size() > 0)
-        nominal[joint.name] = ev.q_nominal[joint.q_index];
-    }
-    json terms = json::array();
-    for (const auto& t : ev.terms) {
-      terms.push_back({{"name", t.name},
-                       {"unit", t.unit},
-                       {"value", t.value},
-                       {"score", t.score},
-                       {"weight", t.weight},
-                       {"note", t.note}});
-    }
-    json reaches = json::array();
-    for (const auto& r : ev.reaches) {
-      const PlanArm& arm = problem.arms()[r.arm];
-      json q = json::object();
-      for (std::size_t c = 0;
-           c < arm.q_indices.size() && c < static_cast<std::size_t>(r.q_arm.size()); ++c) {
-        q[robot.joint(robot.active_joints()[arm.q_indices[c]]).name] = r.q_arm[c];
-      }
-      json entry = {{"sample", r.sample}, {"arm", arm.name}, {"reached", r.reached}, {"q", q}};
-      if (arm.role == ArmRole::kEndoscope) {
-        entry["seen"] = r.seen;
-        entry["off_axis_deg"] = r.approach * 180 / M_PI;
-      } else {
-        entry["tip_error_m"] = r.tip_error;
-        entry["dexterity"] = r.dexterity;
-        entry["approach_deg"] = r.approach * 180 / M_PI;
-      }
-      if (!r.reached) entry["reason"] = r.reason;
-      reaches.push_back(entry);
-    }
-    json shifts = json::array();
-    for (const auto& s : plan.shifts) {
-      shifts.push_back({{"shift_P", Vec(s.d_P)},
-                        {"score", s.score},
-                        {"coverage", s.coverage},
-                        {"served", s.served}});
-    }
-    json served = json::array();
-    for (bool b : ev.served) served.push_back(b);
-    json views = json::array();
-    for (const auto& v : ev.views) {
-      views.push_back(
-          {{"arm", problem.arms()[v.arm].name}, {"frame", v.frame}, {"axis_F", Vec(v.axis_F)}});
-    }
-    const Eigen::Isometry3d X_WB = plan.placement.X_WB();
-    plans.push_back({{"rank", k + 1},
-                     {"status", ToString(ev.status)},
-                     {"score", ev.score},
-                     {"rank_score", plan.rank_score},
-                     {"robust_score", plan.robust_score},
-                     {"degradation", plan.degradation},
-                     {"collisions_at_nominal", ev.collisions},
-                     {"message", ev.message},
-                     {"ports", ports},
-                     {"views", views},
-                     {"cart",
-                      {{"x", plan.placement.cart_x},
-                       {"y", plan.placement.cart_y},
-                       {"yaw_deg", plan.placement.cart_yaw * 180 / M_PI},
-                       {"X_WB", Matrix(X_WB)}}},
-                     {"setup_joints", setup},
-                     {"q_nominal", nominal},
-                     {"terms", terms},
-                     {"served", served},
-                     {"samples", reaches},
-                     {"robustness", shifts}});
-  }
+  for (std::size_t k = 0; k < result.plans.size(); ++k)
+    plans.push_back(PlanEntry(problem, result.plans[k], static_cast<int>(k) + 1));
   doc["plans"] = plans;
+  if (!result.ports_given.empty())
+    doc["ports_given"] = {{"what", result.ports_given}, {"where", result.ports_where}};
+  // The baselines beside the optimised plans (the template, a surgeon's ports).
+  json baselines = json::array();
+  for (const Baseline& b : result.baselines) {
+    json entry = {{"kind", b.kind}, {"name", b.name}, {"placed", b.placed}};
+    if (!b.placed) {
+      entry["why_not"] = b.why_not;
+    } else {
+      const FixedPortsPlan& f = b.fixed;
+      entry["source"] = f.ports.source;
+      entry["where"] = f.ports.where;
+      entry["notes"] = f.ports.notes;
+      entry["search"] = f.search;
+      entry["evaluations"] = f.evaluations;
+      entry["verdict"] = {{"suitable", f.verdict.suitable},
+                          {"summary", f.verdict.summary},
+                          {"reasons", f.verdict.reasons}};
+      entry["plan"] = PlanEntry(problem, f.plan, 0);
+    }
+    baselines.push_back(entry);
+  }
+  doc["baselines"] = baselines;
   json convergence = json::array();
   for (const auto& p : result.trace) convergence.push_back(json::array({p.evaluations, p.best}));
   doc["convergence"] = convergence;

@@ -5,6 +5,7 @@
 #include <atomic>
 #include <thread>
 #include <iterator>
+#include <map>
 #include <array>
 #include <thread>
 #include <arpa/inet.h>
@@ -540,6 +541,19 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   const CommandRun check = Trocar("check --plan " + out + "/plan.json");
   EXPECT_EQ(check.exit_code, 0) << check.output;
   EXPECT_NE(check.output.find("all hold"), std::string::npos) << check.output;
+  // Beside the optimised plans, the TECAB template placed on this patient, scored and verified
+  // as they are (issue #41 item 3).
+  {
+    const nlohmann::json doc = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
+    ASSERT_EQ(doc.at("baselines").size(), 1u);
+    const auto& b = doc.at("baselines")[0];
+    EXPECT_EQ(b.at("kind"), "template");
+    ASSERT_TRUE(b.at("placed").get<bool>()) << b.dump();
+    EXPECT_EQ(b.at("plan").at("ports").size(), 3u);
+    EXPECT_TRUE(b.at("plan").contains("verification"));
+    EXPECT_TRUE(b.at("verdict").contains("verified"));
+    EXPECT_NE(plan.output.find("plan 1 against the template"), std::string::npos) << plan.output;
+  }
 
   // Move the cart 20 cm in the file: the RCMs leave their pivots.
   std::string text = ReadTextFile(out + "/plan.json");
@@ -755,6 +769,59 @@ TEST(TrocarVerify, AddsMotionsThatCheckConfirmsAndCatchesATamperedPath) {
   const CommandRun unknown = Trocar("verify " + out + "/plan.json --planner rrt-connect");
   EXPECT_EQ(unknown.exit_code, 1) << unknown.output;
   EXPECT_NE(unknown.output.find("rrtconnect"), std::string::npos) << unknown.output;
+}
+
+// `--ports template` plans the template's ports alone (the cart searched for them) and says so in
+// the plan file; `--ports FILE` takes a surgeon's point list (here the template's own ports, in
+// mm, labelled by arm) to the same spaces; a file without a point for an arm, or no such file, is
+// refused naming it, and nothing is written.
+TEST(TrocarPlan, GivenPortsArePlannedAsGivenAndABadPortsFileIsRefused) {
+  const std::string out = ::testing::TempDir() + "trocar_plan_ports";
+  std::filesystem::remove_all(out);
+  const std::string base = "plan " + test::SourcePath("patients/phantom-default") +
+                           " --polish-evaluations 10 --no-robustness --samples 2 --out ";
+  const CommandRun t = Trocar(base + out + "/template --ports template");
+  ASSERT_TRUE(t.exit_code == 0 || t.exit_code == 4) << t.output;
+  EXPECT_NE(t.output.find("ports given: template"), std::string::npos) << t.output;
+  const nlohmann::json doc = nlohmann::json::parse(ReadTextFile(out + "/template/plan.json"));
+  EXPECT_NE(doc.at("ports_given").at("what").get<std::string>().find("template"), std::string::npos);
+  ASSERT_EQ(doc.at("plans").size(), 1u);
+  nlohmann::json points = nlohmann::json::array();
+  std::map<std::string, std::string> space;
+  for (const auto& port : doc.at("plans")[0].at("ports")) {
+    const auto p = port.at("curve_P");
+    points.push_back({{"label", port.at("arm")},
+                      {"position", {p[0].get<double>() * 1e3, p[1].get<double>() * 1e3,
+                                    p[2].get<double>() * 1e3}}});
+    space[port.at("arm")] = port.at("candidate");
+  }
+  auto write = [&](const nlohmann::json& pts) {
+    const nlohmann::json file = {
+        {"markups",
+         {{{"type", "Fiducial"}, {"name", "mine"}, {"coordinateSystem", "LPS"},
+           {"coordinateUnits", "mm"}, {"controlPoints", pts}}}}};
+    WriteFileAtomically(out + "/mine.mrk.json", file.dump());
+    return out + "/mine.mrk.json";
+  };
+  const CommandRun mine = Trocar(base + out + "/mine --ports " + write(points));
+  ASSERT_TRUE(mine.exit_code == 0 || mine.exit_code == 4) << mine.output;
+  const nlohmann::json mine_doc = nlohmann::json::parse(ReadTextFile(out + "/mine/plan.json"));
+  EXPECT_NE(mine_doc.at("ports_given").at("what").get<std::string>().find("surgeon"),
+            std::string::npos);
+  for (const auto& port : mine_doc.at("plans")[0].at("ports"))
+    EXPECT_EQ(port.at("candidate"), space[port.at("arm")]) << port.dump();
+  nlohmann::json two = points;
+  const std::string dropped = two.back().at("label");
+  two.erase(two.size() - 1);
+  const CommandRun missing = Trocar(base + out + "/bad --ports " + write(two));
+  EXPECT_EQ(missing.exit_code, 1) << missing.output;
+  EXPECT_NE(missing.output.find("no point for arm " + dropped), std::string::npos) << missing.output;
+  EXPECT_NE(missing.output.find("mine.mrk.json"), std::string::npos) << missing.output;
+  EXPECT_FALSE(std::filesystem::exists(out + "/bad/plan.json"));
+  const CommandRun none = Trocar(base + out + "/bad --ports " + out + "/none.mrk.json");
+  EXPECT_EQ(none.exit_code, 1) << none.output;
+  EXPECT_NE(none.output.find("--ports"), std::string::npos) << none.output;
+  EXPECT_FALSE(std::filesystem::exists(out + "/bad/plan.json"));
 }
 
 TEST(TrocarPlan, BadOptionsAreRefusedNamingThem) {

@@ -291,7 +291,7 @@ TEST(OptimizePorts, APatientNoPlanCanServeGetsAVerdictWithTheReason) {
 
 // A phantom built so that only one intercostal port reaches the target: under the chest wall,
 // 10 mm below the ribs' level, a shield (a thin sheet, 16 cm across) with one hole of 12 mm
-// radius under the middle of one intercostal space (gap-L4, the fourth from the top: the phantom's nine ribs are not numbered); the target 12 mm beyond the hole.
+// radius under the middle of one intercostal space (ICS-L4, the fourth from the top: the case file counts the phantom's spaces from the 1st); the target 12 mm beyond the hole.
 // A shaft (4.2 mm radius) can reach the target only through the hole, so only from near that
 // point of that space. One instrument (psm1) is placed. The optimiser must find that space, for
 // several seeds; the premise is checked from the geometry for every other space.
@@ -302,7 +302,7 @@ TEST(OptimizePorts, FindsTheOnlyIntercostalPortThatReachesTheTarget) {
   const auto& candidates = Phantom()->port_candidates;
   int space = -1;
   for (std::size_t c = 0; c < candidates.size(); ++c) {
-    if (candidates[c].name == "gap-L4") space = static_cast<int>(c);
+    if (candidates[c].name == "ICS-L4") space = static_cast<int>(c);
   }
   ASSERT_GE(space, 0);
   const Eigen::Isometry3d X_PW = Phantom()->X_WP.inverse();
@@ -353,12 +353,12 @@ TEST(OptimizePorts, FindsTheOnlyIntercostalPortThatReachesTheTarget) {
     ASSERT_FALSE(result.plans.empty());
     const RankedPlan& best = result.plans.front();
     ASSERT_EQ(best.evaluation.status, PlacementStatus::kPlaced) << best.evaluation.message;
-    EXPECT_EQ(candidates[best.placement.sites[0].candidate].name, "gap-L4") << "seed " << seed;
+    EXPECT_EQ(candidates[best.placement.sites[0].candidate].name, "ICS-L4") << "seed " << seed;
     EXPECT_GT(best.evaluation.Find("coverage")->value, 0.5) << "seed " << seed;
     EXPECT_TRUE(result.verdict.suitable) << result.verdict.summary;
   }
   // The premise: a straight shaft from a pivot to the target passes the shield's plane inside the
-  // hole (less the shaft's radius) only from the middle of gap-L4.
+  // hole (less the shaft's radius) only from the middle of ICS-L4.
   const Eigen::Vector3d aim_P = target.points[1] + problem.options().standoff * target.normals[1];
   auto through_hole = [&](const Eigen::Vector3d& from_P) {
     const double a = (hole_P - from_P).dot(inward_P), b = (aim_P - from_P).dot(inward_P);

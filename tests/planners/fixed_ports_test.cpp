@@ -1,0 +1,251 @@
+// Ports given by a template or a surgeon (port_placement/fixed_ports.hpp), and their plans
+// (PlanFixedPorts): issue #41 item 3.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include "common/error.hpp"
+#include "patient/case_file.hpp"
+#include "patient/markups.hpp"
+#include "patient/patient_model.hpp"
+#include "port_placement/fixed_ports.hpp"
+#include "port_placement/optimizer.hpp"
+#include "robot/load_robot.hpp"
+#include "test_util.hpp"
+
+namespace trocar::planners {
+namespace {
+
+using test::SourcePath;
+
+std::shared_ptr<const robot::RobotModel> Cart() {
+  static auto cart = std::make_shared<const robot::RobotModel>(
+      robot::LoadRobot(SourcePath("robots/davinci-classic/cart.yaml")));
+  return cart;
+}
+
+std::shared_ptr<const patient::PatientModel> Phantom() {
+  static auto patient = std::make_shared<const patient::PatientModel>(
+      patient::ImportPatient(SourcePath("patients/phantom-default")));
+  return patient;
+}
+
+double Lateral(const ChestLines& lines, const Eigen::Vector3d& p_P) {
+  return (p_P.x() - lines.midline_x) * lines.side;
+}
+
+std::string Message(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// The chest's lines on the bundled phantom, whose skin is an ellipse across (semi-axes a, b
+// within the generator's 3 % jitter): the mid-axillary line at its side (a), the anterior axillary
+// line where its normal is 45 degrees between front and side (a^2 / sqrt(a^2 + b^2)), the
+// midclavicular line halfway to the side (to 1 cm: the skin is voxelised and decimated); ordered midline < MCL < AAL < MAL at every level the
+// spaces span. A line taken from the wrong normal (the back's 45 degrees, or the front) or the
+// skin's box would miss these by centimetres.
+TEST(FixedPorts, ChestLinesOnAnEllipticChestLieWhereItsGeometryPutsThem) {
+  const patient::PatientModel& m = *Phantom();
+  const double a = 0.17, b = 0.12;  // the generator's default body: 0.34 x 0.24 m
+  for (const auto& c : m.port_candidates) {
+    double z = 0.0;
+    for (const auto& p : c.skin) z += p.z();
+    z /= static_cast<double>(c.skin.size());
+    SCOPED_TRACE(c.name);
+    const ChestLines lines = ChestLinesAt(m, 1, z);
+    EXPECT_NEAR(lines.midline_x, 0.0, 0.01);
+    EXPECT_NEAR(lines.mal, a, 0.03 * a + 0.006);
+    // The AAL from the ellipse through the measured side (the decimated skin's facets scatter the
+    // 45-degree point by a few mm).
+    EXPECT_NEAR(lines.aal, lines.mal * lines.mal / std::hypot(lines.mal, b), 0.01);
+    EXPECT_NEAR(lines.mcl, 0.5 * lines.mal, 1e-12);
+    EXPECT_LT(lines.mcl, lines.aal);
+    EXPECT_LT(lines.aal, lines.mal);
+  }
+  EXPECT_NE(Message([&] { ChestLinesAt(m, 1, 5.0); }).find("no lateral face"), std::string::npos);
+}
+
+// The TECAB template on the bundled phantom (its spaces counted from the 1st in its case file):
+// the endoscope on ICS-L5 at the anterior axillary line, the instruments on ICS-L3 and ICS-L7
+// midway between it and the midclavicular line, each within 3 mm of its line at its level; both
+// assignments of the instrument ports to the two instrument arms are offered.
+TEST(FixedPorts, TheTecabTemplateLandsOnItsSpacesAndLines) {
+  const PortPlacementProblem problem(Phantom(), Cart(), {});
+  const std::vector<FixedPorts> variants = PlaceTemplate(problem, TecabTemplate());
+  ASSERT_EQ(variants.size(), 2u);
+  const auto& arms = problem.arms();
+  const auto& candidates = Phantom()->port_candidates;
+  for (const FixedPorts& v : variants) {
+    ASSERT_EQ(v.sites.size(), arms.size());
+    EXPECT_EQ(v.kind, "template");
+    std::vector<std::string> instrument_spaces;
+    for (std::size_t k = 0; k < arms.size(); ++k) {
+      const PortSite& site = v.sites[k];
+      const std::string& space = candidates[site.candidate].name;
+      const ChestLines lines = ChestLinesAt(*Phantom(), 1, site.p_curve_P.z());
+      const double offset = Lateral(lines, site.p_curve_P);
+      SCOPED_TRACE(arms[k].name + " on " + space);
+      EXPECT_NE(v.where[k].find(space), std::string::npos) << v.where[k];
+      if (arms[k].role == ArmRole::kEndoscope) {
+        EXPECT_EQ(space, "ICS-L5");
+        EXPECT_NEAR(offset, lines.aal, 0.003);
+      } else {
+        instrument_spaces.push_back(space);
+        EXPECT_NEAR(offset, 0.5 * (lines.aal + lines.mcl), 0.003);
+      }
+    }
+    std::sort(instrument_spaces.begin(), instrument_spaces.end());
+    EXPECT_EQ(instrument_spaces, (std::vector<std::string>{"ICS-L3", "ICS-L7"}));
+  }
+  // The two variants swap the instruments' ports.
+  for (std::size_t k = 0; k < arms.size(); ++k) {
+    if (arms[k].role == ArmRole::kInstrument) {
+      EXPECT_NE(variants[0].sites[k].candidate, variants[1].sites[k].candidate);
+    }
+  }
+}
+
+// Ribs the import cannot number give spaces "gap-L1", ...: the template is refused, naming the
+// space it needs, the spaces there are, and how to count them.
+TEST(FixedPorts, ATemplateOnUnnumberedSpacesIsRefusedSayingHowToCountThem) {
+  auto patient = std::make_shared<patient::PatientModel>(*Phantom());
+  int n = 0;
+  for (auto& c : patient->port_candidates) c.name = "gap-L" + std::to_string(++n);
+  const PortPlacementProblem problem(patient, Cart(), {});
+  const std::string m = Message([&] { PlaceTemplate(problem, TecabTemplate()); });
+  EXPECT_NE(m.find("needs ICS-L"), std::string::npos) << m;
+  EXPECT_NE(m.find("gap-L1"), std::string::npos) << m;
+  EXPECT_NE(m.find("count_from"), std::string::npos) << m;
+  // A plan of two instruments and one endoscope against a template of one scope and two
+  // instruments: matched by role; three instruments are not.
+  ProblemOptions three;
+  three.roles = {"ecm=instrument"};
+  const PortPlacementProblem wrong(Phantom(), Cart(), three);
+  const std::string r = Message([&] { PlaceTemplate(wrong, TecabTemplate()); });
+  EXPECT_NE(r.find("the plan's arms are"), std::string::npos) << r;
+}
+
+// The count_from field: a whole number 1 to 11, else refused naming it.
+TEST(FixedPorts, TheCaseFilesSpaceCountIsAWholeSpaceNumber) {
+  const std::string dir = testing::TempDir() + "/trocar-count-from";
+  std::filesystem::create_directories(dir);
+  for (const std::string bad : {"0", "2.5", "12", "-1", "three"}) {
+    std::ofstream(dir + "/patient.yaml")
+        << "name: c\nct: ct.nrrd\nphantom: {seed: 1}\nintercostal: {left: true, count_from: "
+        << bad << "}\n";
+    const std::string m = Message([&] { patient::ReadCase(dir); });
+    EXPECT_NE(m.find("intercostal.count_from"), std::string::npos) << bad << ": " << m;
+  }
+  std::ofstream(dir + "/patient.yaml")
+      << "name: c\nct: ct.nrrd\nphantom: {seed: 1}\nintercostal: {left: true, count_from: 2}\n";
+  EXPECT_EQ(patient::ReadCase(dir).intercostal.count_from, 2);
+}
+
+// A surgeon's ports file: each labelled point goes to the nearest middle of a space, the plan's
+// arms in its order whatever the file's; a missing arm, an unknown label, a second point for an
+// arm, a point off this patient's skin (another patient's frame) and a point far from every space
+// are refused, naming the file and the point.
+TEST(FixedPorts, ASurgeonsPortsFileIsPlacedOrRefusedNamingThePoint) {
+  const PortPlacementProblem problem(Phantom(), Cart(), {});
+  const auto& arms = problem.arms();
+  const std::vector<FixedPorts> t = PlaceTemplate(problem, TecabTemplate());
+  const std::string dir = testing::TempDir() + "/trocar-ports-file";
+  std::filesystem::create_directories(dir);
+  auto write = [&](const std::vector<std::pair<std::string, Eigen::Vector3d>>& points) {
+    patient::Markup m;
+    m.name = "surgeon";
+    m.type = "Fiducial";
+    for (const auto& [label, p] : points) {
+      m.labels.push_back(label);
+      m.points.push_back(p);
+    }
+    const std::string path = dir + "/ports.mrk.json";
+    patient::WriteMarkups({m}, path);
+    return path;
+  };
+  // The template's incisions, in reverse arm order, each 4 mm off along the body axis.
+  std::vector<std::pair<std::string, Eigen::Vector3d>> points;
+  for (int k = static_cast<int>(arms.size()) - 1; k >= 0; --k)
+    points.push_back({arms[k].name, t[0].sites[k].p_curve_P + Eigen::Vector3d(0, 0, 0.004)});
+  const FixedPorts given = ReadPortsFile(problem, write(points));
+  EXPECT_EQ(given.kind, "surgeon");
+  for (std::size_t k = 0; k < arms.size(); ++k) {
+    EXPECT_EQ(given.sites[k].candidate, t[0].sites[k].candidate) << arms[k].name;
+    EXPECT_LT((given.sites[k].p_curve_P - t[0].sites[k].p_curve_P).norm(), 0.004) << arms[k].name;
+    EXPECT_NE(given.where[k].find(Phantom()->port_candidates[t[0].sites[k].candidate].name),
+              std::string::npos);
+  }
+  auto refused = [&](std::vector<std::pair<std::string, Eigen::Vector3d>> p, const std::string& says,
+                     const std::string& names) {
+    const std::string m = Message([&] { ReadPortsFile(problem, write(p)); });
+    EXPECT_NE(m.find(says), std::string::npos) << m;
+    EXPECT_NE(m.find(names), std::string::npos) << m;
+    EXPECT_NE(m.find("ports.mrk.json"), std::string::npos) << m;
+  };
+  auto without_first = points;
+  without_first.erase(without_first.begin());
+  refused(without_first, "no point for arm", points.front().first);
+  auto unknown = points;
+  unknown[1].first = "psm3";
+  refused(unknown, "names no arm", "'psm3'");
+  auto twice = points;
+  twice.push_back({points[0].first, points[0].second});
+  refused(twice, "a second point for arm", points[0].first);
+  auto moved = points;  // another patient's frame: 6 cm off
+  moved[2].second += Eigen::Vector3d(0.06, 0.0, 0.0);
+  refused(moved, "from the patient's skin", "point 3");
+  // On the skin, at the back, far from every space.
+  auto back = points;
+  back[0].second = Eigen::Vector3d(0.0, Phantom()->body_max_P.y(), back[0].second.z());
+  const patient::Structure* skin = Phantom()->Find("skin");
+  double best = 1e9;
+  for (const auto& v : skin->mesh.vertices) {
+    if (std::abs(v.z() - back[0].second.z()) < 0.01 && std::abs(v.x()) < 0.02 &&
+        (v - back[0].second).norm() < best) {
+      best = (v - back[0].second).norm();
+      back[0].second = v;
+    }
+  }
+  refused(back, "ports go between the ribs", "point 1");
+}
+
+// The template's plan: its ports stay where the template put them; the cart is searched for
+// them; the plan is scored as the optimiser's are (its score is the problem's own evaluation of
+// its placement), and the same options give the same plan.
+TEST(FixedPorts, TheTemplatesPlanKeepsItsPortsAndIsScoredAsAnyPlan) {
+  const PortPlacementProblem problem(Phantom(), Cart(), {});
+  const std::vector<FixedPorts> variants = PlaceTemplate(problem, TecabTemplate());
+  PortPlacementOptions o;
+  o.threads = 2;
+  o.polish_evaluations = 20;
+  o.robustness_shift = 0.0;
+  const FixedPortsPlan a = PlanFixedPorts(problem, variants, o);
+  const FixedPortsPlan b = PlanFixedPorts(problem, variants, o);
+  ASSERT_EQ(a.plan.placement.sites.size(), problem.arms().size());
+  bool matches_a_variant = false;
+  for (const FixedPorts& v : variants) {
+    bool same = true;
+    for (std::size_t k = 0; k < v.sites.size(); ++k)
+      same = same && (v.sites[k].p_W - a.plan.placement.sites[k].p_W).norm() < 1e-12;
+    matches_a_variant = matches_a_variant || same;
+  }
+  EXPECT_TRUE(matches_a_variant);
+  EXPECT_EQ(a.plan.evaluation.score, b.plan.evaluation.score);
+  EXPECT_EQ(a.plan.placement.cart_x, b.plan.placement.cart_x);
+  EXPECT_EQ(a.plan.placement.cart_yaw, b.plan.placement.cart_yaw);
+  Workspace ws(problem);
+  EXPECT_NEAR(EvaluateFinalPlan(problem, a.plan.placement, &ws).score, a.plan.evaluation.score,
+              1e-12);
+  EXPECT_GT(a.evaluations, 2 * 12 * 3 * 3 - 1);
+  EXPECT_FALSE(a.verdict.summary.empty());
+}
+
+}  // namespace
+}  // namespace trocar::planners
