@@ -33,7 +33,8 @@ std::vector<ReplayFrame> ReplayMotion(const robot::RobotModel& robot, const robo
     const auto fk = kinematics::ForwardKinematics(robot, q, &frame.state);
     TROCAR_THROW_UNLESS(fk.ok(), "motion of " << motion.arm << " to sample " << motion.sample
                                             << ": " << fk.message);
-    if (collisions) frame.collisions = collisions->Check(frame.state, near_miss);
+    // On its way to its sample, the instrument's wrist and jaws may touch the organ there.
+    if (collisions) frame.collisions = collisions->Check(frame.state, near_miss, motion.sample);
     frames.push_back(std::move(frame));
   };
   const auto& w = motion.waypoints;

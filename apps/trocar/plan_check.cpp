@@ -142,12 +142,18 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
                                : depth(pivot_W);
       return track + world->options().port_radius;
     };
+    // The contact rule at the target (port_rules.hpp, kWorkSiteRadius): with `work_W` (the
+    // sample being worked on), each instrument's wrist and jaws may touch the organ there.
     auto collisions = [&](const robot::RobotState& state,
-                          const std::vector<Eigen::Vector3d>& pivots_W) {
+                          const std::vector<Eigen::Vector3d>& pivots_W,
+                          const Eigen::Vector3d* work_W = nullptr) {
       checker.SetRobotState(state);
+      checker.ClearWorkSites();
       for (std::size_t a = 0; a < world_port.size() && a < pivots_W.size(); ++a) {
-        if (world_port[a] >= 0)
-          checker.SetPortPosition(world_port[a], pivots_W[a], allowance(a, pivots_W[a]));
+        if (world_port[a] < 0) continue;
+        checker.SetPortPosition(world_port[a], pivots_W[a], allowance(a, pivots_W[a]));
+        if (work_W && field(arms[a], "role").get<std::string>() == "instrument")
+          checker.SetWorkSite(world_port[a], *work_W, planners::kWorkSiteRadius);
       }
       const collision::CollisionReport report = checker.Check();
       std::string text;
@@ -365,7 +371,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           if (off > ik_tolerance + kSlack)
             fail(where + "the shaft passes " + Mm(off) + " from its pivot");
         }
-        const auto [n, which] = collisions(state, pivots);
+        const auto [n, which] = collisions(state, pivots, &sample_points.at(sample));
         if (n > 0)
           fail(where + "claimed reached, but " + std::to_string(n) + " pairs collide: " + which);
       }
@@ -450,7 +456,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
             if (!limits.empty()) return limits.front();
             const auto f = kinematics::ForwardKinematics(*robot, state.q, &state);
             if (!f.ok()) return f.message;
-            const auto [n, which] = collisions(state, pivots);
+            const auto [n, which] = collisions(state, pivots, &sample_points.at(sample));
             return n > 0 ? "collision: " + which : std::string();
           };
           for (std::size_t k = 1; k < waypoints.size() && first_failure.empty(); ++k) {

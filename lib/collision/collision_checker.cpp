@@ -27,6 +27,8 @@ struct QueryData {
   const CollisionWorld::Impl* world = nullptr;
   const std::vector<Eigen::Vector3d>* port_W = nullptr;
   const std::vector<double>* port_radius = nullptr;
+  const std::vector<Eigen::Vector3d>* work_W = nullptr;
+  const std::vector<double>* work_radius = nullptr;
   unsigned mask = 0;
   bool stop_at_first = false;
   bool want_contacts = false;
@@ -42,6 +44,18 @@ int PortPair(const CollisionWorld::Impl& w, int a, int b) {
   if (A.port >= 0 && B.skin) return A.port;
   if (B.port >= 0 && A.skin) return B.port;
   return -1;
+}
+
+// If one of the bodies is an instrument's distal link (wrist, jaws) whose port has a work site,
+// and the other a patient structure that is not the skin: that port, else -1.
+int WorkPair(const CollisionWorld::Impl& w, const std::vector<double>& work_radius, int a, int b) {
+  const Body& A = w.bodies[a];
+  const Body& B = w.bodies[b];
+  const Body* robot = A.kind == Body::Kind::kRobot ? &A : &B;
+  const Body* other = robot == &A ? &B : &A;
+  if (!robot->distal || robot->port < 0 || other->kind != Body::Kind::kPatient || other->skin)
+    return -1;
+  return work_radius[robot->port] >= 0.0 ? robot->port : -1;
 }
 
 // Whether a pair of bodies (a < b) is to be tested: not an allowed pair, and of a class in `mask`.
@@ -117,8 +131,11 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
     if (d.stop_at_first) d.done = true;
     return d.done;
   }
+  // An exempt zone: the skin around the instrument's port, or the organ around its work site.
   const int port = PortPair(w, a, b);
-  fcl::CollisionRequestd request(port >= 0 ? kPortContacts : 1, port >= 0 || d.want_contacts);
+  const int work = port < 0 ? WorkPair(w, *d.work_radius, a, b) : -1;
+  const bool zone = port >= 0 || work >= 0;
+  fcl::CollisionRequestd request(zone ? kPortContacts : 1, zone || d.want_contacts);
   // FCL's own GJK: with libccd (the default) FCL missed shallow capsule–mesh contacts that its
   // distance query saw (tests/collision: ExactMeshQueriesAgreeWithFcl).
   request.gjk_solver_type = fcl::GST_INDEP;
@@ -129,10 +146,11 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
   contact.a = a;
   contact.b = b;
   contact.cls = cls;
-  if (port >= 0) {
-    // Touching the skin only within the port's radius is passing through the port.
-    const Eigen::Vector3d& p_W = (*d.port_W)[port];
-    const double r = (*d.port_radius)[port];
+  if (zone) {
+    // Touching the skin only within the port's radius is passing through the port; touching the
+    // organ only within the work site's radius is working there.
+    const Eigen::Vector3d& p_W = port >= 0 ? (*d.port_W)[port] : (*d.work_W)[work];
+    const double r = port >= 0 ? (*d.port_radius)[port] : (*d.work_radius)[work];
     bool outside = false;
     for (std::size_t i = 0; i < result.numContacts() && !outside; ++i) {
       const auto& c = result.getContact(i);
@@ -143,7 +161,7 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
       }
     }
     if (!outside) {
-      ++d.report.port_contacts_allowed;
+      ++(port >= 0 ? d.report.port_contacts_allowed : d.report.work_contacts_allowed);
       return false;
     }
   } else if (result.numContacts() > 0) {
@@ -158,6 +176,7 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
 
 struct DistanceData {
   const CollisionWorld::Impl* world = nullptr;
+  const std::vector<double>* work_radius = nullptr;
   unsigned mask = 0;
   int arm = -1;  ///< >= 0: only pairs with a body of this arm
   Clearance best;
@@ -207,7 +226,8 @@ bool DistancePair(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* ra
   int a = -1, b = -1;
   PairClass cls{};
   if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls) || !d.OfArm(a, b)) return false;
-  if (PortPair(*d.world, a, b) >= 0) return false;  // zero at the port by design
+  // Zero at the port, and at the work site, by design.
+  if (PortPair(*d.world, a, b) >= 0 || WorkPair(*d.world, *d.work_radius, a, b) >= 0) return false;
   Eigen::Vector3d p_a, p_b;
   const double distance = FclDistance(o1, o2, &p_a, &p_b);
   Keep(d, distance, a, b, cls, p_a, p_b);
@@ -249,6 +269,8 @@ struct CollisionChecker::State {
   const CollisionWorld::Impl* world = nullptr;
   std::vector<Eigen::Vector3d> port_W;
   std::vector<double> port_radius;
+  std::vector<Eigen::Vector3d> work_W;  // per port: its instrument's work site
+  std::vector<double> work_radius;      // per port; < 0: none
   struct Candidate {
     double lower_bound;
     int r, f;
@@ -299,6 +321,8 @@ CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
   }
   state_->port_W.resize(w.ports.size(), Eigen::Vector3d::Zero());
   state_->port_radius.assign(w.ports.size(), w.options.port_radius);
+  state_->work_W.assign(w.ports.size(), Eigen::Vector3d::Zero());
+  state_->work_radius.assign(w.ports.size(), -1.0);
 }
 
 CollisionChecker::~CollisionChecker() = default;
@@ -323,16 +347,18 @@ void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
       }
       const ShapeInMesh shape = InMesh(w, *o_r, r, f);
       const int port = PortPair(w, a, b);
-      const Eigen::Vector3d centre_M = port >= 0
-                                           ? Eigen::Vector3d(w.X_pose[f].inverse() * port_W[port])
-                                           : Eigen::Vector3d::Zero();
-      const double exclude = port >= 0 ? port_radius[port] : -1.0;
+      const int work = port < 0 ? WorkPair(w, work_radius, a, b) : -1;
+      const Eigen::Vector3d centre_M =
+          port >= 0   ? Eigen::Vector3d(w.X_pose[f].inverse() * port_W[port])
+          : work >= 0 ? Eigen::Vector3d(w.X_pose[f].inverse() * work_W[work])
+                      : Eigen::Vector3d::Zero();
+      const double exclude = port >= 0 ? port_radius[port] : work >= 0 ? work_radius[work] : -1.0;
       const SweptSphereContact hit =
           fast == Convex::Kind::kSweptSphere
               ? w.mesh[f]->Touches(shape.a_M, shape.b_M, w.convex[r].radius, centre_M, exclude)
               : w.mesh[f]->BoxTouches(shape.X_MG, w.convex[r].half, centre_M, exclude);
       if (!hit.outside) {
-        if (hit.excluded) ++d.report.port_contacts_allowed;
+        if (hit.excluded) ++(port >= 0 ? d.report.port_contacts_allowed : d.report.work_contacts_allowed);
         continue;
       }
       Contact contact;
@@ -361,7 +387,9 @@ void CollisionChecker::State::DistanceRobotFixed(DistanceData& d) {
     for (int f : w.fixed_bodies) {
       PairClass cls{};
       const int a = std::min(r, f), b = std::max(r, f);
-      if (!ScreenPair(w, d.mask, a, b, &cls) || PortPair(w, a, b) >= 0 || !d.OfArm(a, b)) continue;
+      if (!ScreenPair(w, d.mask, a, b, &cls) || PortPair(w, a, b) >= 0 ||
+          WorkPair(w, *d.work_radius, a, b) >= 0 || !d.OfArm(a, b))
+        continue;
       const Convex::Kind fast = FastPath(w, r, f);
       if (fast == Convex::Kind::kOther) {
         others.push_back({AabbDistance(o_r->getAABB(), objects[f]->getAABB()), r, f});
@@ -451,6 +479,20 @@ void CollisionChecker::SetPortPosition(int port, const Eigen::Vector3d& p_W, dou
 
 double CollisionChecker::port_radius(int port) const { return state_->port_radius.at(port); }
 
+void CollisionChecker::SetWorkSite(int port, const Eigen::Vector3d& p_W, double radius) {
+  TROCAR_THROW_UNLESS(port >= 0 && port < static_cast<int>(state_->work_W.size()),
+                      "collision checker: port " << port << " does not exist ("
+                                                 << state_->work_W.size() << " ports)");
+  TROCAR_THROW_UNLESS(p_W.allFinite() && std::isfinite(radius),
+                      "collision checker: work site is not finite");
+  state_->work_W[port] = p_W;
+  state_->work_radius[port] = radius;
+}
+
+void CollisionChecker::ClearWorkSites() {
+  std::fill(state_->work_radius.begin(), state_->work_radius.end(), -1.0);
+}
+
 const Eigen::Vector3d& CollisionChecker::port_position(int port) const {
   return state_->port_W.at(port);
 }
@@ -460,6 +502,8 @@ bool CollisionChecker::InCollision(unsigned mask) {
   d.world = &world_->impl();
   d.port_W = &state_->port_W;
   d.port_radius = &state_->port_radius;
+  d.work_W = &state_->work_W;
+  d.work_radius = &state_->work_radius;
   d.mask = mask;
   d.stop_at_first = true;
   state_->Collide(d);
@@ -471,6 +515,8 @@ CollisionReport CollisionChecker::Check(unsigned mask) {
   d.world = &world_->impl();
   d.port_W = &state_->port_W;
   d.port_radius = &state_->port_radius;
+  d.work_W = &state_->work_W;
+  d.work_radius = &state_->work_radius;
   d.mask = mask;
   d.want_contacts = true;
   state_->Collide(d);
@@ -487,6 +533,7 @@ Clearance CollisionChecker::MinimumDistance(unsigned mask, int arm) {
                           << ToString(w.options.bvh) << ")");
   DistanceData d;
   d.world = &w;
+  d.work_radius = &state_->work_radius;
   d.mask = mask;
   d.arm = arm;
   if (state_->robot_tree.size() == 0) return d.best;

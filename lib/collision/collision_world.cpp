@@ -210,6 +210,26 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
       w.bodies.push_back(b);
     }
   }
+  // Each instrument's distal links (wrist and jaws): within distal_reach of its deepest links,
+  // at the robot's rest configuration.
+  if (w.ports.empty()) return;
+  robot::RobotState rest(model);
+  if (!kinematics::ForwardKinematics(model, rest.q, &rest).ok()) kinematics::ForwardKinematics(model, &rest);
+  std::vector<char> distal(model.num_links(), 0);
+  for (const auto& port : w.ports) {
+    std::vector<int> leaves;
+    for (int l : port.links)
+      if (model.link(l).child_joints.empty()) leaves.push_back(l);
+    for (int l : port.links) {
+      for (int leaf : leaves) {
+        if ((rest.X_WL[l].translation() - rest.X_WL[leaf].translation()).norm() <=
+            w.options.distal_reach)
+          distal[l] = 1;
+      }
+    }
+  }
+  for (Body& b : w.bodies)
+    if (b.kind == Body::Kind::kRobot && b.link >= 0 && b.port >= 0) b.distal = distal[b.link] != 0;
 }
 
 void AddFixedMesh(CollisionWorld::Impl& w, const std::string& name, const TriangleMesh& mesh,

@@ -63,6 +63,10 @@ struct Body {
   int link = -1;       ///< robot link index (robot bodies)
   int arm = -1;        ///< robot: index into CollisionWorld::arms(); -1 for the robot's base link
   int port = -1;       ///< robot: the port its link passes through (an instrument link), else -1
+  /// robot: an instrument's wrist or jaws (an instrument link whose origin lies within
+  /// WorldOptions::distal_reach of one of the instrument's deepest links at rest): it may touch the
+  /// patient at its port's work site (CollisionChecker::SetWorkSite).
+  bool distal = false;
   bool skin = false;   ///< the patient's skin (where ports are)
   long triangles = 0;  ///< mesh bodies
 };
@@ -84,6 +88,9 @@ struct WorldOptions {
   BvhKind bvh = BvhKind::kObbRss;
   /// Contacts between an instrument and the skin within this distance of its port are allowed.
   double port_radius = 0.015;  ///< m
+  /// An instrument's distal links (its wrist and jaws): those within this distance of its deepest
+  /// links at rest (m). The EndoWrist's wrist lies about 1 cm behind its jaws' tips.
+  double distal_reach = 0.02;
   /// Ports: robot frames at the RCMs; empty: every frame whose name ends in "rcm" whose link has
   /// a prismatic (insertion) joint below it.
   std::vector<std::string> port_frames;
@@ -181,6 +188,7 @@ struct CollisionReport {
   bool collision = false;
   std::vector<Contact> contacts;  ///< one per body pair, in body order
   int port_contacts_allowed = 0;  ///< instrument–skin pairs touching only at their port
+  int work_contacts_allowed = 0;  ///< wrist/jaw–organ pairs touching only at their work site
 };
 
 /// Minimum distance between two bodies with witness points.
@@ -210,6 +218,14 @@ class CollisionChecker {
   void SetPortPosition(int port, const Eigen::Vector3d& p_W, double radius = -1.0);
   const Eigen::Vector3d& port_position(int port) const;
   double port_radius(int port) const;
+  /// The work site of a port's instrument: its distal links (Body::distal: wrist and jaws) may
+  /// touch the patient's structures other than the skin within `radius` of `p_W` (the target they
+  /// work on: the LAD lies on the heart, and reaching it is touching the heart there;
+  /// docs/decisions.md, "contact rules"). Every other contact of the instrument stays a collision.
+  /// `radius` < 0 clears it (the default: no work site). Kept until set again.
+  void SetWorkSite(int port, const Eigen::Vector3d& p_W, double radius);
+  /// Clears every port's work site.
+  void ClearWorkSites();
 
   /// Yes/no, stopping at the first collision among the classes in `mask`.
   bool InCollision(unsigned mask = kAllMovingPairs);

@@ -125,6 +125,70 @@ SetupJointResult SolveSetupJoints(const robot::RobotModel& model, const robot::R
     Evaluation current;
     if (!evaluate(x, &current)) continue;
     double lambda = 1e-3;
+    if (with_axis && options.axis_secondary) {
+      // Lexicographic: each step reduces the position error (damped least squares on the
+      // position rows) and turns the axis within the null space of the position's Jacobian; a
+      // step is kept when it does not lose the port (position within tolerance, or better) and
+      // lowers the axis error or the position error.
+      auto better = [&](const Evaluation& t, const Evaluation& c) {
+        const bool t_at = t.position_error <= options.position_tolerance;
+        const bool c_at = c.position_error <= options.position_tolerance;
+        if (t_at != c_at) return t_at;
+        if (!t_at) return t.position_error < c.position_error;
+        return t.angle_error < c.angle_error - 1e-12;
+      };
+      for (int it = 0; it < options.max_iterations && !good_enough(current); ++it) {
+        const Eigen::MatrixXd Jp = current.jacobian.topRows<3>();
+        const Eigen::MatrixXd Ja = current.jacobian.bottomRows<3>();
+        const Eigen::Vector3d rp = current.residual.head<3>(), ra = current.residual.tail<3>();
+        Eigen::MatrixXd JJt = Jp * Jp.transpose();
+        JJt.diagonal().array() += lambda;
+        const Eigen::MatrixXd Jp_pinv = Jp.transpose() * JJt.ldlt().solve(Eigen::Matrix3d::Identity());
+        const Eigen::VectorXd dq_p = -Jp_pinv * rp;
+        Eigen::VectorXd dq = dq_p;
+        if (current.position_error <= options.position_tolerance) {
+          // At the port: turn the axis within the position's null space (exact projector).
+          const Eigen::MatrixXd N =
+              Eigen::MatrixXd::Identity(n, n) -
+              Jp.completeOrthogonalDecomposition().pseudoInverse() * Jp;
+          const Eigen::MatrixXd JaN = Ja * N;
+          Eigen::MatrixXd KKt = JaN * JaN.transpose();
+          KKt.diagonal().array() += lambda;
+          dq += N * JaN.transpose() * KKt.ldlt().solve(-ra - Ja * dq_p);
+        }
+        Eigen::VectorXd candidate = clamp(x + dq);
+        Evaluation trial;
+        bool ok = evaluate(candidate, &trial);
+        // Back onto the port after a turn (the null space is the linearised one): a few
+        // Gauss-Newton steps on the position alone.
+        for (int k = 0; ok && k < 5 && trial.position_error > 0.1 * options.position_tolerance &&
+                        current.position_error <= options.position_tolerance;
+             ++k) {
+          const Eigen::MatrixXd Jt = trial.jacobian.topRows<3>();
+          Eigen::MatrixXd M = Jt * Jt.transpose();
+          M.diagonal().array() += 1e-9;
+          candidate = clamp(candidate - Jt.transpose() * M.ldlt().solve(trial.residual.head<3>()));
+          ok = evaluate(candidate, &trial);
+        }
+        if (ok && better(trial, current)) {
+          x = candidate;
+          current = trial;
+          lambda = std::max(lambda / 3.0, 1e-12);
+        } else {
+          lambda *= 4.0;
+          if (lambda > 1e8) break;
+        }
+      }
+      current.cost = current.position_error <= options.position_tolerance
+                         ? current.angle_error
+                         : 10.0 + current.position_error;  // at the port first
+      if (current.cost < best.cost) {
+        best = current;
+        best_values = x;
+      }
+      if (good_enough(best)) break;
+      continue;
+    }
     for (int it = 0; it < options.max_iterations && !good_enough(current); ++it) {
       const Eigen::MatrixXd JtJ = current.jacobian.transpose() * current.jacobian;
       const Eigen::VectorXd g = current.jacobian.transpose() * current.residual;

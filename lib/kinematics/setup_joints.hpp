@@ -40,6 +40,11 @@ struct SetupJointOptions {
   double angle_tolerance = 0.1 * M_PI / 180.0;    ///< rad (0.1 deg)
   /// Metres that weigh as much as one radian of axis error in the least-squares cost.
   double length_scale = 0.2;
+  /// With an axis: the position first and the axis as near as the position allows (each step's
+  /// axis part projected into the null space of the position's Jacobian), instead of the
+  /// weighted compromise. For an arm whose setup joints cannot both reach the port and aim
+  /// there: at the port, aimed as near as they can.
+  bool axis_secondary = false;
 };
 
 struct SetupJointResult {

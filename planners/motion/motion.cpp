@@ -300,6 +300,10 @@ MotionContext::MotionContext(const MotionProblem& problem)
 
 MotionContext::~MotionContext() = default;
 
+void MotionContext::SetPorts() {
+  problem_.problem().SetPorts(problem_.placement(), checker_.get(), has_work_ ? &work_W_ : nullptr);
+}
+
 bool MotionContext::Valid(const Eigen::VectorXd& q, std::string* why) {
   ++checks_;
   const robot::RobotModel& robot = problem_.problem().robot();
@@ -320,7 +324,7 @@ bool MotionContext::Valid(const Eigen::VectorXd& q, std::string* why) {
     return false;
   }
   checker_->SetRobotState(state_);
-  problem_.problem().SetPorts(problem_.placement(), checker_.get());
+  SetPorts();
   if (!checker_->InCollision()) return true;
   if (why) {
     const auto report = checker_->Check();
@@ -336,7 +340,7 @@ double MotionContext::Clearance(const Eigen::VectorXd& q) {
   const robot::RobotModel& robot = problem_.problem().robot();
   if (!kinematics::ForwardKinematics(robot, q, &state_).ok()) return 0.0;
   checker_->SetRobotState(state_);
-  problem_.problem().SetPorts(problem_.placement(), checker_.get());
+  SetPorts();
   const collision::Clearance c = checker_->MinimumDistance();
   return c.valid() ? c.distance : std::numeric_limits<double>::infinity();
 }
@@ -423,6 +427,14 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
     return v;
   };
   const std::uint32_t seed = QuerySeed(options.seed, arm_index, sample_index);
+  // The instruments work on this sample: their wrist and jaws may touch the organ there, for the
+  // whole query (the start, the goals, the path and its re-check).
+  has_work_ = true;
+  work_W_ = problem.samples()[sample_index].p_W;
+  struct ClearWork {
+    bool* flag;
+    ~ClearWork() { *flag = false; }
+  } clear_work{&has_work_};
 
   // The start: the arm at its nominal pose.
   const Eigen::VectorXd start = arm_q(problem_.q_start());

@@ -156,6 +156,11 @@ class MotionContext {
   robot::RobotState state_;
   std::unique_ptr<collision::CollisionChecker> checker_;
   long checks_ = 0;
+  /// The target sample the instruments work on during a Plan (their wrist and jaws may touch
+  /// the organ there: port_rules.hpp, kWorkSiteRadius); none outside one.
+  bool has_work_ = false;
+  Eigen::Vector3d work_W_ = Eigen::Vector3d::Zero();
+  void SetPorts();
 };
 
 }  // namespace trocar::planners

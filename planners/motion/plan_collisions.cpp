@@ -51,14 +51,23 @@ PlanCollisions::PlanCollisions(const patient::PatientModel& patient,
   }
   pivots_.reserve(plan.ports.size());
   for (const StoredPort& port : plan.ports) pivots_.push_back(port.rcm_W);
+  for (const StoredSample& s : file.samples) samples_W_.push_back(s.p_W);
+  for (const StoredArm& arm : file.arms) instrument_.push_back(arm.role == "instrument");
 }
 
 PlanCollisions::~PlanCollisions() = default;
 
-void PlanCollisions::SetState(const robot::RobotState& state) {
+void PlanCollisions::SetState(const robot::RobotState& state, int work_sample) {
+  TROCAR_THROW_UNLESS(work_sample < static_cast<int>(samples_W_.size()),
+                      "plan collisions: target sample " << work_sample << " of "
+                                                        << samples_W_.size());
   checker_->SetRobotState(state);
-  for (std::size_t a = 0; a < port_of_arm_.size(); ++a)
+  checker_->ClearWorkSites();
+  for (std::size_t a = 0; a < port_of_arm_.size(); ++a) {
     checker_->SetPortPosition(port_of_arm_[a], pivots_[a], allowance_[a]);
+    if (work_sample >= 0 && instrument_[a])
+      checker_->SetWorkSite(port_of_arm_[a], samples_W_[work_sample], kWorkSiteRadius);
+  }
 }
 
 std::vector<collision::Clearance> PlanCollisions::ArmsNearest(const robot::RobotState& state,
@@ -92,8 +101,9 @@ std::string PlanCollisions::PairName(const collision::Clearance& c) const {
   return world_->bodies()[c.a].name + " - " + world_->bodies()[c.b].name;
 }
 
-PoseCollisions PlanCollisions::Check(const robot::RobotState& state, double near_miss) {
-  SetState(state);
+PoseCollisions PlanCollisions::Check(const robot::RobotState& state, double near_miss,
+                                     int work_sample) {
+  SetState(state, work_sample);
   PoseCollisions out;
   const auto& bodies = world_->bodies();
   auto add_link = [&](std::vector<int>* links, int body) {

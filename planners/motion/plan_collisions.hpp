@@ -36,8 +36,11 @@ class PlanCollisions {
   ~PlanCollisions();
 
   /// The robot at `state` (forward kinematics done). `near_miss` (m): how close counts as a near
-  /// miss.
-  PoseCollisions Check(const robot::RobotState& state, double near_miss = 0.005);
+  /// miss. `work_sample` >= 0 (an index into the plan's target samples): the instruments work on
+  /// that sample, their wrist and jaws may touch the organ there (port_rules.hpp,
+  /// kWorkSiteRadius), as on a motion to it.
+  PoseCollisions Check(const robot::RobotState& state, double near_miss = 0.005,
+                       int work_sample = -1);
 
   /// For each link in `arm_links` (a link of an arm, e.g. its tool's), that arm's nearest
   /// approach at `state` to anything it may not touch (its own links aside), with witness points,
@@ -54,8 +57,10 @@ class PlanCollisions {
   std::vector<int> port_of_arm_;
   std::vector<double> allowance_;
   std::vector<Eigen::Vector3d> pivots_;
+  std::vector<Eigen::Vector3d> samples_W_;
+  std::vector<char> instrument_;  ///< per arm
   std::shared_ptr<const robot::RobotModel> robot_;
-  void SetState(const robot::RobotState& state);
+  void SetState(const robot::RobotState& state, int work_sample = -1);
 };
 
 }  // namespace trocar::planners

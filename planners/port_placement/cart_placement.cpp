@@ -92,9 +92,11 @@ CartPlacementResult PlaceCart(const robot::RobotModel& cart, const CartPlacement
     // joints, all but one vertical) keeps the nearest direction, and its own joints aim the rest.
     const bool at_port = solved.position_error <= suj_options.position_tolerance;
     if (!at_port && suj.axis_W) {
-      auto position_only = suj;
-      position_only.axis_W.reset();
-      const auto retry = kinematics::SolveSetupJoints(cart, *state, position_only, suj_options);
+      // At the port first, aimed as near as the setup joints allow (not the position alone:
+      // an RCM turned anywhere leaves the arm's own joints at their limits).
+      auto port_first = suj_options;
+      port_first.axis_secondary = true;
+      const auto retry = kinematics::SolveSetupJoints(cart, *state, suj, port_first);
       if (retry.position_error < solved.position_error) solved = retry;
     }
     const bool placed = solved.position_error <= suj_options.position_tolerance;

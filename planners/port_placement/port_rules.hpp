@@ -25,4 +25,12 @@ inline double PortTrackLength(double pivot_depth, const Eigen::Vector3d& pivot,
   return std::max(pivot_depth, (incision - pivot).norm());
 }
 
+/// The contact rule at the target (docs/decisions.md, "contact rules"): an instrument's wrist and
+/// jaws (collision::Body::distal) may touch the patient's structures other than the skin within
+/// this distance of the target point they work on (m): the LAD lies on the heart, so grasping or
+/// sewing it touches the heart there, and the LIMA lies on the chest wall's inner face. The
+/// EndoWrist's jaws and wrist span about 1 cm; half a centimetre more for the tissue they press.
+/// The shaft touching the heart, and the wrist touching it anywhere else, stay collisions.
+constexpr double kWorkSiteRadius = 0.015;
+
 }  // namespace trocar::planners

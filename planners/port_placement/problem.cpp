@@ -383,11 +383,15 @@ std::string PortPlacementProblem::SolveReach(int a, const Placement& placement,
 }
 
 void PortPlacementProblem::SetPorts(const Placement& placement,
-                                    collision::CollisionChecker* checker) const {
+                                    collision::CollisionChecker* checker,
+                                    const Eigen::Vector3d* work_W) const {
+  checker->ClearWorkSites();
   for (std::size_t a = 0; a < arms_.size() && a < placement.sites.size(); ++a) {
-    if (world_port_[a] >= 0)
-      checker->SetPortPosition(world_port_[a], placement.sites[a].p_rcm_W,
-                               placement.sites[a].skin_allowance);
+    if (world_port_[a] < 0) continue;
+    checker->SetPortPosition(world_port_[a], placement.sites[a].p_rcm_W,
+                             placement.sites[a].skin_allowance);
+    if (work_W && arms_[a].role == ArmRole::kInstrument)
+      checker->SetWorkSite(world_port_[a], *work_W, kWorkSiteRadius);
   }
 }
 
@@ -863,7 +867,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
         continue;
       }
       checker.SetRobotState(state);
-      SetPorts(placement, &checker);
+      SetPorts(placement, &checker, &samples[s].p_W);  // the jaws may touch the organ there
       if (checker.InCollision(how.sample_mask & collision::kAllMovingPairs)) {
         if (detailed) {
           const auto report = checker.Check(how.sample_mask & collision::kAllMovingPairs);

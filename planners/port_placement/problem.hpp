@@ -253,8 +253,11 @@ class PortPlacementProblem {
                          robot::RobotState* state) const;
 
   /// Puts the collision checker's ports (where instruments may touch the skin) at the sites'
-  /// pivots with their skin allowances; call after every CollisionChecker::SetRobotState.
-  void SetPorts(const Placement& placement, collision::CollisionChecker* checker) const;
+  /// pivots with their skin allowances; call after every CollisionChecker::SetRobotState. With a
+  /// `work_W` (the target point the instruments work on), each instrument's wrist and jaws may
+  /// touch the organ there (kWorkSiteRadius, port_rules.hpp); without, nowhere.
+  void SetPorts(const Placement& placement, collision::CollisionChecker* checker,
+                const Eigen::Vector3d* work_W = nullptr) const;
 
  private:
   std::vector<int> world_port_;  // per arm: index of its port in the collision world

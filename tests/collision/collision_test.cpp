@@ -235,6 +235,80 @@ TEST(CollisionWorld, AShaftThroughItsPortIsFreeAndTheSameShaftHittingARibCollide
   EXPECT_TRUE(holder_hit);
 }
 
+// The contact rule at the target (docs/decisions.md, "contact rules"): an instrument's wrist and
+// jaws (its distal links: within 2 cm of its deepest link at rest; not its shaft) may touch an
+// organ within the work site's radius of the target they work on; anywhere else, or with no work
+// site, or with the shaft, the same contact is a collision. The organ's top is 15 cm down, the
+// target on it below the port.
+TEST(CollisionWorld, TheJawsMayTouchTheOrganAtTheirWorkSiteAndNowhereElse) {
+  const auto model = RobotFromYaml("wrist", R"(name: instrument
+links:
+  - name: base
+  - name: slide
+  - name: holder
+  - name: shaft
+    collision: [{shape: capsule, radius: 0.004, length: 0.1, xyz: [0, 0, -0.05]}]
+  - name: wrist
+    collision: [{shape: capsule, radius: 0.003, length: 0.008, xyz: [0, 0, -0.004]}]
+  - name: jaw
+    collision: [{shape: capsule, radius: 0.002, length: 0.006, xyz: [0, 0, -0.003]}]
+joints:
+  - {name: move_x, type: prismatic, parent: base, child: slide, axis: [1, 0, 0], limits: {lower: -1, upper: 1}}
+  - {name: tilt, type: revolute, parent: slide, child: holder, axis: [0, 1, 0], limits: {lower: -1.5, upper: 1.5}}
+  - {name: insertion, type: prismatic, parent: holder, child: shaft, axis: [0, 0, -1], limits: {lower: 0, upper: 0.1}}
+  - {name: wrist_pitch, type: revolute, parent: shaft, child: wrist, origin: {xyz: [0, 0, -0.1]}, axis: [0, 1, 0], limits: {lower: -1.5, upper: 1.5}}
+  - {name: grip, type: revolute, parent: wrist, child: jaw, origin: {xyz: [0, 0, -0.008]}, axis: [0, 1, 0], limits: {lower: -1, upper: 1}}
+rcm: {link: holder}
+)");
+  std::vector<CollisionWorld::FixedMesh> meshes = {
+      {"skin", BoxMesh({-0.2, -0.2, -0.3}, {0.2, 0.2, 0.0}), Eigen::Isometry3d::Identity(), true, true},
+      {"heart", BoxMesh({-0.1, -0.1, -0.25}, {0.1, 0.1, -0.15}), Eigen::Isometry3d::Identity(), false, true}};
+  const auto world = CollisionWorld::Build(meshes, model);
+  const int shaft = world->FindBody("shaft"), wrist = world->FindBody("wrist"),
+            jaw = world->FindBody("jaw"), heart = world->FindBody("heart");
+  EXPECT_FALSE(world->bodies()[shaft].distal);
+  EXPECT_TRUE(world->bodies()[wrist].distal);
+  EXPECT_TRUE(world->bodies()[jaw].distal);
+  CollisionChecker checker(world);
+  auto pose = [&](double insertion) {
+    robot::RobotState state(*model);
+    Eigen::VectorXd q(5);
+    q << 0, 0, insertion, 0, 0;
+    EXPECT_TRUE(kinematics::ForwardKinematics(*model, q, &state).ok());
+    return state;
+  };
+  const Eigen::Vector3d target(0, 0, -0.15);
+  // The jaws 2 mm into the organ at the target.
+  checker.SetRobotState(pose(0.036));
+  auto report = checker.Check();
+  ASSERT_TRUE(report.collision);  // no work site: a collision
+  EXPECT_EQ(report.contacts[0].a, jaw);
+  EXPECT_EQ(report.contacts[0].b, heart);
+  checker.SetWorkSite(0, target, 0.015);
+  report = checker.Check();
+  EXPECT_FALSE(report.collision);
+  EXPECT_EQ(report.work_contacts_allowed, 1);
+  EXPECT_FALSE(checker.InCollision());
+  // Its distance to the organ at the work site is not a clearance (zero there by design).
+  const auto clear = checker.MinimumDistance(Bit(PairClass::kInstrumentPatient));
+  EXPECT_TRUE(!clear.valid() || (clear.a != jaw && clear.a != wrist)) << clear.a;
+  // The work site 5 cm away: the same contact is a collision.
+  checker.SetWorkSite(0, target + Eigen::Vector3d(0.05, 0, 0), 0.015);
+  EXPECT_TRUE(checker.InCollision());
+  // Cleared: a collision again.
+  checker.SetWorkSite(0, target, 0.015);
+  checker.ClearWorkSites();
+  EXPECT_TRUE(checker.InCollision());
+  // Deeper: the shaft reaches the organ too; the shaft may not, whatever the work site.
+  checker.SetRobotState(pose(0.048));
+  checker.SetWorkSite(0, target, 0.015);
+  report = checker.Check();
+  ASSERT_TRUE(report.collision);
+  ASSERT_EQ(report.contacts.size(), 1u);
+  EXPECT_EQ(report.contacts[0].a, shaft);
+  EXPECT_THROW(checker.SetWorkSite(1, target, 0.015), Error);
+}
+
 TEST(CollisionWorld, DegenerateMeshesAreRejectedByName) {
   auto message = [](TriangleMesh mesh) {
     try {

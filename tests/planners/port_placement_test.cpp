@@ -290,8 +290,9 @@ TEST(OptimizePorts, APatientNoPlanCanServeGetsAVerdictWithTheReason) {
 }
 
 // A phantom built so that only one intercostal port reaches the target: under the chest wall,
-// 10 mm below the ribs' level, a shield (a thin sheet, 16 cm across) with one hole of 12 mm
-// radius under the middle of one intercostal space (ICS-L4, the fourth from the top: the case file counts the phantom's spaces from the 1st); the target 12 mm beyond the hole.
+// 10 mm below the ribs' level, a shield (a thin sheet, 16 cm across) with one hole of 9 mm
+// radius under the middle of one intercostal space (ICS-L4, the fourth from the top: the case file
+// counts the phantom's spaces from the 1st); the target 35 mm beyond the hole.
 // A shaft (4.2 mm radius) can reach the target only through the hole, so only from near that
 // point of that space. One instrument (psm1) is placed. The optimiser must find that space, for
 // several seeds; the premise is checked from the geometry for every other space.
@@ -311,7 +312,11 @@ TEST(OptimizePorts, FindsTheOnlyIntercostalPortThatReachesTheTarget) {
       -patient::NearestSurfaceNormal(Phantom()->Find("skin")->mesh,
                                      base.Site(space, 0.5).p_curve_P);
   const Eigen::Vector3d hole_P = pivot_P + 0.010 * inward_P;
-  const double hole_radius = 0.012, shield_radius = 0.08;
+  const double hole_radius = 0.009, shield_radius = 0.08;
+  // The target this far beyond the hole: deeper than the instrument's wrist and jaws reach
+  // (19 mm on the PSM) past the 5 mm standoff, so that the shaft itself must pass the hole (with
+  // the target 12 mm beyond a 12 mm hole, a bent wrist alone went through it from the next space).
+  const double kBeyond = 0.035, kWristReach = 0.0191;
   auto patient = std::make_shared<patient::PatientModel>(*Phantom());
   {
     patient::Structure shield;
@@ -338,7 +343,7 @@ TEST(OptimizePorts, FindsTheOnlyIntercostalPortThatReachesTheTarget) {
   const Eigen::Vector3d along =
       (candidates[space].skin.back() - candidates[space].skin.front()).normalized();
   for (double d : {-0.003, 0.0, 0.003}) {
-    target.points.push_back(hole_P + 0.012 * inward_P + d * along);
+    target.points.push_back(hole_P + kBeyond * inward_P + d * along);
     target.normals.push_back(-inward_P);  // facing the hole
   }
   target.normals_from = "test";
@@ -357,13 +362,26 @@ TEST(OptimizePorts, FindsTheOnlyIntercostalPortThatReachesTheTarget) {
     EXPECT_GT(best.evaluation.Find("coverage")->value, 0.5) << "seed " << seed;
     EXPECT_TRUE(result.verdict.suitable) << result.verdict.summary;
   }
-  // The premise: a straight shaft from a pivot to the target passes the shield's plane inside the
-  // hole (less the shaft's radius) only from the middle of ICS-L4.
+  // The premise: a shaft from a pivot to the wrist (any point within the wrist's reach of the
+  // aim, beyond the shield) passes the shield's plane inside the hole (less the shaft's radius)
+  // only from near the middle of ICS-L4.
   const Eigen::Vector3d aim_P = target.points[1] + problem.options().standoff * target.normals[1];
+  const Eigen::Vector3d u = inward_P.unitOrthogonal(), v = inward_P.cross(u);
   auto through_hole = [&](const Eigen::Vector3d& from_P) {
-    const double a = (hole_P - from_P).dot(inward_P), b = (aim_P - from_P).dot(inward_P);
-    const Eigen::Vector3d crossing = from_P + (aim_P - from_P) * (a / b);
-    return (crossing - hole_P).norm() < hole_radius - 0.0042;
+    for (double r = 0.0; r <= kWristReach; r += kWristReach / 6) {
+      for (int k = 0; k < 24; ++k) {
+        for (int m = -6; m <= 6; ++m) {
+          const double phi = M_PI * m / 12, th = 2 * M_PI * k / 24;
+          const Eigen::Vector3d w = aim_P + r * (std::cos(phi) * (std::cos(th) * u + std::sin(th) * v) +
+                                                 std::sin(phi) * inward_P);
+          const double a = (hole_P - from_P).dot(inward_P), b = (w - from_P).dot(inward_P);
+          if (b <= a) continue;  // the shaft stops short of the shield: the wrist cannot reach
+          const Eigen::Vector3d crossing = from_P + (w - from_P) * (a / b);
+          if ((crossing - hole_P).norm() < hole_radius - 0.0042) return true;
+        }
+      }
+    }
+    return false;
   };
   EXPECT_TRUE(through_hole(pivot_P));
   int other_sites = 0;

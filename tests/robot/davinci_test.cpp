@@ -251,6 +251,92 @@ TEST(SetupJointSolver, PlacesEachRcmWhereRandomSetupJointsPutIt) {
   }
 }
 
+// axis_secondary: the port first, then the axis as near as the position allows. On reachable
+// poses (forward kinematics of random setup-joint values) it finds both; asked for any axis at a
+// reachable port (upward ones too), PSM1 stays at the port and aims far nearer than the position
+// alone leaves the axis (which is what the cart's placement fell back to: an RCM turned anywhere,
+// its arm's own joints then at their limits). The ECM's setup joints turn its RCM about the
+// vertical only: its axis is what it is, whatever is asked.
+TEST(SetupJointSolver, AtThePortFirstItAimsAsNearAsThePositionAllows) {
+  const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"), {false, {}});
+  std::mt19937 rng(11);
+  auto random_pose = [&](const robot::Frame& rcm, RobotState* start) {
+    RobotState truth(cart);
+    for (int j : cart.movable_path(rcm.link)) {
+      const robot::Joint& joint = cart.joint(j);
+      if (joint.drive != robot::JointDrive::kHeld) continue;
+      truth.joint_values[joint.dof_index] =
+          std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
+    }
+    const Eigen::VectorXd q = test::RandomConfiguration(cart, &rng);
+    EXPECT_TRUE(ForwardKinematics(cart, q, &truth).ok());
+    *start = RobotState(cart);
+    EXPECT_TRUE(kinematics::SetConfiguration(cart, q, start).ok());
+    return kinematics::FramePose(truth, rcm);
+  };
+  auto angle_of = [&](const kinematics::SetupJointResult& r, const RobotState& start,
+                      const robot::Frame& rcm, const Eigen::Vector3d& axis_W, double* position,
+                      const Eigen::Vector3d& p_W) {
+    RobotState check = start;
+    for (std::size_t i = 0; i < r.joints.size(); ++i)
+      EXPECT_TRUE(kinematics::SetHeldJoint(cart, r.joints[i], r.values[i], &check).ok());
+    ForwardKinematics(cart, &check);
+    const Eigen::Isometry3d X = kinematics::FramePose(check, rcm);
+    *position = (X.translation() - p_W).norm();
+    return std::acos(std::clamp((X.linear() * -Eigen::Vector3d::UnitZ()).dot(axis_W), -1.0, 1.0));
+  };
+  kinematics::SetupJointOptions secondary;
+  secondary.axis_secondary = true;
+  for (const std::string arm : {"psm1", "ecm"}) {
+    SCOPED_TRACE(arm);
+    const robot::Frame& rcm = cart.GetFrame(arm + "_rcm");
+    for (int trial = 0; trial < 10; ++trial) {
+      RobotState start(cart);
+      const Eigen::Isometry3d X_WR = random_pose(rcm, &start);
+      kinematics::SetupJointRequest request;
+      request.frame = rcm.name;
+      request.p_WF = X_WR.translation();
+      request.axis_W = X_WR.linear() * -Eigen::Vector3d::UnitZ();
+      const auto result = kinematics::SolveSetupJoints(cart, start, request, secondary);
+      double position = 0.0;
+      const double angle = angle_of(result, start, rcm, *request.axis_W, &position, request.p_WF);
+      EXPECT_LT(position, 1e-4) << "trial " << trial;
+      EXPECT_LT(angle, 0.1 * M_PI / 180) << "trial " << trial << ": " << result.message;
+    }
+  }
+  const robot::Frame& rcm = cart.GetFrame("psm1_rcm");
+  double sum_secondary = 0.0, sum_position_only = 0.0;
+  const int trials = 20;
+  for (int trial = 0; trial < trials; ++trial) {
+    RobotState start(cart);
+    const Eigen::Isometry3d X_WR = random_pose(rcm, &start);
+    // Any axis, upward ones too (which the PSM's setup joints cannot give at most ports).
+    Eigen::Vector3d axis(std::normal_distribution<double>()(rng),
+                         std::normal_distribution<double>()(rng),
+                         std::normal_distribution<double>()(rng));
+    axis.normalize();
+    kinematics::SetupJointRequest request;
+    request.frame = rcm.name;
+    request.p_WF = X_WR.translation();
+    request.axis_W = axis;
+    const auto first = kinematics::SolveSetupJoints(cart, start, request, secondary);
+    kinematics::SetupJointRequest position_only = request;
+    position_only.axis_W.reset();
+    const auto only = kinematics::SolveSetupJoints(cart, start, position_only);
+    double p1 = 0.0, p2 = 0.0;
+    const double a1 = angle_of(first, start, rcm, axis, &p1, request.p_WF);
+    const double a2 = angle_of(only, start, rcm, axis, &p2, request.p_WF);
+    EXPECT_LE(p1, 1e-4 + 1e-12) << "trial " << trial << ": " << first.message;
+    EXPECT_LE(a1, a2 + 1e-6) << "trial " << trial;
+    sum_secondary += a1;
+    sum_position_only += a2;
+  }
+  RecordProperty("mean_angle_secondary_deg", std::to_string(sum_secondary / trials * 180 / M_PI));
+  RecordProperty("mean_angle_position_only_deg",
+                 std::to_string(sum_position_only / trials * 180 / M_PI));
+  EXPECT_LT(sum_secondary, 0.5 * sum_position_only);
+}
+
 TEST(SetupJointSolver, ATargetOutOfReachIsUnreachableWithTheDistanceShort) {
   const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"), {false, {}});
   RobotState state(cart);
