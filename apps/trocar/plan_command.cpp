@@ -7,6 +7,7 @@
 #include <iomanip>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include "apps/trocar/commands.hpp"
@@ -171,6 +172,23 @@ int RunPlan(PlanOptions o) {
     }
   }
   if (terminal) std::cerr << "\r" << std::string(70, ' ') << "\r" << std::flush;
+  // The anatomical selection criteria, on the CT (as published), at the best plan's camera port,
+  // compared with the verdict that counts (the verified one unless --no-verify).
+  {
+    const patient::PatientModel& ct = imported.ct_model ? *imported.ct_model : *patient;
+    std::optional<Eigen::Vector3d> camera_P;
+    if (!result.plans.empty()) {
+      for (std::size_t a = 0; a < problem.arms().size(); ++a) {
+        if (problem.arms()[a].role == planners::ArmRole::kEndoscope) {
+          camera_P = patient->X_WP.inverse() * result.plans.front().placement.sites[a].p_rcm_W;
+          break;
+        }
+      }
+    }
+    result.criteria = planners::MeasureSelectionCriteria(ct, camera_P ? &*camera_P : nullptr);
+    const bool counts = verifications.empty() ? result.verdict.suitable : verifications.front().suitable;
+    result.criteria_comparison = result.criteria.Compare(counts);
+  }
 
   planners::PlanInputs inputs;
   inputs.case_dir = o.case_dir;
@@ -276,6 +294,18 @@ int RunPlan(PlanOptions o) {
               << " % of instrument motions verified)\n";
     for (const auto& r : verifications.front().reasons) std::cout << "  " << r << "\n";
   }
+  std::cout << "anatomical criteria (on the CT; docs/selection-criteria.md):\n";
+  for (const auto& c : result.criteria.criteria) {
+    std::cout << "  " << std::left << std::setw(44) << c.title << std::right;
+    if (c.measured()) {
+      std::cout << std::setprecision(0) << std::setw(5) << c.value << " " << std::left << std::setw(3)
+                << c.unit << std::right << " (" << (c.at_least ? ">= " : "<= ") << c.threshold
+                << " " << c.unit << ": " << (c.favourable() ? "favourable" : "against") << ")\n";
+    } else {
+      std::cout << "  " << c.how << "\n";
+    }
+  }
+  std::cout << "  " << result.criteria_comparison << "\n";
   std::cout << std::setprecision(1) << "evaluations: " << result.evaluations << " in "
             << std::chrono::duration<double>(Clock::now() - t0).count() << " s on "
             << result.threads << " thread" << (result.threads == 1 ? "" : "s")

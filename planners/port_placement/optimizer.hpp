@@ -17,6 +17,7 @@
 
 #include "port_placement/fixed_ports.hpp"
 #include "port_placement/problem.hpp"
+#include "port_placement/selection_criteria.hpp"
 
 namespace trocar::planners {
 
@@ -105,6 +106,11 @@ struct PortPlacementResult {
   /// Plans to compare the optimised ones with (the template placed on this patient, a surgeon's
   /// ports), each searched, scored and judged as the optimiser's are.
   std::vector<Baseline> baselines;
+  /// The anatomical selection criteria (selection_criteria.hpp) measured on the CT, at the best
+  /// plan's camera port, and their comparison with the verdict that counts; set by the caller
+  /// (`trocar plan`), empty otherwise.
+  SelectionCriteria criteria;
+  std::string criteria_comparison;
 };
 
 /// Runs the whole planning job on a problem.

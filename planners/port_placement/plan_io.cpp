@@ -323,6 +323,22 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
     baselines.push_back(entry);
   }
   doc["baselines"] = baselines;
+  // The anatomical selection criteria beside the verdict (docs/selection-criteria.md).
+  json criteria = json::array();
+  for (const Criterion& c : result.criteria.criteria) {
+    criteria.push_back({{"name", c.name},
+                        {"title", c.title},
+                        {"value", c.measured() ? json(c.value) : json(nullptr)},
+                        {"unit", c.unit},
+                        {"threshold", c.threshold},
+                        {"favourable_when", c.at_least ? "at least the threshold" : "at most the threshold"},
+                        {"favourable", c.favourable()},
+                        {"meaning", c.meaning},
+                        {"how", c.how},
+                        {"source", c.source}});
+  }
+  doc["selection_criteria"] = {{"criteria", criteria},
+                               {"comparison", result.criteria_comparison}};
   json convergence = json::array();
   for (const auto& p : result.trace) convergence.push_back(json::array({p.evaluations, p.best}));
   doc["convergence"] = convergence;

@@ -553,6 +553,10 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
     EXPECT_TRUE(b.at("plan").contains("verification"));
     EXPECT_TRUE(b.at("verdict").contains("verified"));
     EXPECT_NE(plan.output.find("plan 1 against the template"), std::string::npos) << plan.output;
+    // The anatomical selection criteria beside the verdict, with their comparison.
+    ASSERT_EQ(doc.at("selection_criteria").at("criteria").size(), 4u);
+    EXPECT_FALSE(doc.at("selection_criteria").at("comparison").get<std::string>().empty());
+    EXPECT_NE(plan.output.find("anatomical criteria"), std::string::npos) << plan.output;
   }
 
   // Move the cart 20 cm in the file: the RCMs leave their pivots.

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <filesystem>
 #include <fstream>
 
@@ -12,6 +13,8 @@
 #include "patient/patient_model.hpp"
 #include "port_placement/fixed_ports.hpp"
 #include "port_placement/optimizer.hpp"
+#include "port_placement/selection_criteria.hpp"
+#include "common/mesh.hpp"
 #include "robot/load_robot.hpp"
 #include "test_util.hpp"
 
@@ -245,6 +248,96 @@ TEST(FixedPorts, TheTemplatesPlanKeepsItsPortsAndIsScoredAsAnyPlan) {
               1e-12);
   EXPECT_GT(a.evaluations, 2 * 12 * 3 * 3 - 1);
   EXPECT_FALSE(a.verdict.summary.empty());
+}
+
+}  // namespace
+}  // namespace trocar::planners
+
+namespace trocar::planners {
+namespace {
+
+// The anatomical selection criteria (selection_criteria.hpp) on the bundled phantom's CT-state
+// model: the chest's outer ratio is the generator's body depth over its width (24/34, each
+// jittered 3 %); the camera port's distance to the heart is the brute-force distance to its mesh;
+// moving the heart and the LAD on it 10 mm back lengthens the LAD's and the ventricle's distances
+// to the wall by about that, and a patient whose LAD lies against the wall is against the
+// criterion. A model without ribs or sternum leaves the wall distances unmeasured, saying why.
+TEST(SelectionCriteria, MeasuredOnTheCtTheyFollowTheAnatomy) {
+  patient::ImportOptions ct_state;
+  ct_state.ct_state = true;
+  const auto ct = patient::ImportCase(SourcePath("patients/phantom-default"), ct_state).model;
+  const Eigen::Vector3d pivot(0.12, -0.08, 0.15);
+  const SelectionCriteria base = MeasureSelectionCriteria(*ct, &pivot);
+  ASSERT_EQ(base.criteria.size(), 4u);
+  auto get = [](const SelectionCriteria& s, const std::string& name) {
+    for (const auto& c : s.criteria)
+      if (c.name == name) return c;
+    ADD_FAILURE() << name;
+    return Criterion{};
+  };
+  EXPECT_NEAR(get(base, "chest_ap_to_transverse").value, 100.0 * 0.24 / 0.34, 5.0);
+  EXPECT_NEAR(get(base, "camera_port_to_mediastinum").value,
+              DistanceToMesh(ct->Find("heart")->mesh, pivot) * 1e3, 1e-6);
+  auto moved = std::make_shared<patient::PatientModel>(*ct);
+  const Eigen::Vector3d back(0.0, 0.010, 0.0);  // LPS: posterior
+  for (auto& s : moved->structures)
+    if (s.name == "heart")
+      for (auto& v : s.mesh.vertices) v += back;
+  for (auto& t : moved->targets)
+    if (t.name == "LAD")
+      for (auto& p : t.points) p += back;
+  const SelectionCriteria deeper = MeasureSelectionCriteria(*moved, &pivot);
+  const double lad0 = get(base, "lad_to_chest_wall").value, lad1 = get(deeper, "lad_to_chest_wall").value;
+  EXPECT_GT(lad1, lad0 + 6.0);
+  EXPECT_LT(lad1, lad0 + 10.5);
+  EXPECT_GT(get(deeper, "heart_to_chest_wall").value, get(base, "heart_to_chest_wall").value);
+  // The LAD against the wall: against the criterion, and the comparison says so.
+  auto against = std::make_shared<patient::PatientModel>(*ct);
+  for (auto& s : against->structures)
+    if (s.name == "heart")
+      for (auto& v : s.mesh.vertices) v -= back;
+  for (auto& t : against->targets)
+    if (t.name == "LAD")
+      for (auto& p : t.points) p -= back;
+  const SelectionCriteria close = MeasureSelectionCriteria(*against, &pivot);
+  EXPECT_FALSE(get(close, "lad_to_chest_wall").favourable());
+  EXPECT_NE(close.Compare(true).find("although"), std::string::npos) << close.Compare(true);
+  EXPECT_NE(close.Compare(false).find("agree"), std::string::npos) << close.Compare(false);
+  // Without ribs and sternum.
+  auto bare = std::make_shared<patient::PatientModel>(*ct);
+  bare->structures.erase(std::remove_if(bare->structures.begin(), bare->structures.end(),
+                                        [](const patient::Structure& s) {
+                                          return s.name == "ribs" || s.name == "sternum";
+                                        }),
+                         bare->structures.end());
+  const SelectionCriteria none = MeasureSelectionCriteria(*bare, nullptr);
+  EXPECT_FALSE(get(none, "lad_to_chest_wall").measured());
+  EXPECT_NE(get(none, "lad_to_chest_wall").how.find("no ribs or sternum"), std::string::npos);
+  EXPECT_FALSE(get(none, "camera_port_to_mediastinum").measured());
+  EXPECT_NE(get(none, "camera_port_to_mediastinum").how.find("no endoscope"), std::string::npos);
+}
+
+// The comparison with the verdict, over the four cases.
+TEST(SelectionCriteria, TheComparisonSaysWhenTheVerdictAndTheAnatomyDisagree) {
+  SelectionCriteria s;
+  Criterion good;
+  good.title = "good";
+  good.value = 30;
+  good.threshold = 25;
+  Criterion bad = good;
+  bad.title = "bad";
+  bad.value = 10;
+  s.criteria = {good};
+  EXPECT_EQ(s.Compare(true).rfind("agree", 0), 0u);
+  EXPECT_NE(s.Compare(false).find("does not support 'not suitable'"), std::string::npos);
+  s.criteria = {good, bad};
+  EXPECT_NE(s.Compare(true).find("although 1 of 2"), std::string::npos);
+  EXPECT_NE(s.Compare(false).find("agree: 1 of 2"), std::string::npos);
+  EXPECT_NE(s.Compare(false).find("bad"), std::string::npos);
+  Criterion unmeasured = good;
+  unmeasured.value = std::numeric_limits<double>::quiet_NaN();
+  s.criteria = {unmeasured};
+  EXPECT_NE(s.Compare(false).find("no anatomical criterion"), std::string::npos);
 }
 
 }  // namespace
