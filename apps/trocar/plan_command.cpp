@@ -230,9 +230,8 @@ int RunPlan(PlanOptions o) {
       const auto& site = plan.placement.sites[a];
       const Eigen::Vector3d p = site.p_P * 1e3;
       std::cout << "  " << std::left << std::setw(6) << problem.arms()[a].name << std::right
-                << " port on " << patient->port_candidates[site.candidate].name << " at "
-                << std::setprecision(0) << site.s * 100 << " % (LPS mm " << p.x() << ", " << p.y()
-                << ", " << p.z() << ")\n";
+                << " port on " << planners::DescribePort(*patient, site) << std::setprecision(0)
+                << "; LPS mm " << p.x() << ", " << p.y() << ", " << p.z() << "\n";
     }
     std::cout << "  cart at (" << std::setprecision(2) << plan.placement.cart_x << ", "
               << plan.placement.cart_y << ") m, heading " << std::setprecision(0)

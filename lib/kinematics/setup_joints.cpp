@@ -137,6 +137,7 @@ SetupJointResult SolveSetupJoints(const robot::RobotModel& model, const robot::R
         if (!t_at) return t.position_error < c.position_error;
         return t.angle_error < c.angle_error - 1e-12;
       };
+      int stalled = 0;
       for (int it = 0; it < options.max_iterations && !good_enough(current); ++it) {
         const Eigen::MatrixXd Jp = current.jacobian.topRows<3>();
         const Eigen::MatrixXd Ja = current.jacobian.bottomRows<3>();
@@ -171,9 +172,15 @@ SetupJointResult SolveSetupJoints(const robot::RobotModel& model, const robot::R
           ok = evaluate(candidate, &trial);
         }
         if (ok && better(trial, current)) {
+          // At the port and turning less than 0.001 degrees a step five steps running: as near
+          // as this start gets (an unreachable axis never meets good_enough).
+          const bool at_port = current.position_error <= options.position_tolerance &&
+                               trial.position_error <= options.position_tolerance;
+          stalled = at_port && current.angle_error - trial.angle_error < 1e-5 ? stalled + 1 : 0;
           x = candidate;
           current = trial;
           lambda = std::max(lambda / 3.0, 1e-12);
+          if (stalled >= 5) break;
         } else {
           lambda *= 4.0;
           if (lambda > 1e8) break;

@@ -137,6 +137,34 @@ ChestLines ChestLinesAt(const patient::PatientModel& patient, int side, double z
                << " at z = " << std::lround(z_P * 1e3) << " mm (outside the scan?)");
 }
 
+std::string DescribePort(const patient::PatientModel& patient, const PortSite& site) {
+  const std::string& space = patient.port_candidates.at(site.candidate).name;
+  const double midline = Midline(patient);
+  const int side = site.p_P.x() >= midline ? 1 : -1;
+  ChestLines lines;
+  try {
+    lines = ChestLinesAt(patient, side, site.p_curve_P.z());
+  } catch (const Error&) {
+    return space;
+  }
+  const double offset = (site.p_P.x() - lines.midline_x) * side;
+  const std::pair<const char*, double> named[] = {{"midclavicular line", lines.mcl},
+                                                  {"anterior axillary line", lines.aal},
+                                                  {"mid-axillary line", lines.mal}};
+  const auto* nearest = &named[0];
+  for (const auto& n : named)
+    if (std::abs(offset - n.second) < std::abs(offset - nearest->second)) nearest = &n;
+  std::ostringstream s;
+  s << space << ", ";
+  const double d = offset - nearest->second;
+  if (std::abs(d) < 0.005)
+    s << "on the " << nearest->first;
+  else
+    s << Mm(std::abs(d)) << (d > 0 ? " lateral" : " medial") << " of the " << nearest->first;
+  s << " (" << Mm(offset) << " from the midline)";
+  return s.str();
+}
+
 PortTemplate TecabTemplate() {
   PortTemplate t;
   t.name = "tecab";

@@ -40,6 +40,11 @@ struct ChestLines {
 ///         or anterolateral face (a level outside the scan).
 ChestLines ChestLinesAt(const patient::PatientModel& patient, int side, double z_P);
 
+/// A port in a surgeon's terms: its space and where across the chest its incision lies, by the
+/// nearest of the chest's lines at its level: "ICS-L3, 14 mm lateral of the midclavicular line
+/// (102 mm from the midline)". Just the space's name when the lines cannot be read (no skin).
+std::string DescribePort(const patient::PatientModel& patient, const PortSite& site);
+
 /// A port of a template: which arm role, which intercostal space, where along it.
 struct TemplatePort {
   ArmRole role = ArmRole::kInstrument;

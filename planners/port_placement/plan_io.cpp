@@ -1,5 +1,7 @@
 #include "port_placement/plan_io.hpp"
 
+#include "port_placement/fixed_ports.hpp"
+
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -115,6 +117,7 @@ static json PlanEntry(const PortPlacementProblem& problem, const RankedPlan& pla
                      {"p_P", Vec(site.p_P)},
                      {"p_W", Vec(site.p_W)},
                      {"rcm_W", Vec(site.p_rcm_W)},
+                     {"anatomy", DescribePort(patient, site)},
                      {"skin_allowance", site.skin_allowance},
                      {"pivot", site.in_gap ? "intercostal gap" : "rcm_depth toward the targets"}});
   }

@@ -38,6 +38,20 @@ double Median(std::vector<double> v) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+// A criterion of the TECAB selection (all from Bonatti's and Kiaii's chapters), not yet measured.
+Criterion Published(const char* name, const char* title, const char* unit, double threshold,
+                    const char* meaning) {
+  Criterion c;
+  c.name = name;
+  c.title = title;
+  c.unit = unit;
+  c.threshold = threshold;
+  c.meaning = meaning;
+  c.source = kBonatti;
+  c.value = kNaN;
+  return c;
+}
+
 const patient::Structure* Find(const patient::PatientModel& m, const char* name) {
   const patient::Structure* s = m.Find(name);
   return s && !s->mesh.triangles.empty() ? s : nullptr;
@@ -92,7 +106,6 @@ SelectionCriteria MeasureSelectionCriteria(const patient::PatientModel& m,
   const patient::Structure* heart = Find(m, "heart");
   const patient::Structure* ribs = Find(m, "ribs");
   const patient::Structure* sternum = Find(m, "sternum");
-  const patient::Structure* spine = Find(m, "spine");
   Wall wall;
   if (ribs) wall.parts.push_back(std::make_unique<collision::TriangleBvh>(ribs->mesh));
   if (sternum) wall.parts.push_back(std::make_unique<collision::TriangleBvh>(sternum->mesh));
@@ -112,15 +125,10 @@ SelectionCriteria MeasureSelectionCriteria(const patient::PatientModel& m,
 
   // 1. The left ventricle to the anterior chest wall.
   {
-    Criterion c;
-    c.name = "heart_to_chest_wall";
-    c.title = "left ventricle to the chest wall";
-    c.unit = "mm";
-    c.threshold = 25.0;
-    c.meaning = "under 25 mm: a relative contraindication (no room between the heart and the wall)";
-    c.source = kBonatti;
+    Criterion c = Published("heart_to_chest_wall", "left ventricle to the chest wall", "mm", 25.0,
+                            "under 25 mm: a relative contraindication (no room between the heart "
+                            "and the wall)");
     c.how = missing({{"heart", heart}, {"ribs or sternum", wall.parts.empty() ? nullptr : &wall}});
-    c.value = kNaN;
     if (c.how.empty()) {
       c.how =
           "the median distance from the heart's left lateral wall (its vertices within 1 cm of "
@@ -138,16 +146,10 @@ SelectionCriteria MeasureSelectionCriteria(const patient::PatientModel& m,
   }
   // 2. The chest's front-back to side-to-side ratio at the heart's level.
   {
-    Criterion c;
-    c.name = "chest_ap_to_transverse";
-    c.title = "chest front-back to side-to-side ratio";
-    c.unit = "%";
-    c.threshold = 45.0;
-    c.meaning = "under 45 %: a flat chest, lower success";
-    c.source = kBonatti;
+    Criterion c = Published("chest_ap_to_transverse", "chest front-back to side-to-side ratio", "%",
+                            45.0, "under 45 %: a flat chest, lower success");
     const patient::Structure* skin = Find(m, "skin");
     c.how = missing({{"heart", heart}, {"skin", skin}, {"ribs", ribs}});
-    c.value = kNaN;
     if (c.how.empty()) {
       // The chest's outer diameters at the heart's level (the ratio a surgeon sees; the bony
       // thorax's inner ratio is about 40 % in normal adults, Haller index 2.5, and would call
@@ -183,18 +185,12 @@ SelectionCriteria MeasureSelectionCriteria(const patient::PatientModel& m,
   }
   // 3. The LAD's depth under the chest wall.
   {
-    Criterion c;
-    c.name = "lad_to_chest_wall";
-    c.title = "LAD to the chest wall";
-    c.unit = "mm";
-    c.threshold = 15.0;
-    c.meaning = "under 15 mm: lower chance of a totally endoscopic graft";
-    c.source = kBonatti;
+    Criterion c = Published("lad_to_chest_wall", "LAD to the chest wall", "mm", 15.0,
+                            "under 15 mm: lower chance of a totally endoscopic graft");
     const patient::Target* lad = nullptr;
     for (const auto& t : m.targets)
       if (t.name == "LAD") lad = &t;
     c.how = missing({{"LAD target", lad}, {"ribs or sternum", wall.parts.empty() ? nullptr : &wall}});
-    c.value = kNaN;
     if (c.how.empty()) {
       std::vector<double> d;
       for (const auto& p : lad->points) d.push_back(wall.Distance(p));
@@ -205,16 +201,10 @@ SelectionCriteria MeasureSelectionCriteria(const patient::PatientModel& m,
   }
   // 4. At the camera port: from the chest wall to the mediastinum.
   {
-    Criterion c;
-    c.name = "camera_port_to_mediastinum";
-    c.title = "pleura to mediastinum at the camera port";
-    c.unit = "mm";
-    c.threshold = 17.0;
-    c.meaning = "at least 17 mm for the endoscope to enter";
-    c.source = kBonatti;
+    Criterion c = Published("camera_port_to_mediastinum", "pleura to mediastinum at the camera port",
+                            "mm", 17.0, "at least 17 mm for the endoscope to enter");
     c.how = !camera_pivot_P ? std::string("not measured: no endoscope arm in the plan")
                             : missing({{"heart", heart}});
-    c.value = kNaN;
     if (c.how.empty()) {
       const auto hit = heart_bvh->Closest(*camera_pivot_P, *camera_pivot_P);
       if (hit.found()) c.value = hit.distance * 1e3;

@@ -652,7 +652,7 @@ TEST(TrocarPlan, AFolderHoldingAPlanIsNeverSeenHalfOverwritten) {
   std::filesystem::remove_all(out);
   const std::string base = "plan " + test::SourcePath("patients/phantom-default") + " --out " +
                            out + " --evaluations 60 --starts 2 --polish-evaluations 4 --top 1 " +
-                           "--no-robustness --samples 2";
+                           "--no-robustness --samples 2 --baseline none";
   CommandRun first = Trocar(base + " --seed 1");
   ASSERT_TRUE(first.exit_code == 0 || first.exit_code == 4) << first.output;
   const std::string old_plan = ReadTextFile(out + "/plan.json");

@@ -16,6 +16,7 @@
 #include "port_placement/selection_criteria.hpp"
 #include "common/mesh.hpp"
 #include "robot/load_robot.hpp"
+#include "planners/bundled.hpp"
 #include "test_util.hpp"
 
 namespace trocar::planners {
@@ -23,17 +24,8 @@ namespace {
 
 using test::SourcePath;
 
-std::shared_ptr<const robot::RobotModel> Cart() {
-  static auto cart = std::make_shared<const robot::RobotModel>(
-      robot::LoadRobot(SourcePath("robots/davinci-classic/cart.yaml")));
-  return cart;
-}
-
-std::shared_ptr<const patient::PatientModel> Phantom() {
-  static auto patient = std::make_shared<const patient::PatientModel>(
-      patient::ImportPatient(SourcePath("patients/phantom-default")));
-  return patient;
-}
+using test_bundled::Cart;
+using test_bundled::Phantom;
 
 double Lateral(const ChestLines& lines, const Eigen::Vector3d& p_P) {
   return (p_P.x() - lines.midline_x) * lines.side;

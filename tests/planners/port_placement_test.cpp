@@ -20,6 +20,7 @@
 #include "port_placement/optimizer.hpp"
 #include "port_placement/plan_io.hpp"
 #include "robot/load_robot.hpp"
+#include "planners/bundled.hpp"
 #include "test_util.hpp"
 
 namespace trocar::planners {
@@ -27,17 +28,8 @@ namespace {
 
 using test::SourcePath;
 
-std::shared_ptr<const robot::RobotModel> Cart() {
-  static auto cart = std::make_shared<const robot::RobotModel>(
-      robot::LoadRobot(SourcePath("robots/davinci-classic/cart.yaml")));
-  return cart;
-}
-
-std::shared_ptr<const patient::PatientModel> Phantom() {
-  static auto patient = std::make_shared<const patient::PatientModel>(
-      patient::ImportPatient(SourcePath("patients/phantom-default")));
-  return patient;
-}
+using test_bundled::Cart;
+using test_bundled::Phantom;
 
 PortPlacementOptions Small(int threads) {
   PortPlacementOptions o;

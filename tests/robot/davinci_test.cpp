@@ -290,7 +290,7 @@ TEST(SetupJointSolver, AtThePortFirstItAimsAsNearAsThePositionAllows) {
   for (const std::string arm : {"psm1", "ecm"}) {
     SCOPED_TRACE(arm);
     const robot::Frame& rcm = cart.GetFrame(arm + "_rcm");
-    for (int trial = 0; trial < 10; ++trial) {
+    for (int trial = 0; trial < test::Trials(10, 3); ++trial) {
       RobotState start(cart);
       const Eigen::Isometry3d X_WR = random_pose(rcm, &start);
       kinematics::SetupJointRequest request;
@@ -306,7 +306,7 @@ TEST(SetupJointSolver, AtThePortFirstItAimsAsNearAsThePositionAllows) {
   }
   const robot::Frame& rcm = cart.GetFrame("psm1_rcm");
   double sum_secondary = 0.0, sum_position_only = 0.0;
-  const int trials = 20;
+  const int trials = test::Trials(20, 6);
   for (int trial = 0; trial < trials; ++trial) {
     RobotState start(cart);
     const Eigen::Isometry3d X_WR = random_pose(rcm, &start);

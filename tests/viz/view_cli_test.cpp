@@ -56,7 +56,7 @@ class ViewCli : public ::testing::Test {
     if (!IsRegularFile(Plan()) || !IsRegularFile(stamp) || ReadTextFile(stamp) != stamp_of_binary) {
       const CommandRun plan = Trocar("plan " + SourcePath("patients/phantom-default") + " --robot " +
                                      SourcePath("robots/davinci-classic/cart.yaml") +
-                                     " --arms psm1 psm2 --evaluations 300 --starts 2 --motion-time 0.5 --out " +
+                                     " --arms psm1 psm2 --evaluations 300 --starts 2 --motion-time 0.5 --baseline none --out " +
                                      std::string(TROCAR_TEST_WORK_DIR) + "/plan");
       EXPECT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
       if (plan.exit_code == 0 || plan.exit_code == 4) WriteFileAtomically(stamp, stamp_of_binary);
