@@ -116,6 +116,18 @@ int RunPlan(PlanOptions o) {
   // cannot be placed or a bad ports file is an error, nothing written).
   const std::vector<planners::FixedPorts> given =
       o.ports == "optimise" ? std::vector<planners::FixedPorts>{} : GivenPorts(problem, o.ports);
+  // A surgeon's ports file as the baseline is read before the search too (its errors are the
+  // user's); the template, when it cannot be placed, says why in the plan file instead.
+  std::vector<planners::FixedPorts> baseline_ports;
+  std::string baseline_why_not;
+  if (given.empty() && o.baseline != "none") {
+    try {
+      baseline_ports = GivenPorts(problem, o.baseline);
+    } catch (const Error& e) {
+      if (o.baseline != "template") throw;
+      baseline_why_not = e.what();
+    }
+  }
   planners::PortPlacementResult result;
   if (given.empty()) {
     result = planners::OptimizePorts(problem, o.optimizer);
@@ -140,13 +152,12 @@ int RunPlan(PlanOptions o) {
     planners::Baseline b;
     b.kind = o.baseline == "template" ? "template" : "surgeon";
     b.name = o.baseline == "template" ? planners::TecabTemplate().title : o.baseline;
-    try {
-      b.fixed = planners::PlanFixedPorts(problem, GivenPorts(problem, o.baseline), o.optimizer);
+    if (baseline_ports.empty()) {
+      b.why_not = baseline_why_not;
+    } else {
+      b.fixed = planners::PlanFixedPorts(problem, baseline_ports, o.optimizer);
       b.placed = true;
       result.evaluations += b.fixed.evaluations;
-    } catch (const Error& e) {
-      if (o.baseline != "template") throw;  // the user's own file: its error is theirs to see
-      b.why_not = e.what();
     }
     result.baselines.push_back(std::move(b));
   }

@@ -822,6 +822,13 @@ TEST(TrocarPlan, GivenPortsArePlannedAsGivenAndABadPortsFileIsRefused) {
   EXPECT_NE(missing.output.find("no point for arm " + dropped), std::string::npos) << missing.output;
   EXPECT_NE(missing.output.find("mine.mrk.json"), std::string::npos) << missing.output;
   EXPECT_FALSE(std::filesystem::exists(out + "/bad/plan.json"));
+  // The same file as the baseline beside optimised plans: refused before the search.
+  const CommandRun bad_baseline = Trocar(base + out + "/bad --baseline " + out + "/mine.mrk.json");
+  EXPECT_EQ(bad_baseline.exit_code, 1) << bad_baseline.output;
+  EXPECT_NE(bad_baseline.output.find("no point for arm " + dropped), std::string::npos)
+      << bad_baseline.output;
+  EXPECT_EQ(bad_baseline.output.find("plan 1:"), std::string::npos) << bad_baseline.output;
+  EXPECT_FALSE(std::filesystem::exists(out + "/bad/plan.json"));
   const CommandRun none = Trocar(base + out + "/bad --ports " + out + "/none.mrk.json");
   EXPECT_EQ(none.exit_code, 1) << none.output;
   EXPECT_NE(none.output.find("--ports"), std::string::npos) << none.output;
