@@ -1,6 +1,8 @@
 #include "common/geometry.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <cstdlib>
 #include <iomanip>
 #include <sstream>
@@ -139,6 +141,13 @@ std::string FormatVector(const Eigen::Ref<const Eigen::VectorXd>& v, int precisi
   }
   out << "]";
   return out.str();
+}
+
+double Median(std::vector<double> values) {
+  if (values.empty()) return std::numeric_limits<double>::quiet_NaN();
+  std::sort(values.begin(), values.end());
+  const std::size_t n = values.size();
+  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
 }
 
 }  // namespace trocar

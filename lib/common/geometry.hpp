@@ -4,6 +4,7 @@
 /// (Drake's monogram notation): `X_WB` is the pose of frame B measured in frame W.
 
 #include <string>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -26,6 +27,9 @@ Eigen::Isometry3d TransZ(double distance);
 
 /// Angle wrapped into (-pi, pi].
 double WrapAngle(double angle);
+
+/// The median of `values` (the mean of the middle two for an even count); NaN when empty.
+double Median(std::vector<double> values);
 
 /// Angle between two rotations, in radians (0 .. pi).
 double RotationDistance(const Eigen::Matrix3d& R_a, const Eigen::Matrix3d& R_b);

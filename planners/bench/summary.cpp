@@ -14,6 +14,7 @@
 #include "bench/database.hpp"
 #include "bench/runner.hpp"
 #include "common/error.hpp"
+#include "common/geometry.hpp"
 #include "common/file_util.hpp"
 #include "common/plot.hpp"
 
@@ -56,13 +57,6 @@ struct Db {
   std::string path;
   sqlite3* db = nullptr;
 };
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 std::string Quote(const std::string& s) {
   std::string q = "'";

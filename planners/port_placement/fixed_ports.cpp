@@ -8,17 +8,12 @@
 
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
+#include "common/geometry.hpp"
 #include "patient/markups.hpp"
 #include "patient/patient_model.hpp"
 
 namespace trocar::planners {
 namespace {
-
-double Median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 double Midline(const patient::PatientModel& patient) {
   if (const patient::Structure* s = patient.Find("sternum"); s && !s->mesh.vertices.empty()) {

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "collision/triangle_bvh.hpp"
+#include "common/geometry.hpp"
 #include "patient/patient_model.hpp"
 
 namespace trocar::planners {
@@ -30,13 +31,6 @@ struct Wall {
     return best;
   }
 };
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return kNaN;
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 // A criterion of the TECAB selection (all from Bonatti's and Kiaii's chapters), not yet measured.
 Criterion Published(const char* name, const char* title, const char* unit, double threshold,
