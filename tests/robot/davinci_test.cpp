@@ -210,6 +210,25 @@ TEST(DaVinciCart, IsOneDescriptionWithHeldSetupJointsAndActiveArms) {
   }
 }
 
+// The pose of an RCM frame at random setup-joint values (a reachable target), and in `start` the
+// same random arm joints with the setup joints at their neutral values.
+Eigen::Isometry3d RandomRcmPose(const RobotModel& cart, const robot::Frame& rcm, std::mt19937* rng,
+                                RobotState* start) {
+  RobotState truth(cart);
+  for (int j : cart.movable_path(rcm.link)) {
+    const robot::Joint& joint = cart.joint(j);
+    if (joint.drive != robot::JointDrive::kHeld) continue;
+    truth.joint_values[joint.dof_index] =
+        std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(*rng);
+  }
+  const Eigen::VectorXd q = test::RandomConfiguration(cart, rng);
+  const auto fk = ForwardKinematics(cart, q, &truth);
+  EXPECT_TRUE(fk.ok()) << fk.message;
+  *start = RobotState(cart);
+  EXPECT_TRUE(kinematics::SetConfiguration(cart, q, start).ok());
+  return kinematics::FramePose(truth, rcm);
+}
+
 TEST(SetupJointSolver, PlacesEachRcmWhereRandomSetupJointsPutIt) {
   const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"), {false, {}});
   std::mt19937 rng(7);
@@ -218,23 +237,12 @@ TEST(SetupJointSolver, PlacesEachRcmWhereRandomSetupJointsPutIt) {
     const robot::Frame& rcm = cart.GetFrame(arm + "_rcm");
     for (int trial = 0; trial < 40; ++trial) {
       // A reachable target: forward kinematics of random setup-joint values.
-      RobotState truth(cart);
-      for (int j : cart.movable_path(rcm.link)) {
-        const robot::Joint& joint = cart.joint(j);
-        if (joint.drive != robot::JointDrive::kHeld) continue;
-        truth.joint_values[joint.dof_index] =
-            std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
-      }
-      const Eigen::VectorXd q = test::RandomConfiguration(cart, &rng);
-      const auto fk = ForwardKinematics(cart, q, &truth);
-      ASSERT_TRUE(fk.ok()) << fk.message;
-      const Eigen::Isometry3d X_WR = kinematics::FramePose(truth, rcm);
+      RobotState start(cart);  // setup joints at their neutral values
+      const Eigen::Isometry3d X_WR = RandomRcmPose(cart, rcm, &rng, &start);
       kinematics::SetupJointRequest request;
       request.frame = rcm.name;
       request.p_WF = X_WR.translation();
       request.axis_W = X_WR.linear() * -Eigen::Vector3d::UnitZ();
-      RobotState start(cart);  // setup joints at their neutral values
-      ASSERT_TRUE(kinematics::SetConfiguration(cart, q, &start).ok());
       const auto result = kinematics::SolveSetupJoints(cart, start, request);
       ASSERT_TRUE(result.ok()) << result.message << " trial " << trial;
       // Check independently: put the values in and run forward kinematics.
@@ -261,18 +269,7 @@ TEST(SetupJointSolver, AtThePortFirstItAimsAsNearAsThePositionAllows) {
   const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"), {false, {}});
   std::mt19937 rng(11);
   auto random_pose = [&](const robot::Frame& rcm, RobotState* start) {
-    RobotState truth(cart);
-    for (int j : cart.movable_path(rcm.link)) {
-      const robot::Joint& joint = cart.joint(j);
-      if (joint.drive != robot::JointDrive::kHeld) continue;
-      truth.joint_values[joint.dof_index] =
-          std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
-    }
-    const Eigen::VectorXd q = test::RandomConfiguration(cart, &rng);
-    EXPECT_TRUE(ForwardKinematics(cart, q, &truth).ok());
-    *start = RobotState(cart);
-    EXPECT_TRUE(kinematics::SetConfiguration(cart, q, start).ok());
-    return kinematics::FramePose(truth, rcm);
+    return RandomRcmPose(cart, rcm, &rng, start);
   };
   auto angle_of = [&](const kinematics::SetupJointResult& r, const RobotState& start,
                       const robot::Frame& rcm, const Eigen::Vector3d& axis_W, double* position,
