@@ -13,6 +13,7 @@
 
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/jacobian.hpp"
+#include "kinematics/setup_joints.hpp"
 #include "robot/load_robot.hpp"
 
 namespace {
@@ -152,6 +153,60 @@ void BM_Kdl_Pa10_Fk(benchmark::State& bm) {
   }
 }
 BENCHMARK(BM_Kdl_Pa10_Fk);
+
+// The da Vinci cart (three setup-joint chains, three arms, six closures): posing the whole robot
+// against posing one RCM's chain (what the setup-joint solver's inner loop now does), and one
+// whole setup-joint solve for PSM1's RCM at a reachable pose (issue #41 item 7).
+const RobotModel& Cart() {
+  static const RobotModel model = trocar::robot::LoadRobot(
+      std::string(TROCAR_SOURCE_DIR) + "/robots/davinci-classic/cart.yaml");
+  return model;
+}
+
+void BM_Trocar_Cart_FkWholeRobot(benchmark::State& bm) {
+  const RobotModel& model = Cart();
+  trocar::robot::RobotState state(model);
+  (void)trocar::kinematics::SetConfiguration(model, state.q, &state);
+  for (auto _ : bm) {
+    trocar::kinematics::ForwardKinematics(model, &state);
+    benchmark::DoNotOptimize(state.X_WL.back().data());
+  }
+}
+BENCHMARK(BM_Trocar_Cart_FkWholeRobot);
+
+void BM_Trocar_Cart_FkToOneRcm(benchmark::State& bm) {
+  const RobotModel& model = Cart();
+  trocar::robot::RobotState state(model);
+  (void)trocar::kinematics::SetConfiguration(model, state.q, &state);
+  const int link = model.GetFrame("psm1_rcm").link;
+  for (auto _ : bm) {
+    trocar::kinematics::ForwardKinematicsToLink(model, link, &state);
+    benchmark::DoNotOptimize(state.X_WL[link].data());
+  }
+}
+BENCHMARK(BM_Trocar_Cart_FkToOneRcm);
+
+void BM_Trocar_Cart_SetupJointSolve(benchmark::State& bm) {
+  const RobotModel& model = Cart();
+  trocar::robot::RobotState start(model);
+  (void)trocar::kinematics::ForwardKinematics(model, start.q, &start);
+  trocar::robot::RobotState moved = start;
+  for (const char* name : {"psm1_suj_shoulder", "psm1_suj_elbow", "psm1_suj_wrist_2"})
+    (void)trocar::kinematics::SetHeldJoint(model, name, 0.4, &moved);
+  trocar::kinematics::ForwardKinematics(model, &moved);
+  trocar::kinematics::SetupJointRequest request;
+  request.frame = "psm1_rcm";
+  const Eigen::Isometry3d X_WF = trocar::kinematics::FramePose(moved, model.GetFrame("psm1_rcm"));
+  request.p_WF = X_WF.translation();
+  request.axis_W = X_WF.linear() * -Eigen::Vector3d::UnitZ();
+  trocar::kinematics::SetupJointOptions options;
+  options.starts = 8;
+  for (auto _ : bm) {
+    const auto r = trocar::kinematics::SolveSetupJoints(model, start, request, options);
+    benchmark::DoNotOptimize(r.position_error);
+  }
+}
+BENCHMARK(BM_Trocar_Cart_SetupJointSolve)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 

@@ -123,6 +123,45 @@ ConfigurationResult SetHeldJoint(const RobotModel& model, const std::string& nam
   return ResolveOrRestore(model, state, true);
 }
 
+namespace {
+
+// X_WC of a joint's child link from its parent's pose X_WP and the joint's value (s, c: the
+// value's sine and cosine, for a revolute joint).
+inline void ChildPose(const Joint& joint, const Eigen::Isometry3d& X_WP, double value, double s,
+                      double c, Eigen::Isometry3d* X_WC_out) {
+  Eigen::Isometry3d& X_WC = *X_WC_out;
+  switch (joint.type) {
+    case JointType::kFixed:
+      X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
+      X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
+      X_WC.translation() += X_WP.translation();
+      break;
+    case JointType::kRevolute: {
+      const Eigen::Matrix3d& R_PJ = joint.X_PJ.linear();
+      Eigen::Matrix3d R_PC;
+      if (joint.axis_J.z() == 1.0) {  // the common case (DH, most URDFs): no Rodrigues
+        R_PC.col(0) = c * R_PJ.col(0) + s * R_PJ.col(1);
+        R_PC.col(1) = c * R_PJ.col(1) - s * R_PJ.col(0);
+        R_PC.col(2) = R_PJ.col(2);
+      } else {  // Rodrigues, with the joint's constant terms from the model
+        R_PC = c * (R_PJ - joint.rodrigues_M) + s * joint.rodrigues_N + joint.rodrigues_M;
+      }
+      X_WC.linear().noalias() = X_WP.linear() * R_PC;
+      X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
+      X_WC.translation() += X_WP.translation();
+      break;
+    }
+    case JointType::kPrismatic: {
+      X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
+      X_WC.translation().noalias() = X_WC.linear() * (value * joint.axis_J);
+      X_WC.translation() += X_WP * joint.X_PJ.translation();
+      break;
+    }
+  }
+}
+
+}  // namespace
+
 void ForwardKinematics(const RobotModel& model, RobotState* state) {
   std::vector<Eigen::Isometry3d>& X_WL = state->X_WL;
   X_WL[0] = state->X_WB;
@@ -130,7 +169,7 @@ void ForwardKinematics(const RobotModel& model, RobotState* state) {
   // another, so the CPU runs their polynomials side by side, where along the chain each waited
   // on its own (measured: FK of the PA10 180 -> 120 ns; bench/kinematics_bench).
   constexpr std::size_t kBatch = 32;
-  double sines[kBatch], cosines[kBatch];
+  double sines[kBatch] = {}, cosines[kBatch] = {};
   const std::vector<Joint>& joints = model.joints();
   for (std::size_t start = 0; start < joints.size(); start += kBatch) {
     const std::size_t end = std::min(joints.size(), start + kBatch);
@@ -140,39 +179,38 @@ void ForwardKinematics(const RobotModel& model, RobotState* state) {
     }
     for (std::size_t i = start; i < end; ++i) {
       const Joint& joint = joints[i];
-      const Eigen::Isometry3d& X_WP = X_WL[joint.parent_link];
-      Eigen::Isometry3d& X_WC = X_WL[joint.child_link];
-      switch (joint.type) {
-        case JointType::kFixed:
-          X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
-          X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
-          X_WC.translation() += X_WP.translation();
-          break;
-        case JointType::kRevolute: {
-          const double s = sines[i - start], c = cosines[i - start];
-          const Eigen::Matrix3d& R_PJ = joint.X_PJ.linear();
-          Eigen::Matrix3d R_PC;
-          if (joint.axis_J.z() == 1.0) {  // the common case (DH, most URDFs): no Rodrigues
-            R_PC.col(0) = c * R_PJ.col(0) + s * R_PJ.col(1);
-            R_PC.col(1) = c * R_PJ.col(1) - s * R_PJ.col(0);
-            R_PC.col(2) = R_PJ.col(2);
-          } else {  // Rodrigues, with the joint's constant terms from the model
-            R_PC = c * (R_PJ - joint.rodrigues_M) + s * joint.rodrigues_N + joint.rodrigues_M;
-          }
-          X_WC.linear().noalias() = X_WP.linear() * R_PC;
-          X_WC.translation().noalias() = X_WP.linear() * joint.X_PJ.translation();
-          X_WC.translation() += X_WP.translation();
-          break;
-        }
-        case JointType::kPrismatic: {
-          const double value = state->joint_values[joint.dof_index];
-          X_WC.linear().noalias() = X_WP.linear() * joint.X_PJ.linear();
-          X_WC.translation().noalias() = X_WC.linear() * (value * joint.axis_J);
-          X_WC.translation() += X_WP * joint.X_PJ.translation();
-          break;
-        }
-      }
+      const double value =
+          joint.type == JointType::kFixed ? 0.0 : state->joint_values[joint.dof_index];
+      ChildPose(joint, X_WL[joint.parent_link], value, sines[i - start], cosines[i - start],
+                &X_WL[joint.child_link]);
     }
+  }
+}
+
+void ForwardKinematicsToLink(const RobotModel& model, int link, RobotState* state) {
+  TROCAR_THROW_UNLESS(link >= 0 && link < model.num_links(),
+                      "robot '" << model.name() << "': no link " << link);
+  std::vector<Eigen::Isometry3d>& X_WL = state->X_WL;
+  X_WL[0] = state->X_WB;
+  // The chain from the link up to the root, then down it (a chain deeper than the buffer, which
+  // no robot here comes near, takes the whole robot's forward kinematics: same poses).
+  constexpr int kMaxDepth = 128;
+  int chain[kMaxDepth];
+  int n = 0;
+  for (int l = link; model.link(l).parent_joint >= 0; ++n) {
+    if (n == kMaxDepth) {
+      ForwardKinematics(model, state);
+      return;
+    }
+    chain[n] = model.link(l).parent_joint;
+    l = model.joint(chain[n]).parent_link;
+  }
+  for (int k = n - 1; k >= 0; --k) {
+    const Joint& joint = model.joint(chain[k]);
+    double value = 0.0, s = 0.0, c = 1.0;
+    if (joint.type != JointType::kFixed) value = state->joint_values[joint.dof_index];
+    if (joint.type == JointType::kRevolute) SinCos(value, &s, &c);
+    ChildPose(joint, X_WL[joint.parent_link], value, s, c, &X_WL[joint.child_link]);
   }
 }
 

@@ -41,6 +41,12 @@ ConfigurationResult SetHeldJoint(const robot::RobotModel& model, const std::stri
 /// Link poses X_WL from state->joint_values and state->X_WB.
 void ForwardKinematics(const robot::RobotModel& model, robot::RobotState* state);
 
+/// Link poses X_WL of `link` and the links on its path from the base only, from
+/// state->joint_values (resolved) and state->X_WB; other links' poses are left as they were. For
+/// solvers that move one chain of a large robot (the setup joints of one arm of a cart).
+/// @throws trocar::Error when `link` is not a link of the model.
+void ForwardKinematicsToLink(const robot::RobotModel& model, int link, robot::RobotState* state);
+
 /// SetConfiguration followed, when it succeeds, by ForwardKinematics.
 ConfigurationResult ForwardKinematics(const robot::RobotModel& model, const Eigen::VectorXd& q,
                                       robot::RobotState* state);

@@ -77,13 +77,34 @@ SetupJointResult SolveSetupJoints(const robot::RobotModel& model, const robot::R
   }
   auto clamp = [&](Eigen::VectorXd v) { return v.cwiseMax(lower).cwiseMin(upper).eval(); };
 
+  // Held joints may drive mimic joints or closures: then every evaluation re-resolves them and
+  // poses the whole robot. When none of the solved joints drives one (directly or through
+  // another), the frame's pose depends on its own chain alone: only that chain is posed (a da
+  // Vinci cart's setup joints move one arm's chain of the whole cart's links).
+  std::vector<bool> driven(model.joints().size(), false);
+  for (int j : joints) driven[j] = true;
+  bool drives_passive = false;
+  for (int step : model.resolve_order()) {
+    if (step >= 0) {
+      if (driven[model.joint(step).mimic.master]) driven[step] = drives_passive = true;
+    } else {
+      const robot::FourBarClosure& c = model.closures()[-1 - step];
+      if (driven[c.driver]) driven[c.coupler] = driven[c.rocker] = drives_passive = true;
+    }
+  }
   robot::RobotState work = state;
+  // The active joints' and the passive joints' values resolved once from q (the slow path does it
+  // at every evaluation).
+  if (!drives_passive && !SetConfiguration(model, work.q, &work).ok()) drives_passive = true;
   const double w = 1.0 / options.length_scale;
   auto evaluate = [&](const Eigen::VectorXd& values, Evaluation* e) {
     for (int i = 0; i < n; ++i) work.joint_values[model.joint(joints[i]).dof_index] = values[i];
-    // Held joints may drive mimic joints or closures; re-resolve them (active q unchanged).
-    if (!SetConfiguration(model, work.q, &work).ok()) return false;
-    ForwardKinematics(model, &work);
+    if (drives_passive) {
+      if (!SetConfiguration(model, work.q, &work).ok()) return false;
+      ForwardKinematics(model, &work);
+    } else {
+      ForwardKinematicsToLink(model, frame.link, &work);
+    }
     const Eigen::Isometry3d X_WF = FramePose(work, frame);
     const Eigen::Vector3d p = X_WF.translation();
     const Eigen::Vector3d a = X_WF.linear() * axis_F;

@@ -210,6 +210,52 @@ TEST(DaVinciCart, IsOneDescriptionWithHeldSetupJointsAndActiveArms) {
   }
 }
 
+TEST(DaVinciCart, PosingOneLinksChainGivesTheWholeRobotsPosesThereAndTouchesNothingElse) {
+  // ForwardKinematicsToLink (the setup-joint solver's inner loop) against the whole robot's
+  // forward kinematics, on every link of the cart at random setup joints, arm joints and cart
+  // poses: the same poses bit for bit on the link's chain, and every other link left as it was.
+  const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"));
+  std::mt19937 rng(44);
+  const Eigen::Isometry3d kUntouched = Eigen::Translation3d(1e3, -1e3, 1e3) *
+                                       Eigen::Isometry3d(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitX()));
+  int links_checked = 0;
+  for (int trial = 0; trial < 20; ++trial) {
+    RobotState whole(cart);
+    std::uniform_real_distribution<double> metres(-2.0, 2.0);
+    whole.X_WB = Eigen::Translation3d(metres(rng), metres(rng), metres(rng)) *
+                 Eigen::AngleAxisd(std::uniform_real_distribution<double>(-M_PI, M_PI)(rng),
+                                   Eigen::Vector3d::UnitZ());
+    for (int j : cart.dof_joints()) {
+      const robot::Joint& joint = cart.joint(j);
+      if (joint.drive != robot::JointDrive::kHeld) continue;
+      whole.joint_values[joint.dof_index] =
+          std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
+    }
+    ASSERT_TRUE(ForwardKinematics(cart, test::RandomConfiguration(cart, &rng), &whole).ok());
+    for (int link = 0; link < cart.num_links(); ++link) {
+      RobotState part = whole;
+      for (auto& X : part.X_WL) X = kUntouched;
+      kinematics::ForwardKinematicsToLink(cart, link, &part);
+      std::vector<bool> on_chain(cart.num_links(), false);
+      for (int l = link;; l = cart.joint(cart.link(l).parent_joint).parent_link) {
+        on_chain[l] = true;
+        if (cart.link(l).parent_joint < 0) break;
+      }
+      for (int l = 0; l < cart.num_links(); ++l) {
+        const Eigen::Isometry3d& expected = on_chain[l] ? whole.X_WL[l] : kUntouched;
+        ASSERT_TRUE(CompareMatrices(part.X_WL[l].matrix(), expected.matrix(), 0.0))
+            << "posing '" << cart.link(link).name << "': link '" << cart.link(l).name << "' ("
+            << (on_chain[l] ? "on its chain" : "not on its chain") << ")";
+      }
+      ++links_checked;
+    }
+  }
+  EXPECT_EQ(links_checked, 20 * cart.num_links());
+  RobotState state(cart);
+  EXPECT_THROW(kinematics::ForwardKinematicsToLink(cart, cart.num_links(), &state), Error);
+  EXPECT_THROW(kinematics::ForwardKinematicsToLink(cart, -1, &state), Error);
+}
+
 // The pose of an RCM frame at random setup-joint values (a reachable target), and in `start` the
 // same random arm joints with the setup joints at their neutral values.
 Eigen::Isometry3d RandomRcmPose(const RobotModel& cart, const robot::Frame& rcm, std::mt19937* rng,
