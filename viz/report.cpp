@@ -130,10 +130,22 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
       h << "</table>\n";
     }
     h << "<h3>Sign-off</h3>";
+    h << "<p>status: <b>" << Escape(planners::PlanDecisionStatus(file, k)) << "</b></p>";
+    const std::vector<std::string> blockers = planners::ApprovalBlockers(file, k);
+    if (!blockers.empty()) {
+      h << "<p>approval needs an override:</p><ul>";
+      for (const auto& b : blockers) h << "<li>" << Escape(b) << "</li>";
+      h << "</ul>";
+    }
     if (p.signoffs.empty()) h << "<p>not signed off</p>";
     for (const auto& s : p.signoffs) {
       h << "<p><b>" << Escape(s.decision) << "</b> by " << Escape(s.surgeon) << " at " << Escape(s.time)
         << (s.note.empty() ? "" : ": " + Escape(s.note)) << "</p>";
+      if (!s.override_reason.empty()) {
+        h << "<p>override: " << Escape(s.override_reason) << "</p><ul>";
+        for (const auto& b : s.overridden) h << "<li>overrode: " << Escape(b) << "</li>";
+        h << "</ul>";
+      }
       if (!s.session.empty()) {
         // The session's tracking figures, written beside its record by trocar teleop --record.
         const std::filesystem::path folder = std::filesystem::path(s.session).parent_path();

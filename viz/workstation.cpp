@@ -92,7 +92,8 @@ std::string PlanTitle(const planners::StoredPlan& p) {
 }
 
 /// The selected plan's score breakdown, verdict and verification, as HTML.
-QString PlanHtml(const planners::PlanFile& file, const planners::StoredPlan& p) {
+QString PlanHtml(const planners::PlanFile& file, std::size_t index) {
+  const planners::StoredPlan& p = file.plans.at(index);
   QString h;
   h += "<h3>Plan " + QString::number(p.rank) + ": " + QString::fromStdString(p.status) + "</h3>";
   h += "<p>score <b>" + Fixed(p.score, 3) + "</b>, rank score " + Fixed(p.rank_score, 3) + "</p>";
@@ -118,12 +119,22 @@ QString PlanHtml(const planners::PlanFile& file, const planners::StoredPlan& p) 
   h += "</ul>";
   if (!p.message.empty()) h += "<p><i>" + QString::fromStdString(p.message).toHtmlEscaped() + "</i></p>";
   h += "<h4>Sign-off</h4>";
+  h += "<p>status: <b>" + QString::fromStdString(planners::PlanDecisionStatus(file, index)) + "</b></p>";
+  const std::vector<std::string> blockers = planners::ApprovalBlockers(file, index);
+  if (!blockers.empty()) {
+    h += "<p>Approve needs an override and its reason:</p><ul>";
+    for (const auto& b : blockers) h += "<li>" + QString::fromStdString(b).toHtmlEscaped() + "</li>";
+    h += "</ul>";
+  }
   if (p.signoffs.empty()) h += "<p>not signed off</p>";
   for (auto it = p.signoffs.rbegin(); it != p.signoffs.rend(); ++it) {
     h += "<p><b>" + QString::fromStdString(it->decision) + "</b> by " +
          QString::fromStdString(it->surgeon).toHtmlEscaped() + " at " + QString::fromStdString(it->time) +
          (it->session.empty() ? QString() : ", session " + QString::fromStdString(it->session).toHtmlEscaped()) +
-         (it->note.empty() ? QString() : ": " + QString::fromStdString(it->note).toHtmlEscaped()) + "</p>";
+         (it->note.empty() ? QString() : ": " + QString::fromStdString(it->note).toHtmlEscaped()) +
+         (it->override_reason.empty() ? QString()
+                                      : "; <i>override</i>: " + QString::fromStdString(it->override_reason).toHtmlEscaped()) +
+         "</p>";
   }
   return h;
 }
@@ -229,15 +240,20 @@ class Workstation {
     auto* sign = new QFormLayout;
     surgeon_ = new QLineEdit(QString::fromLocal8Bit(qgetenv("USER")));
     note_ = new QLineEdit;
+    override_ = new QLineEdit;
+    override_->setPlaceholderText("only to approve a plan that fails: why");
     sign->addRow("surgeon", surgeon_);
     sign->addRow("note", note_);
+    sign->addRow("override", override_);
     layout->addLayout(sign);
     auto* buttons = new QHBoxLayout;
-    auto* approve = new QPushButton("Approve");
+    approve_ = new QPushButton("Approve");
+    auto* approve = approve_;
     auto* reject = new QPushButton("Reject");
     buttons->addWidget(approve);
     buttons->addWidget(reject);
     layout->addLayout(buttons);
+    QObject::connect(override_, &QLineEdit::textChanged, [this] { UpdateApprove(); });
     QObject::connect(approve, &QPushButton::clicked, [this] { Sign("approved"); });
     QObject::connect(reject, &QPushButton::clicked, [this] { Sign("rejected"); });
     FillPlans();
@@ -265,7 +281,8 @@ class Workstation {
       collisions_ = std::make_unique<planners::PlanCollisions>(*scene_->patient(), robot_, *plan_, k);
       FillMotions();
       ShowCollisions();
-      details_->setHtml(PlanHtml(*plan_, plan_->plans[k]));
+      details_->setHtml(PlanHtml(*plan_, k));
+      UpdateApprove();
       if (plans_->currentRow() != static_cast<int>(k)) plans_->setCurrentRow(static_cast<int>(k));
       SyncJoints();
       UpdateScope();
@@ -273,6 +290,26 @@ class Workstation {
     } catch (const Error& e) {
       Fail(e.what());
     }
+  }
+
+  /// Approve follows SignOffPlan's rule: active on a plan nothing blocks, or, on one that fails,
+  /// once an override reason is typed; its tooltip says which.
+  void UpdateApprove() {
+    if (!approve_) return;
+    if (!plan_ || plan_index_ >= plan_->plans.size()) {
+      approve_->setEnabled(false);
+      approve_->setToolTip("no plan");
+      return;
+    }
+    const std::vector<std::string> blockers = planners::ApprovalBlockers(*plan_, plan_index_);
+    QString why;
+    for (const auto& b : blockers) why += QString::fromStdString(b) + "\n";
+    const bool overridden = !override_->text().trimmed().isEmpty();
+    approve_->setEnabled(blockers.empty() || overridden);
+    approve_->setToolTip(blockers.empty() ? QString("approve this plan")
+                                          : (overridden ? "approve with the override, overriding:\n"
+                                                        : "type an override reason to approve; this plan fails:\n") +
+                                                why);
   }
 
   /// Signs the shown plan off in its file (atomically), then shows the file as written.
@@ -283,9 +320,11 @@ class Workstation {
       s.decision = decision;
       s.surgeon = surgeon_->text().trimmed().toStdString();
       s.note = note_->text().toStdString();
+      if (decision == "approved" && !planners::ApprovalBlockers(*plan_, plan_index_).empty())
+        s.override_reason = override_->text().trimmed().toStdString();
       s = planners::SignOffPlan(plan_->path, plan_index_, s);
       plan_->plans[plan_index_].signoffs.push_back(s);
-      details_->setHtml(PlanHtml(*plan_, plan_->plans[plan_index_]));
+      details_->setHtml(PlanHtml(*plan_, plan_index_));
       window_.statusBar()->showMessage(QString::fromStdString("plan " + std::to_string(plan_index_ + 1) + " " +
                                                               decision + " in " + plan_->path));
     } catch (const Error& e) {
@@ -682,6 +721,8 @@ class Workstation {
   QListWidget* plans_ = nullptr;
   QTextBrowser* details_ = nullptr;
   QLineEdit* surgeon_ = nullptr;
+  QLineEdit* override_ = nullptr;
+  QPushButton* approve_ = nullptr;
   QLineEdit* note_ = nullptr;
   QLineEdit* position_ = nullptr;
   QLineEdit* rotation_ = nullptr;

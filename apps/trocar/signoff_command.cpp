@@ -34,13 +34,28 @@ void AddSignOffCommand(CLI::App* app) {
   cmd->add_option("--note", o->signoff.note, "why (at most 10,000 characters)");
   cmd->add_option("--session", o->signoff.session,
                   "the recorded teleoperation session the plan was verified with (its hash is stored)");
+  cmd->add_option("--override", o->signoff.override_reason,
+                  "approve a plan that fails (in collision, not verified, or not suitable by its "
+                  "verified motions) anyway, for this reason: recorded with the failures it "
+                  "overrides; without it such an approval is refused");
   cmd->callback([o]() {
     TROCAR_THROW_UNLESS(o->approve || o->reject, "signoff: say --approve or --reject");
     planners::SignOff s = o->signoff;
     s.decision = o->approve ? "approved" : "rejected";
-    s = planners::SignOffPlan(o->plan_file, static_cast<std::size_t>(o->plan - 1), s);
+    const auto index = static_cast<std::size_t>(o->plan - 1);
+    s = planners::SignOffPlan(o->plan_file, index, s);
     std::cout << o->plan_file << ": plan " << o->plan << " " << s.decision << " by " << s.surgeon
               << " at " << s.time << (s.session.empty() ? "" : ", session " + s.session) << "\n";
+    if (!s.override_reason.empty()) {
+      std::cout << "  overriding: " << s.override_reason << "\n";
+      for (const auto& b : s.overridden) std::cout << "    " << b << "\n";
+    }
+    // The status as the file now says it (another plan approved earlier is now superseded).
+    const planners::PlanFile file = planners::ReadPlanFile(o->plan_file);
+    for (std::size_t k = 0; k < file.plans.size(); ++k) {
+      const std::string status = planners::PlanDecisionStatus(file, k);
+      if (status != "proposed") std::cout << "  plan " << k + 1 << ": " << status << "\n";
+    }
   });
 }
 

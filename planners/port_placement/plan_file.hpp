@@ -55,6 +55,10 @@ struct SignOff {
   /// The teleoperation session the surgeon verified the plan with (trocar teleop --record):
   /// its path and content hash; empty when none.
   std::string session, session_hash;
+  /// An approval of a plan that fails (see ApprovalBlockers) carries the surgeon's reason for
+  /// approving it anyway, and the failures it overrode, as they were when it was signed.
+  std::string override_reason;
+  std::vector<std::string> overridden;
 };
 
 struct StoredPlan {
@@ -108,12 +112,26 @@ struct PlanFile {
 /// of the wrong type or size, a non-finite number.
 PlanFile ReadPlanFile(const std::string& path);
 
+/// Why plan `index` (0-based) of `file` may not be approved without an override: at its nominal
+/// pose in collision or not placed; not verified by motions; not suitable by its verified verdict
+/// (its verified motions and served samples, with the first reasons). Empty: nothing blocks.
+/// @throws trocar::Error when the index is out of range.
+std::vector<std::string> ApprovalBlockers(const PlanFile& file, std::size_t index);
+
+/// A plan's current status derived from its sign-off history: "proposed" (never signed),
+/// "approved", "rejected" (its latest decision), or "superseded" (approved, but another plan of
+/// the file was approved after it and stands).
+/// @throws trocar::Error when the index is out of range.
+std::string PlanDecisionStatus(const PlanFile& file, std::size_t index);
+
 /// Adds `signoff` (its time set now) to plan `index` (0-based) of the plan file at `path`, which
 /// is rewritten atomically (temporary name, then rename): a crash leaves the previous file whole.
 /// Everything else in the file is kept. @return the sign-off as written.
 /// @throws trocar::Error naming the file when it is not a readable plan, the index is out of
 /// range, the decision is not "approved" or "rejected", the surgeon is empty, the note is over
-/// 10,000 characters, or the session file cannot be read.
+/// 10,000 characters, or the session file cannot be read; when approving a plan that
+/// ApprovalBlockers blocks without `override_reason` (the error lists the blockers), or giving an
+/// override where nothing is blocked or on a rejection.
 SignOff SignOffPlan(const std::string& path, std::size_t index, SignOff signoff);
 
 /// The robot at a stored plan's nominal pose: cart at X_WB, setup joints held, active joints at

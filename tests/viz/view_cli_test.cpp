@@ -200,13 +200,30 @@ TEST_F(ViewCli, ASignOffIsAddedToItsPlanAndEverythingElseInTheFileIsKept) {
   const nlohmann::json before = nlohmann::json::parse(ReadTextFile(path));
   const std::string session = Out("session.csv");
   WriteFileAtomically(session, "t,x\n0,1\n");
-  CommandRun run = Trocar("signoff " + path + " --plan 2 --approve --surgeon 'Dr Ada' --note 'ports fine' --session " + session);
+  // The fixture's plan 2 fails (the two-arm default is not suitable): approving it is refused,
+  // naming why, and nothing is written; with an override and its reason it is recorded as such.
+  const std::vector<std::string> blockers = planners::ApprovalBlockers(planners::ReadPlanFile(path), 1);
+  ASSERT_FALSE(blockers.empty()) << "premise: the fixture's plan 2 fails";
+  CommandRun run = Trocar("signoff " + path + " --plan 2 --approve --surgeon 'Dr Ada' --note 'ports fine'");
+  EXPECT_EQ(run.exit_code, 1) << run.output;
+  EXPECT_NE(run.output.find("cannot be approved"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find(blockers[0]), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("--override"), std::string::npos) << run.output;
+  EXPECT_EQ(nlohmann::json::parse(ReadTextFile(path)), before);
+  run = Trocar("signoff " + path + " --plan 2 --approve --surgeon 'Dr Ada' --note 'ports fine' --session " +
+               session + " --override 'teaching case, not operated'");
   ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("plan 2: approved"), std::string::npos) << run.output;
   run = Trocar("signoff " + path + " --plan 2 --reject --surgeon 'Dr Bea' --note 'LIMA too far'");
   ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("plan 2: rejected"), std::string::npos) << run.output;
   const planners::PlanFile file = planners::ReadPlanFile(path);
+  EXPECT_EQ(planners::PlanDecisionStatus(file, 1), "rejected");
   ASSERT_EQ(file.plans[1].signoffs.size(), 2u);
   EXPECT_EQ(file.plans[1].signoffs[0].decision, "approved");
+  EXPECT_EQ(file.plans[1].signoffs[0].override_reason, "teaching case, not operated");
+  EXPECT_EQ(file.plans[1].signoffs[0].overridden, blockers);
+  EXPECT_TRUE(file.plans[1].signoffs[1].override_reason.empty());
   EXPECT_EQ(file.plans[1].signoffs[0].surgeon, "Dr Ada");
   EXPECT_EQ(file.plans[1].signoffs[0].session, session);
   EXPECT_EQ(file.plans[1].signoffs[0].session_hash.rfind("fnv1a64:", 0), 0u);
@@ -220,7 +237,8 @@ TEST_F(ViewCli, ASignOffIsAddedToItsPlanAndEverythingElseInTheFileIsKept) {
   // Refused, the file untouched.
   const std::string kept = ReadTextFile(path);
   for (const char* bad : {"--plan 9 --approve --surgeon x", "--approve --reject --surgeon x",
-                          "--surgeon x", "--approve --surgeon x --session /no/such.csv"}) {
+                          "--surgeon x", "--approve --surgeon x --override y --session /no/such.csv",
+                          "--plan 2 --approve --surgeon x", "--plan 2 --reject --surgeon x --override y"}) {
     run = Trocar("signoff " + path + " " + bad);
     EXPECT_NE(run.exit_code, 0) << bad;
     EXPECT_EQ(ReadTextFile(path), kept) << bad;
@@ -236,7 +254,7 @@ TEST_F(ViewCli, ASignOffKilledAtAnyMomentLeavesTheOldFileOrTheNewOneWhole) {
   auto start = [&]() {
     const pid_t child = ::fork();
     if (child == 0) {
-      ::execl(TROCAR_BINARY, TROCAR_BINARY, "signoff", path.c_str(), "--approve", "--surgeon", "s",
+      ::execl(TROCAR_BINARY, TROCAR_BINARY, "signoff", path.c_str(), "--reject", "--surgeon", "s",
               "--note", std::string(5000, 'n').c_str(), static_cast<char*>(nullptr));
       ::_exit(127);
     }
@@ -366,7 +384,7 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Plan()));
   const std::string plan = Out("report_plan.json");
   WriteFileAtomically(plan, doc.dump());
-  CommandRun run = Trocar("signoff " + plan + " --approve --surgeon 'Dr <Ada>' --note 'fine & ready'");
+  CommandRun run = Trocar("signoff " + plan + " --approve --surgeon 'Dr <Ada>' --note 'fine & ready' --override 'for the report'");
   ASSERT_EQ(run.exit_code, 0) << run.output;
   run = Trocar("report " + plan + " --out " + dir + " --plans 2 --flat --colour robot=0,0,255");
   ASSERT_EQ(run.exit_code, 0) << run.output;
@@ -381,6 +399,8 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   EXPECT_EQ(html.find("href="), std::string::npos);
   EXPECT_NE(html.find("Dr &lt;Ada&gt;"), std::string::npos) << "the sign-off, escaped";
   EXPECT_NE(html.find("fine &amp; ready"), std::string::npos);
+  EXPECT_NE(html.find("status: <b>approved</b>"), std::string::npos);
+  EXPECT_NE(html.find("override: for the report"), std::string::npos);
   // A real browser shows the pictures (the robot in its flat blue) and the tables (their headers'
   // colour).
   const std::string shot = Out("report.png");
