@@ -49,8 +49,9 @@ struct MotionOptions {
   double recheck_step = 0.002;
   int ik_restarts = 8;     ///< inverse-kinematics starts for the goal (first: the nominal pose)
   int goal_states = 3;     ///< distinct valid goal states to collect, at most
-  bool simplify = true;    ///< OMPL's PathSimplifier (shortcutting and smoothing)
-  double simplify_time = 0.5;  ///< s at most
+  /// OMPL's PathSimplifier: vertices reduced and close ones collapsed, then shortcuts (at most
+  /// five rounds), then vertices reduced again; each bounded by the path's states, not a clock.
+  bool simplify = true;
   unsigned seed = 1;
 };
 /// @throws trocar::Error for an unknown planner (listing the valid ones) or a non-positive time
