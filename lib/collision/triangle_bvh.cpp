@@ -277,10 +277,24 @@ namespace {
 
 // Queries for TriangleBvh::Search: NodeBound2 (a lower bound on the squared distance to a box of
 // the hierarchy) and Leaf (exact closest points to one triangle).
+// Squared gap between two axis-aligned boxes: a lower bound of the squared distance between
+// anything inside them, a few comparisons where an exact bound costs a piecewise minimisation.
+inline double AabbGap2(const Vector3d& lo1, const Vector3d& hi1, const Vector3d& lo2,
+                       const Vector3d& hi2) {
+  return (lo1 - hi2).cwiseMax(lo2 - hi1).cwiseMax(0.0).squaredNorm();
+}
+
 struct SegmentQuery {
   Vector3d a, b;
-  double NodeBound2(const Vector3d& lo, const Vector3d& hi) const {
-    return SegmentBoxDistanceSquared(a, b, lo, hi);
+  Vector3d lo, hi;  // the segment's bounds
+  SegmentQuery(const Vector3d& a_in, const Vector3d& b_in)
+      : a(a_in), b(b_in), lo(a_in.cwiseMin(b_in)), hi(a_in.cwiseMax(b_in)) {}
+  // A cheaper lower bound of NodeBound2 (a node it puts beyond a radius is beyond it exactly).
+  double CheapBound2(const Vector3d& node_lo, const Vector3d& node_hi) const {
+    return AabbGap2(lo, hi, node_lo, node_hi);
+  }
+  double NodeBound2(const Vector3d& lo_n, const Vector3d& hi_n) const {
+    return SegmentBoxDistanceSquared(a, b, lo_n, hi_n);
   }
   double Leaf(const Vector3d& v0, const Vector3d& v1, const Vector3d& v2, Vector3d* pq,
               Vector3d* pt, double /*best*/) const {
@@ -306,6 +320,13 @@ struct BoxQuery {
     Vector3d across = half;
     across[k] = 0.0;
     axis_radius = across.norm();
+    const Vector3d reach_M = pose.linear().cwiseAbs() * half;
+    lo = pose.translation() - reach_M;
+    hi = pose.translation() + reach_M;
+  }
+  Vector3d lo, hi;  // the box's bounds in M
+  double CheapBound2(const Vector3d& node_lo, const Vector3d& node_hi) const {
+    return AabbGap2(lo, hi, node_lo, node_hi);
   }
   // Lower bounds, the largest of: the node's box against the box's axis-aligned bounds in M; the
   // node's box's bounds in B against the box; the enclosing capsule against the node's box.
@@ -378,8 +399,13 @@ MeshClosest TriangleBvh::Search(const Query& query, double bound) const {
     }
     const Node& l = nodes_[node.first];
     const Node& r = nodes_[node.first + 1];
-    const double dl = query.NodeBound2(l.lo, l.hi);
-    const double dr = query.NodeBound2(r.lo, r.hi);
+    // The cheap bound first: a child it already puts beyond the best is never pushed.
+    auto bound2 = [&](const Node& c) {
+      const double cheap = query.CheapBound2(c.lo, c.hi);
+      return cheap >= best2 ? cheap : query.NodeBound2(c.lo, c.hi);
+    };
+    const double dl = bound2(l);
+    const double dr = bound2(r);
     // Nearer child on top of the stack.
     const bool left_first = dl <= dr;
     const Entry near{left_first ? node.first : node.first + 1, left_first ? dl : dr};
@@ -410,11 +436,22 @@ NearestQuery TriangleBvh::ClosestOfAll(const std::vector<MeshQuery>& queries, do
       boxes.emplace_back(queries[q].X_MB, queries[q].half);
     }
   }
-  // Lower bound on the surface distance from query q to node n.
+  double best = bound;
+  // Lower bound on the surface distance from query q to node n (the boxes' gap first: a node it
+  // already puts beyond the best is never pushed, so its exact bound is not needed).
   auto node_bound = [&](int q, int n) {
     const MeshQuery& query = queries[q];
     const Node& node = query.mesh->nodes_[n];
-    if (query.box) return std::sqrt(boxes[box_of[q]].NodeBound2(node.lo, node.hi));
+    if (query.box) {
+      const BoxQuery& box = boxes[box_of[q]];
+      const double cheap = std::sqrt(box.CheapBound2(node.lo, node.hi));
+      return cheap >= best ? cheap : std::sqrt(box.NodeBound2(node.lo, node.hi));
+    }
+    const double cheap =
+        std::sqrt(AabbGap2(query.a_M.cwiseMin(query.b_M), query.a_M.cwiseMax(query.b_M),
+                           node.lo, node.hi)) -
+        query.radius;
+    if (cheap >= best) return cheap;
     return std::sqrt(SegmentBoxDistanceSquared(query.a_M, query.b_M, node.lo, node.hi)) -
            query.radius;
   };
@@ -423,7 +460,6 @@ NearestQuery TriangleBvh::ClosestOfAll(const std::vector<MeshQuery>& queries, do
   auto later = [](const Scratch::Entry& x, const Scratch::Entry& y) {
     return std::tie(x.bound, x.query, x.node) > std::tie(y.bound, y.query, y.node);
   };
-  double best = bound;
   for (std::size_t q = 0; q < queries.size(); ++q) {
     if (!queries[q].mesh || queries[q].mesh->triangles_.empty()) continue;
     const double b = node_bound(static_cast<int>(q), 0);
@@ -513,7 +549,10 @@ SweptSphereContact TriangleBvh::TouchesWith(const Query& query, double radius,
   const double r2 = radius * radius;
   int stack[128];
   int top = 0;
-  if (query.NodeBound2(nodes_[0].lo, nodes_[0].hi) > r2) return out;
+  auto beyond = [&](const Node& n) {
+    return query.CheapBound2(n.lo, n.hi) > r2 || query.NodeBound2(n.lo, n.hi) > r2;
+  };
+  if (beyond(nodes_[0])) return out;
   stack[top++] = 0;
   Vector3d pq, pt;
   while (top > 0) {
@@ -535,7 +574,7 @@ SweptSphereContact TriangleBvh::TouchesWith(const Query& query, double radius,
       continue;
     }
     for (int c : {node.first, node.first + 1}) {
-      if (query.NodeBound2(nodes_[c].lo, nodes_[c].hi) <= r2) stack[top++] = c;
+      if (!beyond(nodes_[c])) stack[top++] = c;
     }
   }
   return out;
