@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/error.hpp"
+#include "common/json_util.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
 
@@ -111,7 +112,7 @@ SceneFile ReadSceneFile(const std::string& path) {
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": no such scene file");
   json doc;
   try {
-    doc = json::parse(ReadTextFile(path));
+    doc = ReadJsonFile(path);
   } catch (const json::exception& e) {
     TROCAR_THROW(path << ": not a scene file (JSON: " << e.what() << ")");
   }

@@ -13,6 +13,8 @@
 #include "collision/collision_world.hpp"
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
+#include "common/json_util.hpp"
+#include "port_placement/plan_file.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "patient/patient_model.hpp"
@@ -55,9 +57,12 @@ std::string Mm(double m) {
 }  // namespace
 
 int CheckPlanFile(const std::string& path, std::ostream& out) {
+  // The typed reader first: every field's type, size and range, the cart's one pose; then the
+  // independent re-check of what the plan claims.
+  (void)planners::ReadPlanFile(path);
   json doc;
   try {
-    doc = json::parse(ReadTextFile(path));
+    doc = ReadJsonFile(path);
   } catch (const json::exception& e) {
     TROCAR_THROW(path << ": not a plan (JSON: " << e.what() << ")");
   }
@@ -72,7 +77,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
   TROCAR_THROW_UNLESS(doc.is_object() && doc.contains("format") && doc["format"].is_string() &&
                           doc["format"].get<std::string>() == "trocar-plan",
                       path << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
-  const int version = field(doc, "version").get<int>();
+  const int version = JsonInt(field(doc, "version"), path, "version");
   TROCAR_THROW_UNLESS(version == planners::kPlanFormatVersion,
                       path << ": plan format version " << version << ", this trocar reads version "
                            << planners::kPlanFormatVersion);
@@ -172,8 +177,11 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
     // The ranked plans, then the baselines beside them (the template, a surgeon's ports): every
     // claim of each is checked the same way.
     std::vector<std::pair<const json*, std::string>> to_check;
+    TROCAR_THROW_UNLESS(field(doc, "plans").is_array() && !doc["plans"].empty(),
+                        path << ": plans: expected an array of at least one plan, found "
+                             << doc["plans"].dump().substr(0, 40));
     for (const auto& plan : field(doc, "plans"))
-      to_check.push_back({&plan, "plan " + std::to_string(field(plan, "rank").get<int>()) + ": "});
+      to_check.push_back({&plan, "plan " + std::to_string(JsonInt(field(plan, "rank"), path, "plans[].rank", 1)) + ": "});
     if (doc.contains("baselines")) {
       TROCAR_THROW_UNLESS(doc["baselines"].is_array(), path << ": baselines: expected an array");
       for (const auto& b : doc["baselines"]) {
@@ -287,7 +295,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       }
       // Every sample the plan calls reached or seen.
       for (const auto& r : field(plan, "samples")) {
-        const int sample = field(r, "sample").get<int>();
+        const int sample = JsonInt(field(r, "sample"), path, "plans[].samples[].sample", 0);
         TROCAR_THROW_UNLESS(sample >= 0 && sample < static_cast<int>(aims.size()),
                             path << ": sample index " << sample << " out of range");
         const std::string arm_name = field(r, "arm").get<std::string>();
@@ -393,7 +401,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           ++solved;
           ++claims;
           const std::string arm_name = field(m, "arm").get<std::string>();
-          const int sample = field(m, "sample").get<int>();
+          const int sample = JsonInt(field(m, "sample"), path, "plans[].verification.motions[].sample", 0);
           TROCAR_THROW_UNLESS(sample >= 0 && sample < static_cast<int>(aims.size()),
                               path << ": motion sample " << sample << " out of range");
           const std::string where =

@@ -12,6 +12,8 @@
 
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
+#include "common/json_util.hpp"
+#include "port_placement/plan_file.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "motion/verify.hpp"
@@ -84,9 +86,12 @@ Eigen::Vector3d Vec3(const json& j) {
 
 int RunVerify(const VerifyOptions& o) {
   planners::ValidateMotionOptions(o.motion);
+  // The typed reader first (every field checked, the cart's one pose), before anything is
+  // rebuilt or rewritten.
+  (void)planners::ReadPlanFile(o.plan);
   json doc;
   try {
-    doc = json::parse(ReadTextFile(o.plan));
+    doc = ReadJsonFile(o.plan);
   } catch (const json::exception& e) {
     TROCAR_THROW(o.plan << ": not a plan (JSON: " << e.what() << ")");
   }
@@ -102,7 +107,7 @@ int RunVerify(const VerifyOptions& o) {
   try {
     TROCAR_THROW_UNLESS(doc.is_object() && doc.value("format", "") == "trocar-plan",
                         o.plan << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
-    TROCAR_THROW_UNLESS(doc.at("version").get<int>() == planners::kPlanFormatVersion,
+    TROCAR_THROW_UNLESS(JsonInt(doc.at("version"), o.plan, "version") == planners::kPlanFormatVersion,
                         o.plan << ": plan format version " << doc.at("version")
                                << ", this trocar reads version " << planners::kPlanFormatVersion);
     const json& inputs = doc.at("inputs");
@@ -149,8 +154,8 @@ int RunVerify(const VerifyOptions& o) {
     po.scope_min_distance = scoring.at("scope_min_distance_m").get<double>();
     po.scope_max_distance = scoring.at("scope_max_distance_m").get<double>();
     po.scope_working_distance = scoring.at("scope_working_distance_m").get<double>();
-    po.samples_per_target = scoring.at("samples_per_target").get<int>();
-    po.seed = doc.at("algorithm").at("seed").get<unsigned>();
+    po.samples_per_target = JsonInt(scoring.at("samples_per_target"), o.plan, "scoring.samples_per_target", 1, 100000);
+    po.seed = static_cast<unsigned>(JsonInt(doc.at("algorithm").at("seed"), o.plan, "algorithm.seed", 0));
     suitable_fraction = scoring.at("suitable_fraction").get<double>();
     problem = std::make_unique<planners::PortPlacementProblem>(patient, robot, po);
     TROCAR_THROW_UNLESS(problem->samples().size() == doc.at("target_samples").size(),
@@ -159,6 +164,9 @@ int RunVerify(const VerifyOptions& o) {
     std::map<std::string, int> candidate;
     for (int c = 0; c < static_cast<int>(patient->port_candidates.size()); ++c)
       candidate[patient->port_candidates[c].name] = c;
+    TROCAR_THROW_UNLESS(doc.at("plans").is_array() && !doc["plans"].empty(),
+                        o.plan << ": plans: expected an array of at least one plan, found "
+                               << doc["plans"].dump().substr(0, 40));
     int k = 0;
     for (const auto& p : doc.at("plans")) {
       ++k;
@@ -225,7 +233,7 @@ int RunVerify(const VerifyOptions& o) {
       for (const auto& r : p.at("samples")) {
         if (!r.contains("seen")) continue;
         planners::SampleReach reach;
-        reach.sample = r.at("sample").get<int>();
+        reach.sample = JsonInt(r.at("sample"), o.plan, "plans[].samples[].sample", 0);
         const std::string arm = r.at("arm").get<std::string>();
         for (std::size_t a = 0; a < problem->arms().size(); ++a) {
           if (problem->arms()[a].name == arm) reach.arm = static_cast<int>(a);

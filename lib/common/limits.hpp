@@ -22,6 +22,10 @@ struct InputLimits {
   int max_xml_depth = 64;                     ///< TROCAR_MAX_XML_DEPTH: URDF element nesting
   int max_includes = 256;                     ///< TROCAR_MAX_INCLUDES: robot files per load
   std::uint64_t max_yaml_nodes = 2000000;     ///< TROCAR_MAX_YAML_NODES: nodes walked per file
+  /// TROCAR_MAX_JSON_VALUES: values in one JSON file (a verified plan holds about 10,000; two
+  /// million keep the parsed document near 200 MB whatever the text)
+  std::uint64_t max_json_values = 2000000;
+  int max_json_depth = 64;                    ///< TROCAR_MAX_JSON_DEPTH: JSON nesting
   /// TROCAR_MAX_RECORDED_SAMPLES: rows a teleop record keeps (~200 MB); longer runs are thinned
   std::uint64_t max_recorded_samples = 500000;
 };

@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/error.hpp"
+#include "common/json_util.hpp"
 #include "common/file_util.hpp"
 
 namespace trocar::patient {
@@ -53,7 +54,7 @@ std::map<int, std::string> NamesFromCaretXml(const std::string& xml) {
 std::map<int, std::string> NamesFromJson(const std::string& file) {
   nlohmann::json j;
   try {
-    j = nlohmann::json::parse(ReadTextFile(file));
+    j = ReadJsonFile(file);
   } catch (const nlohmann::json::exception& e) {
     TROCAR_THROW(file << ": not JSON: " << e.what());
   }

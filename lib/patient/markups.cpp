@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/error.hpp"
+#include "common/json_util.hpp"
 #include "common/file_util.hpp"
 
 namespace trocar::patient {
@@ -25,7 +26,7 @@ std::string Text(const nlohmann::json& node, const char* key, const std::string&
 std::vector<Markup> LoadMarkups(const std::string& path) {
   nlohmann::json doc;
   try {
-    doc = nlohmann::json::parse(ReadTextFile(path));
+    doc = ReadJsonFile(path);
   } catch (const nlohmann::json::exception& e) {
     // Syntax errors, and numbers out of range (1e400) which the parser refuses with their own
     // exception type.

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/error.hpp"
+#include "common/json_util.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "port_placement/plan_io.hpp"
@@ -51,7 +52,7 @@ struct Field {
   }
   int Integer() const {
     if (!j.is_number_integer()) Fail("an integer");
-    return j.get<int>();
+    return JsonInt(j, file, path.empty() ? "the document" : path);
   }
   bool Bool() const {
     if (!j.is_boolean()) Fail("true or false");
@@ -96,6 +97,27 @@ struct Field {
   }
 };
 
+// The cart's pose: X_WB, checked against the x, y and yaw stored beside it (one pose, not two
+// sources of truth: `check --plan` and `verify` once read the one, `view` and `report` the other).
+Eigen::Isometry3d CartPose(const Field& cart) {
+  const Eigen::Isometry3d X_WB = cart["X_WB"].Pose();
+  const double x = cart["x"].Number(), y = cart["y"].Number();
+  const double yaw = cart["yaw_deg"].Number() * M_PI / 180.0;
+  Eigen::Isometry3d expected = Eigen::Isometry3d::Identity();
+  expected.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  expected.translation() = Eigen::Vector3d(x, y, 0.0);
+  const double moved = (X_WB.translation() - expected.translation()).norm();
+  const double turned = Eigen::AngleAxisd(X_WB.linear().transpose() * expected.linear()).angle();
+  if (moved > 1e-6 || turned > 1e-6) {
+    std::ostringstream m;
+    m << "X_WB to agree with x, y and yaw_deg (the cart on the floor at (" << x << ", " << y
+      << ") m, turned " << yaw * 180.0 / M_PI << " deg); it is " << moved * 1e3 << " mm and "
+      << turned * 180.0 / M_PI << " deg from that";
+    cart.Fail(m.str());
+  }
+  return X_WB;
+}
+
 StoredPlan ReadPlan(const Field& p) {
   StoredPlan plan;
   plan.rank = p["rank"].Integer();
@@ -103,7 +125,7 @@ StoredPlan ReadPlan(const Field& p) {
   plan.score = p["score"].Number();
   plan.rank_score = p["rank_score"].Number();
   if (p.Has("message")) plan.message = p["message"].String();
-  plan.X_WB = p["cart"]["X_WB"].Pose();
+  plan.X_WB = CartPose(p["cart"]);
   plan.setup_joints = p["setup_joints"].NamedNumbers();
   plan.q_nominal = p["q_nominal"].NamedNumbers();
   const Field ports = p["ports"];
@@ -201,7 +223,7 @@ PlanFile ReadPlanFile(const std::string& path) {
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": no such plan file");
   json doc;
   try {
-    doc = json::parse(ReadTextFile(path));
+    doc = ReadJsonFile(path);
   } catch (const json::exception& e) {
     TROCAR_THROW(path << ": not a plan (JSON: " << e.what() << ")");
   }
@@ -250,6 +272,7 @@ PlanFile ReadPlanFile(const std::string& path) {
     file.samples.push_back(s);
   }
   const Field plans = root["plans"];
+  if (plans.Size() == 0) plans.Fail("at least one plan");
   for (std::size_t i = 0; i < plans.Size(); ++i) {
     file.plans.push_back(ReadPlan(plans[i]));
     const StoredPlan& plan = file.plans.back();
@@ -349,7 +372,7 @@ SignOff SignOffPlan(const std::string& path, std::size_t index, SignOff signoff)
     signoff.session_hash = HashFile(signoff.session);
   }
   signoff.time = UtcNow();
-  json doc = json::parse(ReadTextFile(path));
+  json doc = ReadJsonFile(path);
   json entry = {{"decision", signoff.decision}, {"surgeon", signoff.surgeon},
                 {"note", signoff.note}, {"time", signoff.time}};
   if (!signoff.session.empty()) {

@@ -15,7 +15,9 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "common/limits.hpp"
 #include "control/igtl_device.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include <thread>
@@ -243,6 +245,76 @@ TEST_F(ViewCli, ASignOffIsAddedToItsPlanAndEverythingElseInTheFileIsKept) {
     EXPECT_NE(run.exit_code, 0) << bad;
     EXPECT_EQ(ReadTextFile(path), kept) << bad;
   }
+}
+
+TEST_F(ViewCli, HostilePlanFilesAreRefusedNamingTheFieldByEveryReaderAndNothingIsWritten) {
+  // #44 item 1, one class each: deep nesting, a repeated key, a wrong type, an integer that wraps
+  // when narrowed, a cart pose disagreeing with itself, a shifted index, too many values. Each is
+  // refused by the typed reader (view, report, signoff) with the field named, by `check --plan`
+  // and `verify` as a bad input (exit 1, not a crash, not "all hold"), and signoff writes nothing.
+  const nlohmann::json good = nlohmann::json::parse(ReadTextFile(Plan()));
+  const std::string text = good.dump();
+  struct Case {
+    std::string name, text, says;
+  };
+  std::vector<Case> cases;
+  cases.push_back({"deep", text.substr(0, text.size() - 1) + ",\"x\":" + std::string(100000, '[') +
+                               std::string(100000, ']') + "}",
+                   "nested deeper than"});
+  cases.push_back({"duplicate", text.substr(0, text.size() - 1) + ",\"plans\":[]}",
+                   "plans: the key is given twice"});
+  nlohmann::json doc = good;
+  doc["plans"] = nlohmann::json::object();
+  cases.push_back({"object", doc.dump(), "plans: expected an array"});
+  doc = good;
+  doc["plans"] = nlohmann::json::array();
+  cases.push_back({"empty", doc.dump(), "at least one plan"});
+  doc = good;
+  doc["version"] = 4294967298ull;  // 2 + 2^32: read as 2 once narrowed unchecked
+  cases.push_back({"version", doc.dump(), "version: expected an integer"});
+  doc = good;
+  doc["plans"][0]["cart"]["X_WB"][0][3] = doc["plans"][0]["cart"]["X_WB"][0][3].get<double>() + 0.25;
+  cases.push_back({"cart", doc.dump(), "plans[0].cart: expected X_WB to agree with x, y and yaw_deg"});
+  doc = good;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) doc["plans"][0]["cart"]["X_WB"][r][c] = 2 * doc["plans"][0]["cart"]["X_WB"][r][c].get<double>();
+  cases.push_back({"scaled", doc.dump(), "plans[0].cart.X_WB: expected a rigid transform"});
+  doc = good;
+  ASSERT_FALSE(doc["plans"][0]["verification"]["motions"].empty());
+  doc["plans"][0]["verification"]["motions"][0]["sample"] =
+      doc["plans"][0]["verification"]["motions"][0]["sample"].get<std::int64_t>() + (std::int64_t{1} << 32);
+  cases.push_back({"index", doc.dump(), "plans[0].verification.motions[0].sample: expected an integer"});
+  for (const Case& c : cases) {
+    const std::string path = Out("hostile_" + c.name + ".json");
+    WriteFileAtomically(path, c.text);
+    try {
+      planners::ReadPlanFile(path);
+      ADD_FAILURE() << c.name << ": read";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(c.says), std::string::npos) << c.name << ": " << e.what();
+      EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << c.name << ": " << e.what();
+    }
+    for (const std::string& command : {"check --plan " + path, "signoff " + path + " --reject --surgeon x",
+                                      "verify " + path + " --motion-time 0.1"}) {
+      const CommandRun run = Trocar(command);
+      EXPECT_EQ(run.exit_code, 1) << c.name << ": " << command << "\n" << run.output;
+      EXPECT_NE(run.output.find(c.says), std::string::npos) << c.name << ": " << command << "\n" << run.output;
+    }
+    EXPECT_EQ(ReadTextFile(path), c.text) << c.name;
+  }
+  // Too many values for the stated limit: refused while parsing, naming the limit's variable.
+  InputLimits small = Limits();
+  const InputLimits kept = small;
+  small.max_json_values = 1000;
+  SetLimits(small);
+  try {
+    planners::ReadPlanFile(Plan());
+    ADD_FAILURE() << "read past the value limit";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("TROCAR_MAX_JSON_VALUES"), std::string::npos) << e.what();
+  }
+  SetLimits(kept);
+  EXPECT_NO_THROW(planners::ReadPlanFile(Plan()));
 }
 
 TEST_F(ViewCli, ASignOffKilledAtAnyMomentLeavesTheOldFileOrTheNewOneWhole) {
