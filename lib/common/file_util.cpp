@@ -1,6 +1,7 @@
 #include "common/file_util.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -8,6 +9,11 @@
 #include <fstream>
 #include <random>
 #include <sstream>
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/types.h>
+#include <unistd.h>
 
 #include "common/error.hpp"
 #include "common/limits.hpp"
@@ -50,23 +56,82 @@ std::string ReadFileBounded(const std::string& path, std::uint64_t max_bytes, co
   return content;
 }
 
+namespace {
+
+// A temporary's name: "<target>.tmp.<pid>.<n>", so that a later writer of the same target can
+// tell whose it is and whether its writer still runs.
+std::string TemporaryPrefix(const std::filesystem::path& target) {
+  return target.filename().string() + ".tmp.";
+}
+
+// Removes the temporaries of `target` left by writers that are gone (killed while writing):
+// only this target's, only when the process that made one no longer exists.
+void RemoveStaleTemporaries(const std::filesystem::path& target) {
+  namespace fs = std::filesystem;
+  const fs::path dir = target.parent_path().empty() ? fs::path(".") : target.parent_path();
+  const std::string prefix = TemporaryPrefix(target);
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.compare(0, prefix.size(), prefix) != 0) continue;
+    const std::string rest = name.substr(prefix.size());
+    const std::size_t dot = rest.find('.');
+    if (dot == 0 || dot == std::string::npos) continue;
+    const std::string pid_text = rest.substr(0, dot);
+    if (pid_text.size() > 9 ||
+        !std::all_of(pid_text.begin(), pid_text.end(), [](char c) { return c >= '0' && c <= '9'; }))
+      continue;
+    const pid_t pid = static_cast<pid_t>(std::stol(pid_text));
+    if (pid <= 0 || pid == ::getpid()) continue;
+    if (::kill(pid, 0) == 0 || errno != ESRCH) continue;  // alive (or not ours to judge)
+    std::error_code ignored;
+    fs::remove(it->path(), ignored);
+  }
+}
+
+}  // namespace
+
 void WriteFileAtomically(const std::string& path, const std::string& content) {
   namespace fs = std::filesystem;
   const fs::path target(path);
+  RemoveStaleTemporaries(target);
+  static std::atomic<unsigned> counter{0};
   std::random_device rd;
-  const fs::path temp = target.parent_path() /
-                        (target.filename().string() + ".tmp" + std::to_string(rd() % 1000000));
-  {
-    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-    TROCAR_THROW_UNLESS(out.good(), temp.string() << ": cannot open for writing: "
-                                                  << std::strerror(errno));
-    out << content;
-    out.flush();
-    if (!out.good()) {
-      std::error_code ignored;
-      fs::remove(temp, ignored);
-      TROCAR_THROW(temp.string() << ": write failed: " << std::strerror(errno));
+  fs::path temp;
+  int fd = -1;
+  for (int attempt = 0; attempt < 16 && fd < 0; ++attempt) {
+    temp = target.parent_path() /
+           (TemporaryPrefix(target) + std::to_string(::getpid()) + "." +
+            std::to_string(counter++) + "-" + std::to_string(rd() % 1000000));
+    // Exclusive: never another writer's temporary.
+    fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    if (fd < 0 && errno != EEXIST) break;
+  }
+  TROCAR_THROW_UNLESS(fd >= 0, temp.string() << ": cannot open for writing: "
+                                             << std::strerror(errno));
+  auto fail = [&](const char* what) {
+    const int saved = errno;
+    ::close(fd);
+    std::error_code ignored;
+    fs::remove(temp, ignored);
+    TROCAR_THROW(temp.string() << ": " << what << ": " << std::strerror(saved) << " (" << path
+                               << " is unchanged)");
+  };
+  const char* data = content.data();
+  std::size_t left = content.size();
+  while (left > 0) {
+    const ssize_t n = ::write(fd, data, left);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      fail("write failed");
     }
+    data += n;
+    left -= static_cast<std::size_t>(n);
+  }
+  if (::close(fd) != 0) {
+    std::error_code ignored;
+    fs::remove(temp, ignored);
+    TROCAR_THROW(temp.string() << ": close failed: " << std::strerror(errno));
   }
   std::error_code ec;
   fs::rename(temp, target, ec);

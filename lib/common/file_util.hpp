@@ -18,7 +18,10 @@ std::string ReadBinaryFile(const std::string& path);
 /// Whole file, refused (naming the file, its size, the limit and `env`) beyond `max_bytes`.
 std::string ReadFileBounded(const std::string& path, std::uint64_t max_bytes, const char* env);
 
-/// Writes `content` to `path` through a temporary file in the same folder and a rename.
+/// Writes `content` to `path` through a temporary file in the same folder
+/// ("<name>.tmp.<pid>.<n>", created exclusively) and a rename. First removes
+/// the temporaries of `path` whose writer process is gone (a write killed half-way), and only
+/// those.
 /// @throws trocar::Error naming the path when any step fails; the target is then untouched.
 void WriteFileAtomically(const std::string& path, const std::string& content);
 

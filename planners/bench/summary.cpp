@@ -58,12 +58,6 @@ struct Db {
   sqlite3* db = nullptr;
 };
 
-std::string Quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("''") : std::string(1, c);
-  return q + "'";
-}
-
 // Share of all runs whose value is at most x, over the sorted values of the solved runs: the
 // curve Planner Arena's "solved within" plots show.
 PlotSeries Cumulative(const std::string& label, std::vector<double> values, long runs,

@@ -4,6 +4,8 @@
 #include <fstream>
 #include <random>
 
+#include <sys/wait.h>
+#include <unistd.h>
 #include <gtest/gtest.h>
 #include <sys/resource.h>
 
@@ -116,6 +118,32 @@ TEST(WriteFileAtomically, AWriteFailingHalfWayLeavesTheOldContent) {
     ++files;
   }
   EXPECT_EQ(files, 1);
+  std::filesystem::remove_all(dir);
+}
+
+// A writer killed half-way leaves its temporary; the next write of the same target removes it,
+// and only it: not a live writer's temporary, not another target's, not a file merely named alike.
+TEST(WriteFileAtomically, AKilledWritersTemporaryIsRemovedByTheNextWriteOfItsTargetOnly) {
+  const auto dir = std::filesystem::temp_directory_path() /
+                   ("trocar_atomic_stale_" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const pid_t gone = ::fork();  // a process that has ended: its pid names a dead writer
+  if (gone == 0) ::_exit(0);
+  ASSERT_GT(gone, 0);
+  ASSERT_EQ(::waitpid(gone, nullptr, 0), gone);
+  const std::string dead = std::to_string(gone), live = std::to_string(::getppid());
+  const std::vector<std::string> stale = {"plan.json.tmp." + dead + ".0-123"};
+  const std::vector<std::string> kept = {"plan.json.tmp." + live + ".0-5",   // a live writer's
+                                         "other.json.tmp." + dead + ".0-7",  // another target's
+                                         "plan.json.tmp123456",              // not this scheme
+                                         "plan.json.tmp.x.0", "plan.json.tmp.." + dead};
+  for (const auto& name : stale) WriteFileAtomically((dir / name).string(), std::string(1000, 's'));
+  for (const auto& name : kept) WriteFileAtomically((dir / name).string(), "k");
+  WriteFileAtomically((dir / "plan.json").string(), "new");
+  EXPECT_EQ(ReadTextFile((dir / "plan.json").string()), "new");
+  for (const auto& name : stale) EXPECT_FALSE(std::filesystem::exists(dir / name)) << name;
+  for (const auto& name : kept) EXPECT_TRUE(std::filesystem::exists(dir / name)) << name;
   std::filesystem::remove_all(dir);
 }
 
