@@ -112,11 +112,12 @@ SceneFile ReadSceneFile(const std::string& path) {
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": no such scene file");
   json doc;
   try {
-    doc = ReadJsonFile(path);
+    doc = ReadJsonFile(path, "a scene file");
   } catch (const json::exception& e) {
     TROCAR_THROW(path << ": not a scene file (JSON: " << e.what() << ")");
   }
-  TROCAR_THROW_UNLESS(doc.is_object() && doc.value("format", "") == "trocar-scene",
+  TROCAR_THROW_UNLESS(doc.is_object() && doc.contains("format") && doc["format"].is_string() &&
+                          doc["format"].get<std::string>() == "trocar-scene",
                       path << ": not a trocar scene (field 'format' is not \"trocar-scene\")");
   const Reader r{path};
   TROCAR_THROW_UNLESS(r.Number(r.At(doc, "version", "version"), "version") == kSceneFormatVersion,

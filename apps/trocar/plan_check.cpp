@@ -62,7 +62,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
   (void)planners::ReadPlanFile(path);
   json doc;
   try {
-    doc = ReadJsonFile(path);
+    doc = ReadJsonFile(path, "a plan");
   } catch (const json::exception& e) {
     TROCAR_THROW(path << ": not a plan (JSON: " << e.what() << ")");
   }

@@ -91,7 +91,7 @@ int RunVerify(const VerifyOptions& o) {
   (void)planners::ReadPlanFile(o.plan);
   json doc;
   try {
-    doc = ReadJsonFile(o.plan);
+    doc = ReadJsonFile(o.plan, "a plan");
   } catch (const json::exception& e) {
     TROCAR_THROW(o.plan << ": not a plan (JSON: " << e.what() << ")");
   }

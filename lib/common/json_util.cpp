@@ -31,7 +31,7 @@ std::string ChildPath(const std::vector<Open>& open) {
 
 }  // namespace
 
-json ParseJsonText(const std::string& text, const std::string& where) {
+json ParseJsonText(const std::string& text, const std::string& where, const std::string& kind) {
   const InputLimits& limits = Limits();
   std::vector<Open> open;
   std::uint64_t values = 0;
@@ -86,11 +86,13 @@ json ParseJsonText(const std::string& text, const std::string& where) {
   try {
     return json::parse(text, check);
   } catch (const json::exception& e) {
-    TROCAR_THROW(where << ": not valid JSON (" << e.what() << ")");
+    TROCAR_THROW(where << ": not " << kind << " (JSON: " << e.what() << ")");
   }
 }
 
-json ReadJsonFile(const std::string& path) { return ParseJsonText(ReadTextFile(path), path); }
+json ReadJsonFile(const std::string& path, const std::string& kind) {
+  return ParseJsonText(ReadTextFile(path), path, kind);
+}
 
 int JsonInt(const json& value, const std::string& where, const std::string& field,
             std::int64_t lo, std::int64_t hi) {

@@ -13,13 +13,15 @@
 
 namespace trocar {
 
-/// Parses `text` read from `where` (a path, for messages).
+/// Parses `text` read from `where` (a path, for messages); `kind` names what the file should be
+/// in the message when the text is not JSON ("<where>: not <kind> (JSON: ...)").
 /// @throws trocar::Error naming `where`, and the path in the document (e.g. `plans[0].ports`)
 ///         where one applies: not JSON, nested too deep, too many values, a repeated key.
-nlohmann::json ParseJsonText(const std::string& text, const std::string& where);
+nlohmann::json ParseJsonText(const std::string& text, const std::string& where,
+                             const std::string& kind = "valid JSON");
 
 /// ReadTextFile (bounded by Limits().max_text_bytes) then ParseJsonText.
-nlohmann::json ReadJsonFile(const std::string& path);
+nlohmann::json ReadJsonFile(const std::string& path, const std::string& kind = "valid JSON");
 
 /// An integer field as `int`, range-checked before any narrowing (4294967298 is not 2).
 /// @throws trocar::Error naming `where` and `field` when it is not an integer in [lo, hi].

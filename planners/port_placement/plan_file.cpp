@@ -223,12 +223,13 @@ PlanFile ReadPlanFile(const std::string& path) {
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": no such plan file");
   json doc;
   try {
-    doc = ReadJsonFile(path);
+    doc = ReadJsonFile(path, "a plan");
   } catch (const json::exception& e) {
     TROCAR_THROW(path << ": not a plan (JSON: " << e.what() << ")");
   }
   const Field root{path, doc, ""};
-  TROCAR_THROW_UNLESS(doc.is_object() && doc.value("format", "") == "trocar-plan",
+  TROCAR_THROW_UNLESS(doc.is_object() && doc.contains("format") && doc["format"].is_string() &&
+                          doc["format"].get<std::string>() == "trocar-plan",
                       path << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
   TROCAR_THROW_UNLESS(root["version"].Integer() == kPlanFormatVersion,
                       path << ": plan format version " << doc.at("version")
@@ -372,7 +373,7 @@ SignOff SignOffPlan(const std::string& path, std::size_t index, SignOff signoff)
     signoff.session_hash = HashFile(signoff.session);
   }
   signoff.time = UtcNow();
-  json doc = ReadJsonFile(path);
+  json doc = ReadJsonFile(path, "a plan");
   json entry = {{"decision", signoff.decision}, {"surgeon", signoff.surgeon},
                 {"note", signoff.note}, {"time", signoff.time}};
   if (!signoff.session.empty()) {
