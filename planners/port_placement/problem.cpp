@@ -668,11 +668,63 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
       nominal_ok[a] = ik.converged;
     }
     kinematics::ForwardKinematics(robot, state.q, &state);
-    ev.q_nominal = state.q;
-    ev.joint_values = state.joint_values;
     checker.SetRobotState(state);
     SetPorts(placement, &checker);
     nominal = checker.Check();
+    // One aim for every arm (the centroid of all the targets) can run an arm along the chest
+    // wall into the ribs of its own space (a port low on the chest, the LIMA high under the
+    // wall), and a placement with such a start pose is dropped before its reach is looked at.
+    // An arm in contact is then aimed, in turn, at each target's own centroid, then toward the
+    // way it enters (the space's inward normal: straight into the chest, as an instrument is
+    // inserted under vision); the first aim free of contacts is kept, else the fewest contacts.
+    for (std::size_t a = 0; a < arms_.size() && nominal.collision; ++a) {
+      const PlanArm& arm = arms_[a];
+      const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+      std::vector<Eigen::Vector3d> aims;  // points to aim at, in the order tried
+      for (int t = 0; t < static_cast<int>(patient_->targets.size()); ++t) {
+        std::vector<Eigen::Vector3d> points;
+        for (const auto& sample : samples)
+          if (sample.target == t) points.push_back(sample.p_W);
+        if (!points.empty()) aims.push_back(Centroid(points));
+      }
+      if (placement.sites[a].in_gap) {
+        const Eigen::Vector3d inward =
+            (port - patient_->X_WP * placement.sites[a].p_curve_P).normalized();
+        const double reach = (aim_W_ - port).norm();
+        if (inward.allFinite()) aims.push_back(port + reach * inward);
+      }
+      robot::RobotState kept = state;
+      bool kept_ok = nominal_ok[a];
+      for (const Eigen::Vector3d& aim : aims) {
+        const Eigen::Vector3d dir = (aim - port).normalized();
+        if (!dir.allFinite()) continue;
+        const Eigen::Vector3d p =
+            arm.role == ArmRole::kEndoscope
+                ? Eigen::Vector3d(port + std::max(kNominalDepth,
+                                                  (aim - port).norm() -
+                                                      options_.scope_working_distance) *
+                                             dir)
+                : Eigen::Vector3d(port + kNominalDepth * dir);
+        robot::RobotState trial = state;
+        const IkOutcome ik = planners::SolveReach(robot, arm, p, port, options_.ik_iterations * 2,
+                                                  0.005, &trial);
+        if (!ik.converged) continue;
+        kinematics::ForwardKinematics(robot, trial.q, &trial);
+        checker.SetRobotState(trial);
+        const collision::CollisionReport turned = checker.Check();
+        if (turned.contacts.size() < nominal.contacts.size()) {
+          nominal = turned;
+          kept = trial;
+          kept_ok = true;
+        }
+        if (!turned.collision) break;
+      }
+      state = kept;
+      nominal_ok[a] = kept_ok;
+      checker.SetRobotState(state);
+    }
+    ev.q_nominal = state.q;
+    ev.joint_values = state.joint_values;
     if (!have_best || nominal.contacts.size() < best_nominal.contacts.size()) {
       have_best = true;
       best_state = state;
