@@ -121,9 +121,24 @@ namespace {
 ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const ImportOptions& options) {
   using Clock = std::chrono::steady_clock;
   std::vector<std::pair<std::string, double>> timings;
+  // The warnings said so far (the report's, once it exists): a stage that then fails carries
+  // them in its error, so that a warning that explains the failure (a header normalised, a
+  // mask resampled) is not lost with the model that would have reported it.
+  const std::vector<std::string>* said = nullptr;
+  bool warnings_told = false;
   auto stage = [&](const std::string& name, const std::function<void()>& f) {
     const auto t0 = Clock::now();
-    f();
+    try {
+      f();
+    } catch (const Error& e) {
+      if (warnings_told || said == nullptr || said->empty()) throw;
+      warnings_told = true;
+      std::string message = e.what();
+      message += "\n  (warnings before this error, while importing:";
+      for (const auto& w : *said) message += "\n   - " + w;
+      message += ")";
+      throw Error(message);
+    }
     timings.emplace_back(name, std::chrono::duration<double>(Clock::now() - t0).count());
   };
   if (c.has_phantom && !std::filesystem::exists(c.ct)) {
@@ -175,6 +190,7 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
 
   PatientModel m;
   ImportReport report;
+  said = &report.warnings;
   m.name = c.name;
   m.case_dir = case_dir;
   report.warnings.insert(report.warnings.end(), ct.warnings.begin(), ct.warnings.end());

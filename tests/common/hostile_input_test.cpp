@@ -340,6 +340,25 @@ TEST_F(Hostile, ANiftiQuaternionLongerThanOneIsNormalisedWithAWarning) {
   EXPECT_HAS(v.warnings[0], "q.nii: qform quaternion");
 }
 
+// #44 item 7: a warning said while importing (here the header's quaternion normalised) is shown
+// with a later stage's error (here: nothing in the scan is a body), not lost with the model that
+// would have reported it.
+TEST_F(Hostile, AWarningGivenBeforeAnImportFailsIsShownWithTheError) {
+  std::string h = NiftiHeader(4, 4, 4);
+  const std::int16_t qform = 1, sform = 0;
+  std::memcpy(&h[252], &qform, 2);
+  std::memcpy(&h[254], &sform, 2);
+  const float bcd[3] = {0.0f, 0.0f, 14.1f};
+  std::memcpy(&h[256], bcd, 12);
+  Write("q.nii", h + std::string(4 * 4 * 4 * 2, '\0'));
+  Write("patient.yaml", "name: q\nct: q.nii\nunits: hounsfield\n");
+  const std::string e = ErrorOf([&] { patient::ImportPatient(dir_); });
+  EXPECT_HAS(e, "warnings before this error");
+  EXPECT_HAS(e, "q.nii: qform quaternion");
+  // Said once, however many stages the error passes through.
+  EXPECT_EQ(e.find("qform quaternion"), e.rfind("qform quaternion")) << e;
+}
+
 // A changed byte in model.bin used to load: the cart moved 20 cm and `check` counted other
 // collisions. The cache now carries a checksum of its whole contents; a failed one is rebuilt
 // with a warning, and the model equals a fresh build.
