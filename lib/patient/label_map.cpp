@@ -1,5 +1,6 @@
 #include "patient/label_map.hpp"
 
+#include <cerrno>
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -39,12 +40,25 @@ bool EndsWithText(const std::string& s, const std::string& end) {
 }
 
 // Names from TotalSegmentator's Caret XML label table: <Label Key="N" ...><![CDATA[name]]></Label>.
-std::map<int, std::string> NamesFromCaretXml(const std::string& xml) {
+// A label value or segment index written as decimal digits, range-checked before it is
+// narrowed (a 20-digit index was "internal error: stoi").
+int SmallInteger(const std::string& digits, long lo, long hi, const std::string& where,
+                 const std::string& what) {
+  char* end = nullptr;
+  errno = 0;
+  const long long v = std::strtoll(digits.c_str(), &end, 10);
+  TROCAR_THROW_UNLESS(!digits.empty() && end && *end == '\0' && errno == 0 && v >= lo && v <= hi,
+                      where << ": " << what << " '" << digits.substr(0, 24) << "' is not in ["
+                            << lo << ", " << hi << "]");
+  return static_cast<int>(v);
+}
+
+std::map<int, std::string> NamesFromCaretXml(const std::string& xml, const std::string& where) {
   std::map<int, std::string> names;
   static const std::regex label(
       R"re(<Label\s+Key="(-?\d+)"[^>]*>\s*(?:<!\[CDATA\[([^\]]*)\]\]>|([^<]*))\s*</Label>)re");
   for (auto it = std::sregex_iterator(xml.begin(), xml.end(), label); it != std::sregex_iterator(); ++it) {
-    const int key = std::stoi((*it)[1].str());
+    const int key = SmallInteger((*it)[1].str(), -999999, 999999, where, "label table key");
     const std::string name = (*it)[2].matched ? (*it)[2].str() : (*it)[3].str();
     if (key != 0 && !name.empty()) names[key] = name;
   }
@@ -199,7 +213,8 @@ LabelMap LoadLabelMap(const std::string& path, const std::string& names_file) {
   }
   if (map.names.empty()) {
     for (const auto& [code, content] : map.volume.extensions) {
-      if (content.find("<Label") != std::string::npos) map.names = NamesFromCaretXml(content);
+      if (content.find("<Label") != std::string::npos)
+        map.names = NamesFromCaretXml(content, path + " (header extension " + std::to_string(code) + ")");
       if (!map.names.empty()) break;
     }
   }
@@ -209,7 +224,9 @@ LabelMap LoadLabelMap(const std::string& path, const std::string& names_file) {
     static const std::regex key(R"(Segment(\d+)_(Name|LabelValue|Layer))");
     for (const auto& [k, v] : map.volume.key_values) {
       std::smatch m;
-      if (std::regex_match(k, m, key)) segments[std::stoi(m[1].str())][m[2].str()] = v;
+      if (std::regex_match(k, m, key))
+        segments[SmallInteger(m[1].str(), 0, 999999, path, "segment index in key " + k.substr(0, 40))]
+                [m[2].str()] = v;
     }
     for (const auto& [index, fields] : segments) {
       if (!fields.count("Name")) continue;
@@ -246,6 +263,11 @@ LabelMap LoadLabelMap(const std::string& path, const std::string& names_file) {
   }
   TROCAR_THROW_UNLESS(count == 0, path << ": " << count << " label value(s) have no name (" << unnamed.str()
                                        << (count > 10 ? ", ..." : "") << ")");
+  // A map that labels nothing would be ignored without a word and the anatomy taken from the CT
+  // alone (one that labels nothing trocar uses is refused by AnatomyFromLabels).
+  TROCAR_THROW_UNLESS(!present.empty(),
+                      path << ": the label map labels no voxel (every value is 0); its names ("
+                           << map.names.size() << ") label nothing in it");
   return map;
 }
 

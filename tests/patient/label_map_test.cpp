@@ -197,6 +197,21 @@ TEST(LabelMap, BadLabelMapsAreClearErrors) {
   fs::copy_file(seg, dir + "/map.nrrd");
   const std::string u = ErrorOf([&] { patient::LoadLabelMap(dir + "/map.nrrd", dir + "/map.json"); });
   EXPECT_NE(u.find("1 label value(s) have no name (7)"), std::string::npos) << u;
+  // A map that labels no voxel: refused, not ignored (the anatomy would come from the CT alone).
+  std::string zero = ReadTextFile(SlicerSeg(dir, ""));
+  std::fill(zero.end() - 24, zero.end(), '\0');
+  WriteFileAtomically(dir + "/empty.seg.nrrd", zero);
+  const std::string z = ErrorOf([&] { patient::LoadLabelMap(dir + "/empty.seg.nrrd"); });
+  EXPECT_NE(z.find("empty.seg.nrrd: the label map labels no voxel"), std::string::npos) << z;
+  // A segment index or a label-table key too large for any label: named, not "stoi".
+  std::string huge = ReadTextFile(seg);
+  const std::size_t at = huge.find("Segment0_");
+  ASSERT_NE(at, std::string::npos);
+  huge.insert(at, "Segment99999999999999999999_Name:=x\n");
+  WriteFileAtomically(dir + "/huge.seg.nrrd", huge);
+  const std::string h = ErrorOf([&] { patient::LoadLabelMap(dir + "/huge.seg.nrrd"); });
+  EXPECT_NE(h.find("huge.seg.nrrd: segment index"), std::string::npos) << h;
+  EXPECT_EQ(h.find("stoi"), std::string::npos) << h;
   // A map that does not overlap the CT: both geometries named.
   patient::Volume far = map.volume;
   far.origin_P += Eigen::Vector3d(1, 0, 0);
