@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <mutex>
@@ -264,6 +265,8 @@ struct IgtlDeviceServer::Impl {
     int id = 0;
     std::unique_ptr<IgtlStreamParser> parser;
     std::string pending;  ///< bytes queued to send
+    std::chrono::steady_clock::time_point accepted;
+    bool proved = false;  ///< has sent a valid pose or buttons message
   };
   std::vector<Connection> connections;
 
@@ -272,6 +275,7 @@ struct IgtlDeviceServer::Impl {
     std::vector<IgtlStreamParser::Pose> poses;
     std::lock_guard<std::mutex> lock(mutex);
     const bool keep = c.parser->Feed(data, n, &poses, &counters);
+    if (!poses.empty()) c.proved = true;
     const auto now = std::chrono::steady_clock::now();
     for (auto& pose : poses) {
       Device& d = devices[pose.device];
@@ -374,7 +378,18 @@ struct IgtlDeviceServer::Impl {
       if (fds[0].revents & POLLIN) {
         const int fd = ::accept(listen_fd, nullptr, nullptr);
         if (fd >= 0) {
-          if (static_cast<int>(connections.size()) >= options.max_connections) {
+          if (static_cast<int>(std::count_if(connections.begin(), connections.end(), [](const Connection& c) {
+                return c.fd >= 0;
+              })) >= options.max_connections) {
+            // Full: the oldest connection that has not proved itself a device gives its slot.
+            Connection* oldest = nullptr;
+            for (Connection& c : connections)
+              if (c.fd >= 0 && !c.proved && (!oldest || c.accepted < oldest->accepted)) oldest = &c;
+            if (oldest) Close(*oldest);
+          }
+          if (static_cast<int>(std::count_if(connections.begin(), connections.end(), [](const Connection& c) {
+                return c.fd >= 0;
+              })) >= options.max_connections) {
             ::close(fd);
           } else {
             ::fcntl(fd, F_SETFL, ::fcntl(fd, F_GETFL) | O_NONBLOCK);
@@ -383,6 +398,7 @@ struct IgtlDeviceServer::Impl {
             Connection c;
             c.fd = fd;
             c.id = next_connection_id++;
+            c.accepted = std::chrono::steady_clock::now();
             c.parser = std::make_unique<IgtlStreamParser>(options.max_body, [this](const std::string& name) {
               return options.units.count(name) ? options.units.at(name) : options.default_units;
             });
@@ -398,6 +414,7 @@ struct IgtlDeviceServer::Impl {
         const short events = fds[i + 2].revents;
         if (!events) continue;
         Connection& c = connections[i];
+        if (c.fd < 0) continue;  // gave its slot to a new connection just now
         bool open = true;
         if (events & POLLOUT) open = Flush(c);
         // Read what is there, never more than one message's bound beyond a header.
@@ -418,6 +435,12 @@ struct IgtlDeviceServer::Impl {
       // Queued messages go out now rather than at the next poll.
       for (Connection& c : connections)
         if (c.fd >= 0 && !c.pending.empty() && !Flush(c)) Close(c);
+      // Connections that have sent nothing valid for the idle timeout are closed.
+      const auto now = std::chrono::steady_clock::now();
+      for (Connection& c : connections)
+        if (c.fd >= 0 && !c.proved &&
+            std::chrono::duration<double>(now - c.accepted).count() > options.idle_timeout_s)
+          Close(c);
       connections.erase(std::remove_if(connections.begin(), connections.end(),
                                        [](const Connection& c) { return c.fd < 0; }),
                         connections.end());
@@ -435,6 +458,10 @@ IgtlDeviceServer::IgtlDeviceServer(const IgtlServerOptions& options) : impl_(std
   impl_->options = options;
   TROCAR_THROW_UNLESS(options.max_body >= 48 && options.max_connections >= 1,
                       "device server: a body bound of at least 48 bytes and one connection");
+  TROCAR_THROW_UNLESS(std::isfinite(options.idle_timeout_s) && options.idle_timeout_s > 0 &&
+                          options.idle_timeout_s <= 3600,
+                      "device server: idle timeout " << options.idle_timeout_s
+                                                     << " s: expected 0 < s <= 3600");
   const std::string where = options.address + ":" + std::to_string(options.port);
   sockaddr_in addr{};
   addr.sin_family = AF_INET;

@@ -81,7 +81,12 @@ struct IgtlServerOptions {
   std::string address = "127.0.0.1";  ///< an explicit option binds elsewhere ("0.0.0.0": all)
   int port = 18944;                   ///< OpenIGTLink's usual port; 0: any free port
   std::size_t max_body = 1 << 16;     ///< bytes; a larger body closes its connection
+  /// Open connections at most. When every slot is taken, a new connection takes the slot of
+  /// the oldest one that has not yet sent a valid message (a device that has is never put out).
   int max_connections = 16;
+  /// Seconds a connection may stay open without sending a valid message before it is closed
+  /// (idle or garbage-only clients do not keep the slots from the devices).
+  double idle_timeout_s = 5.0;
   /// Bytes waiting to be sent to one connection; a message that does not fit is dropped whole
   /// (a client that does not read never blocks the server or grows its memory).
   std::size_t max_pending = 1 << 18;

@@ -86,6 +86,17 @@ class RawClient {
     EXPECT_EQ(::connect(fd_, reinterpret_cast<sockaddr*>(&a), sizeof(a)), 0);
   }
   ~RawClient() { ::close(fd_); }
+  /// The server closed this connection (the stream's end is read).
+  bool Closed() {
+    char c;
+    for (int i = 0; i < 300; ++i) {
+      const ssize_t n = ::recv(fd_, &c, 1, MSG_DONTWAIT);
+      if (n == 0) return true;
+      if (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK) return true;  // reset
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    return false;
+  }
   void Send(const std::string& bytes) { ASSERT_EQ(::send(fd_, bytes.data(), bytes.size(), MSG_NOSIGNAL), ssize_t(bytes.size())); }
   /// The next whole message (header and body), waiting up to 3 s; "" when none came.
   std::string ReadMessage() {
@@ -502,6 +513,45 @@ TEST(IgtlDevice, ADeviceNameBelongsToOneConnectionSoNoOtherClientTakesTheArmOver
     return server.Latest("left", &s, &seq, &at) && (s.X_DH.translation() - theirs.translation()).norm() < 1e-6;
   }));
   EXPECT_EQ(server.Counters().at("left").connections, 2);
+}
+
+// #44 item 6: connections that never send a valid message do not keep the slots from a device.
+// Every slot taken by idle clients: a device still gets in (the oldest idle one gives its slot),
+// idle clients are closed after the timeout, and a device that has spoken is never put out by
+// the idle clients that come after it.
+TEST(IgtlDevice, IdleConnectionsNeverKeepADeviceOut) {
+  IgtlServerOptions options = AnyPort();
+  options.max_connections = 4;
+  options.idle_timeout_s = 0.5;
+  IgtlDeviceServer server(options);
+  std::vector<std::unique_ptr<RawClient>> idle;
+  for (int i = 0; i < 4; ++i) idle.push_back(std::make_unique<RawClient>(server.port()));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  X.translation() = Eigen::Vector3d(0.02, 0, 0);
+  RawClient device(server.port());
+  DeviceSample s;
+  std::uint64_t seq = 0;
+  std::chrono::steady_clock::time_point at;
+  device.Send(Message("TRANSFORM", "left", TransformBody(X)));
+  ASSERT_TRUE(Eventually([&] { return server.Latest("left", &s, &seq, &at); }))
+      << "the device was kept out by idle connections";
+  // More idle clients than slots, past the timeout: the device keeps streaming and is heard.
+  for (int i = 0; i < 8; ++i) idle.push_back(std::make_unique<RawClient>(server.port()));
+  std::uint64_t last = seq;
+  for (int k = 0; k < 10; ++k) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    device.Send(Message("TRANSFORM", "left", TransformBody(X)));
+  }
+  ASSERT_TRUE(Eventually([&] { return server.Latest("left", &s, &seq, &at) && seq > last; }));
+  EXPECT_EQ(server.Counters().at("left").connections, 1) << "the device was put out and came back";
+  // The idle ones were closed: each reads the end of its stream.
+  int closed = 0;
+  for (auto& c : idle) closed += c->ReadMessage().empty() && c->Closed();
+  EXPECT_EQ(closed, static_cast<int>(idle.size()));
+  // And a bad timeout is refused.
+  options.idle_timeout_s = 0;
+  EXPECT_THROW(IgtlDeviceServer bad(options), Error);
 }
 
 TEST(IgtlDevice, APortInUseAndBadAddressesAreClearErrors) {
