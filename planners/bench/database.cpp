@@ -1,5 +1,9 @@
 #include "bench/database.hpp"
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <cerrno>
+#include <cstring>
 #include <sqlite3.h>
 #include <unistd.h>
 
@@ -170,7 +174,23 @@ void BenchDatabase::CheckIsOmplDatabase(const std::string& path) {
                               "enums, runs and progress tables)");
 }
 
+BenchDatabase::Lock::~Lock() {
+  if (fd >= 0) ::close(fd);  // closing releases the lock
+}
+
 BenchDatabase::BenchDatabase(const std::string& path, const std::string& spec) : path_(path) {
+  // One writer: two benches on one database would race to create its schema and interleave
+  // their runs. The lock is taken before the file is even looked at.
+  const std::string lock_path = path + ".lock";
+  lock_.fd = ::open(lock_path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  TROCAR_THROW_UNLESS(lock_.fd >= 0, lock_path << ": cannot make the database's lock file ("
+                                               << std::strerror(errno) << ")");
+  if (::flock(lock_.fd, LOCK_EX | LOCK_NB) != 0) {
+    TROCAR_THROW_UNLESS(errno != EWOULDBLOCK,
+                        path << ": in use by another trocar bench (it holds " << lock_path
+                             << "); wait for it to finish, or choose another --out");
+    TROCAR_THROW(lock_path << ": cannot lock (" << std::strerror(errno) << ")");
+  }
   const bool exists = std::filesystem::exists(path);
   if (exists) {
     TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": not a file");

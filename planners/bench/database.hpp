@@ -41,7 +41,9 @@ class BenchDatabase {
   /// Opens `path`, creating it with the schema when it does not exist. An existing file must be
   /// a trocar bench database of the same spec (`spec`, BenchSpec::Canonical()): anything else —
   /// not SQLite, another program's OMPL database, a bench of another spec — is refused with an
-  /// error naming the file, and the file is left untouched.
+  /// error naming the file, and the file is left untouched. One writer at a time: the database
+  /// is locked (an advisory lock on `<path>.lock`) for this object's life, and a second opener
+  /// is told plainly that the database is in use.
   BenchDatabase(const std::string& path, const std::string& spec);
   ~BenchDatabase();
   BenchDatabase(const BenchDatabase&) = delete;
@@ -76,6 +78,11 @@ class BenchDatabase {
 
  private:
   void Exec(const std::string& sql) const;
+  struct Lock {
+    int fd = -1;
+    ~Lock();
+  };
+  Lock lock_;  // first: released last, and on a constructor's throw
   std::string path_;
   sqlite3* db_ = nullptr;
   std::map<std::string, std::string> column_types_;  // runs' property columns

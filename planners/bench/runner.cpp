@@ -16,6 +16,7 @@
 
 #include "bench/database.hpp"
 #include "common/error.hpp"
+#include "common/json_util.hpp"
 #include "motion/motion.hpp"
 #include "patient/patient_model.hpp"
 #include "port_placement/optimizer.hpp"
@@ -196,6 +197,23 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
   report.rank = mpi.rank;
   progress_rank = mpi.rank;
   report.ranks = mpi.size;
+  // The shared, immutable inputs: one robot, each patient once. Built before the database is
+  // opened: a spec that fails here (an unknown arm, a patient that does not import) leaves no
+  // database bound to it.
+  auto robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(spec.robot));
+  std::vector<PatientSetup> patients;
+  for (const std::string& dir : spec.patients) {
+    PatientSetup p;
+    p.name = PatientName(dir);
+    progress("importing " + p.name);
+    p.model = patient::ImportCase(dir).model;
+    ProblemOptions po;
+    po.arms = spec.arms;
+    po.samples_per_target = spec.samples_per_target;
+    p.problem = std::make_unique<PortPlacementProblem>(p.model, robot, po);
+    patients.push_back(std::move(p));
+  }
+
   // Rank 0 owns the database; the others learn which runs are done from it.
   std::unique_ptr<BenchDatabase> db_owner;
   std::string open_error;
@@ -221,21 +239,6 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
   report.already_done = static_cast<long>(done.size());
   const int threads = options.threads >= 0 ? options.threads : spec.threads;
   report.threads = threads > 0 ? threads : omp_get_max_threads();
-
-  // The shared, immutable inputs: one robot, each patient once.
-  auto robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(spec.robot));
-  std::vector<PatientSetup> patients;
-  for (const std::string& dir : spec.patients) {
-    PatientSetup p;
-    p.name = PatientName(dir);
-    progress("importing " + p.name);
-    p.model = patient::ImportCase(dir).model;
-    ProblemOptions po;
-    po.arms = spec.arms;
-    po.samples_per_target = spec.samples_per_target;
-    p.problem = std::make_unique<PortPlacementProblem>(p.model, robot, po);
-    patients.push_back(std::move(p));
-  }
 
   // Experiments: port placement per patient; motions per patient and algorithm.
   std::vector<int> placement_experiment;
@@ -440,7 +443,10 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
           mpi, db_owner ? db_owner->Payload("placement/" + patients[p].name + "/" +
                                             spec.algorithms[a].name() + "/" + first_seed)
                         : std::string());
-      nlohmann::json j = payload.empty() ? nlohmann::json() : nlohmann::json::parse(payload);
+      nlohmann::json j = payload.empty()
+                            ? nlohmann::json()
+                            : ParseJsonText(payload, db_path + " (a stored run's placement; the "
+                                                     "database is damaged)");
       if (j.is_object() && j.contains("sites")) {
         Placement placement;
         for (const auto& site : j["sites"])

@@ -295,6 +295,42 @@ TEST(Bench, TwoMpiRanksWriteOneDatabaseWithTheSameRunsAsOneProcess) {
   EXPECT_GT(compared, 4);
 }
 
+// #44 item 4: one writer at a time (a second bench on the same database, in this process or
+// another, is told it is in use; once the first is done it opens), and a spec that fails before
+// its first run (an unknown arm) leaves no database bound to it.
+TEST(Bench, OneWriterAtATimeAndASpecThatFailsLeavesNoDatabase) {
+  const std::string dir = TempDir("lock");
+  const std::string db = JoinPath(dir, "b.db");
+  {
+    BenchDatabase first(db, "spec");
+    try {
+      BenchDatabase second(db, "spec");
+      ADD_FAILURE() << "two writers";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(db + ": in use by another trocar bench"), std::string::npos)
+          << e.what();
+    }
+    const pid_t child = ::fork();
+    if (child == 0) {
+      try {
+        BenchDatabase other(db, "spec");
+        ::_exit(0);
+      } catch (const Error& e) {
+        ::_exit(std::string(e.what()).find("in use") != std::string::npos ? 3 : 4);
+      }
+    }
+    int status = 0;
+    ASSERT_EQ(::waitpid(child, &status, 0), child);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 3) << "another process opened it too";
+  }
+  EXPECT_NO_THROW(BenchDatabase again(db, "spec"));
+  BenchSpec spec = ReadBenchSpec(WriteSpec(dir, SmallSpec()), Robot());
+  spec.arms = {"psm1", "no_such_arm"};
+  const std::string bad = JoinPath(dir, "bad.db");
+  EXPECT_THROW(RunBench(spec, bad), Error);
+  EXPECT_FALSE(fs::exists(bad)) << "a spec that cannot run left a database bound to it";
+}
+
 TEST(Bench, AFileThatIsNotThisBenchsDatabaseIsRefusedAndLeftUntouched) {
   const std::string dir = TempDir("refuse");
   const BenchSpec spec = ReadBenchSpec(WriteSpec(dir, SmallSpec()), Robot());
