@@ -608,11 +608,14 @@ void Scene::HighlightLinks(const std::vector<int>& colliding, const std::vector<
   if (auto* g = impl_->FindGroup("robot")) impl_->ApplyStyle(*g);
 }
 
-CameraPose Scene::ExternalCamera(double aspect) const {
-  // Bounds of the patient, the table and the robot (not the floor).
+CameraPose Scene::ExternalCamera(double aspect, Framing framing) const {
+  const auto* skin_group = impl_->FindGroup("skin");
+  const bool chest = framing == Framing::kChest && skin_group && !skin_group->actors.empty();
+  // Bounds of the patient, the table and the robot (not the floor); for the chest, the skin's.
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e9), hi = Eigen::Vector3d::Constant(-1e9);
   for (const auto& g : impl_->groups) {
     if (g.name == "floor") continue;
+    if (chest && g.name != "skin") continue;
     for (const auto& a : g.actors) {
       double b[6];
       a->GetBounds(b);
@@ -634,7 +637,9 @@ CameraPose Scene::ExternalCamera(double aspect) const {
     centre = 0.5 * centre + 0.5 * Eigen::Vector3d((b[0] + b[1]) / 2, (b[2] + b[3]) / 2, (b[4] + b[5]) / 2);
   }
   pose.focal_point = centre;
-  const double radius = std::max(0.2, (hi - lo).norm() / 2);
+  // The chest: its bounds' sphere a little inside the view (the box's corners are air).
+  const double radius = chest ? std::max(0.05, 0.8 * (hi - lo).norm() / 2)
+                              : std::max(0.2, (hi - lo).norm() / 2);
   // From the side of the patient away from the cart (so that the arms are seen over the
   // patient, not from behind the cart), toward the foot end, from above.
   Eigen::Vector3d horizontal(-0.55, -0.75, 0);
@@ -773,6 +778,10 @@ Eigen::Vector3d EulerXyzDeg(const Eigen::Matrix3d& R) {
 ViewSpec ViewSpec::Parse(const std::string& text) {
   ViewSpec v;
   if (text == "external") return v;
+  if (text == "room") {
+    v.kind = Kind::kRoom;
+    return v;
+  }
   if (text == "endoscope") {
     v.kind = Kind::kEndoscope;
     return v;
@@ -782,7 +791,7 @@ ViewSpec ViewSpec::Parse(const std::string& text) {
     v.camera.frame = text.substr(6);
     return v;
   }
-  TROCAR_THROW("view '" << text << "': expected external, endoscope or frame:<robot frame>");
+  TROCAR_THROW("view '" << text << "': expected external, room, endoscope or frame:<robot frame>");
 }
 
 CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
@@ -791,6 +800,8 @@ CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
   switch (view.kind) {
     case ViewSpec::Kind::kExternal:
       return scene.ExternalCamera(aspect);
+    case ViewSpec::Kind::kRoom:
+      return scene.ExternalCamera(aspect, Scene::Framing::kRoom);
     case ViewSpec::Kind::kEndoscope: {
       TROCAR_THROW_UNLESS(plan && !plan->views.empty(),
                           "the endoscope view needs a plan whose robot has an endoscope arm");
@@ -822,7 +833,8 @@ Image Render(const Scene& scene, const Views& views, int width, int height) {
     vtkNew<vtkRenderer> renderer;
     renderer->SetViewport(i / n, 0, (i + 1) / n, 1);
     scene.AddTo(renderer);
-    const bool scope = views[i].first.kind != ViewSpec::Kind::kExternal;
+    const bool scope = views[i].first.kind != ViewSpec::Kind::kExternal &&
+                       views[i].first.kind != ViewSpec::Kind::kRoom;
     Scene::Apply(views[i].second, renderer, scope ? &views[i].first.camera : nullptr);
     window->AddRenderer(renderer);
   }

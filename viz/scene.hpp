@@ -108,9 +108,12 @@ class Scene {
   /// misses) in the "near_miss" colour; the others back to theirs.
   void HighlightLinks(const std::vector<int>& colliding, const std::vector<int>& near = {});
 
-  /// The external camera: the patient, table and robot framed from the foot end, above the
-  /// patient's right side, image `aspect` = width / height.
-  CameraPose ExternalCamera(double aspect) const;
+  /// What the external camera frames: the chest (the patient's skin, where the ports are: the
+  /// default, so that the patient fills the view), or the room (patient, table and robot).
+  enum class Framing { kChest, kRoom };
+  /// The external camera, from the side away from the cart, toward the foot end, from above;
+  /// image `aspect` = width / height. Without a patient, the room.
+  CameraPose ExternalCamera(double aspect, Framing framing = Framing::kChest) const;
   /// The camera on a robot frame at the robot's current state.
   /// @throws trocar::Error when there is no robot state or the frame is unknown.
   CameraPose OnFrame(const FrameCamera& camera) const;
@@ -141,10 +144,11 @@ Eigen::Vector3d EulerXyzDeg(const Eigen::Matrix3d& R);
 
 /// One view of a screenshot or a window pane.
 struct ViewSpec {
-  enum class Kind { kExternal, kEndoscope, kFrame };
+  enum class Kind { kExternal, kRoom, kEndoscope, kFrame };
   Kind kind = Kind::kExternal;
   FrameCamera camera;  ///< kEndoscope (from the plan's view) and kFrame
-  /// "external", "endoscope", "frame:<name>" (along the frame's z axis).
+  /// "external" (the chest and its ports), "room" (patient, table and robot), "endoscope",
+  /// "frame:<name>" (along the frame's z axis).
   /// @throws trocar::Error for any other text.
   static ViewSpec Parse(const std::string& text);
 };

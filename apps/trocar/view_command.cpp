@@ -158,7 +158,8 @@ void AddViewCommand(CLI::App* app) {
   cmd->add_option("--save-scene", o->save_scene,
                   "with --screenshot: also save what it shows as a scene file (the window saves from File)");
   cmd->add_option("--view", o->views,
-                  "external, endoscope (the plan's scope camera) or frame:<robot frame>; repeat "
+                  "external (the chest and its ports), room (the patient, table and robot), "
+                  "endoscope (the plan's scope camera) or frame:<robot frame>; repeat "
                   "for side by side (default: external, and endoscope when the plan has one)");
   cmd->add_option("--size", o->size, "screenshot WIDTHxHEIGHT in pixels")->capture_default_str();
   cmd->add_option("--light", o->light, "intensity of the light at the scope tip (0..)")

@@ -118,11 +118,25 @@ TEST(Scene, AFlatPictureOfTheBundledCaseShowsThePatientTheTableAndTheRobot) {
   kinematics::ForwardKinematics(*cart, &state);
   scene.SetRobotState(state);
   const int w = 640, h = 400;
-  const Views views = {{ViewSpec{}, scene.ExternalCamera(double(w) / h)}};
+  const Views views = {{ViewSpec{}, scene.ExternalCamera(double(w) / h, Scene::Framing::kRoom)}};
   const Image all = Render(scene, views, w, h);
   const SceneStyle& s = scene.style();
   const long total = long(w) * h;
   EXPECT_GT(CountColour(all, s.Colour("skin")), total / 200);
+  // The default external view frames the chest: the patient fills a good part of it (the room
+  // view shows the patient as about a twentieth of the picture), and it is seen whole (no skin
+  // more than a sliver of skin on the picture's border rows and columns).
+  const Views chest = {{ViewSpec{}, scene.ExternalCamera(double(w) / h)}};
+  const Image framed = Render(scene, chest, w, h);
+  const long skin_room = CountColour(all, s.Colour("skin"));
+  const long skin_chest = CountColour(framed, s.Colour("skin"));
+  EXPECT_GT(skin_chest, total / 4) << "the chest fills " << 100.0 * skin_chest / total << " % of the view";
+  EXPECT_GT(skin_chest, 3 * skin_room);
+  const auto skin = Rgb8(s.Colour("skin"));
+  long border = 0;
+  for (int x = 0; x < w; ++x) border += Near(framed.Pixel(x, 0), skin) + Near(framed.Pixel(x, h - 1), skin);
+  for (int y = 0; y < h; ++y) border += Near(framed.Pixel(0, y), skin) + Near(framed.Pixel(w - 1, y), skin);
+  EXPECT_LT(border, (w + h) / 10) << "the chest is cut by the picture's edges";
   EXPECT_GT(CountColour(all, s.Colour("robot")), total / 50);
   EXPECT_GT(CountColour(all, s.Colour("table")), total / 50);
   EXPECT_GT(CountColour(all, s.Colour("floor")), total / 20);
