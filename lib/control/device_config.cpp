@@ -1,5 +1,6 @@
 #include "control/device_config.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <set>
 
@@ -36,6 +37,12 @@ DeviceConfig ReadDeviceConfig(const std::string& path) {
     TROCAR_THROW_UNLESS(!b.name.empty() && b.name.size() <= 20,
                         y.Where(d["name"], at + ".name") << ": '" << b.name
                                                          << "': expected 1 to 20 characters (OpenIGTLink's device name)");
+    // Printable ASCII only: a control byte (a NUL, a newline) in a name no device can send.
+    TROCAR_THROW_UNLESS(std::all_of(b.name.begin(), b.name.end(),
+                                    [](char c) { return c >= 0x20 && c <= 0x7e; }),
+                        y.Where(d["name"], at + ".name")
+                            << ": the name holds a control or non-ASCII byte; an OpenIGTLink device "
+                               "name is printable ASCII");
     TROCAR_THROW_UNLESS(names.insert(b.name).second,
                         y.Where(d["name"], at + ".name") << ": device '" << b.name << "' is listed twice");
     b.pointer = d["pointer"] ? y.Bool(d["pointer"], at + ".pointer") : false;
@@ -58,18 +65,28 @@ DeviceConfig ReadDeviceConfig(const std::string& path) {
         b.units = 1.0;
       } else {
         b.units = y.Number(u, at + ".units");
-        TROCAR_THROW_UNLESS(b.units > 0 && b.units <= 1000,
+        // Physical: from micrometres to metres per unit (a device reporting in km or in 1e-300 m
+        // is a typing error, and its session would run to infinite errors).
+        TROCAR_THROW_UNLESS(b.units >= 1e-6 && b.units <= 1.0,
                             y.Where(u, at + ".units") << ": " << b.units
-                                                      << ": expected mm, m, or metres per unit (> 0)");
+                                                      << ": expected mm, m, or metres per unit "
+                                                         "from 1e-6 (um) to 1 (m)");
       }
     }
     if (d["scale"]) {
       b.scale = y.Number(d["scale"], at + ".scale");
-      TROCAR_THROW_UNLESS(*b.scale > 0, y.Where(d["scale"], at + ".scale")
-                                            << ": " << *b.scale << ": expected a positive motion ratio");
+      // Motion scaling as surgeons use it (the da Vinci's 1:1 to 5:1, and fine 10:1), with room
+      // either way; 1e-300 or 1e300 is not a ratio a hand can drive.
+      TROCAR_THROW_UNLESS(*b.scale >= 0.01 && *b.scale <= 100,
+                          y.Where(d["scale"], at + ".scale")
+                              << ": " << *b.scale
+                              << ": expected a motion scaling (device:tool) from 0.01 to 100");
     }
     if (d["device_to_camera_rpy"]) {
       const Eigen::Vector3d rpy = y.Vector3(d["device_to_camera_rpy"], at + ".device_to_camera_rpy");
+      TROCAR_THROW_UNLESS(rpy.allFinite() && rpy.cwiseAbs().maxCoeff() <= 2 * M_PI + 1e-9,
+                          y.Where(d["device_to_camera_rpy"], at + ".device_to_camera_rpy")
+                              << ": angles within one turn (|angle| <= 360 deg) expected");
       b.R_CD = RotationFromRpy(rpy);
     }
     config.devices.push_back(b);

@@ -37,6 +37,11 @@ TeleopMapping::TeleopMapping(const TeleopOptions& options, const Eigen::Isometry
     : options_(options), X_WD_(X_WT_initial), X_WT_anchor_(X_WT_initial) {
   TROCAR_THROW_UNLESS(std::isfinite(options.scale) && options.scale > 0,
                       "teleop: scale " << options.scale << " must be a positive number");
+  // A motion scaling a hand can drive (the device file's range): 1e-300 ran a session to
+  // infinite errors with every joint at its limit.
+  TROCAR_THROW_UNLESS(options.scale >= 0.01 && options.scale <= 100,
+                      "teleop: scale " << options.scale
+                                       << " must be a motion scaling (device:tool) from 0.01 to 100");
   TROCAR_THROW_UNLESS(std::isfinite(options.max_jump) && options.max_jump > 0,
                       "teleop: max_jump " << options.max_jump << " must be positive");
   for (double v : {options.low_pass_cutoff_hz, options.one_euro_min_cutoff_hz,

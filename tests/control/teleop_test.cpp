@@ -212,6 +212,15 @@ TEST(TeleopMapping, RefusesBadOptions) {
   EXPECT_THROW(TeleopMapping(options, kTool), Error);
   options.scale = NAN;
   EXPECT_THROW(TeleopMapping(options, kTool), Error);
+  // Not a scaling a hand can drive (#44 item 3): 1e-300 ran to infinite errors.
+  for (double scale : {1e-300, 0.009, 101.0, 1e300}) {
+    options.scale = scale;
+    EXPECT_THROW(TeleopMapping(options, kTool), Error) << scale;
+  }
+  for (double scale : {0.01, 0.2, 100.0}) {
+    options.scale = scale;
+    EXPECT_NO_THROW(TeleopMapping(options, kTool)) << scale;
+  }
   EXPECT_THROW(control::ParseTremorFilter("kalman"), Error);
 }
 
