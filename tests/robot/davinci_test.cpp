@@ -182,6 +182,16 @@ TEST(DaVinci, ParallelogramLinksAreRealBodiesDrivenByTwoClosures) {
       R_yaw * Eigen::AngleAxisd(0.6, Eigen::Vector3d::UnitY()).toRotationMatrix(), 1e-12));
 }
 
+// Every held (setup) joint of the cart at a random value within its limits.
+void RandomSetupJoints(const RobotModel& cart, std::mt19937* rng, RobotState* state) {
+  for (int j : cart.dof_joints()) {
+    const robot::Joint& joint = cart.joint(j);
+    if (joint.drive != robot::JointDrive::kHeld) continue;
+    state->joint_values[joint.dof_index] =
+        std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(*rng);
+  }
+}
+
 TEST(DaVinciCart, IsOneDescriptionWithHeldSetupJointsAndActiveArms) {
   const RobotModel cart = robot::LoadRobot(DaVinci("cart.yaml"));
   EXPECT_EQ(cart.num_positions(), 18);
@@ -197,12 +207,7 @@ TEST(DaVinciCart, IsOneDescriptionWithHeldSetupJointsAndActiveArms) {
   RobotState state(cart);
   std::mt19937 rng(6);
   for (int trial = 0; trial < 200; ++trial) {
-    for (int j : cart.dof_joints()) {
-      const robot::Joint& joint = cart.joint(j);
-      if (joint.drive != robot::JointDrive::kHeld) continue;
-      state.joint_values[joint.dof_index] =
-          std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
-    }
+    RandomSetupJoints(cart, &rng, &state);
     ASSERT_TRUE(ForwardKinematics(cart, test::RandomConfiguration(cart, &rng), &state).ok());
     EXPECT_LT(ShaftDistanceFromRcm(cart, state, "psm1_outer_insertion", "psm1_rcm"), 1e-9);
     EXPECT_LT(ShaftDistanceFromRcm(cart, state, "psm2_outer_insertion", "psm2_rcm"), 1e-9);
@@ -225,12 +230,7 @@ TEST(DaVinciCart, PosingOneLinksChainGivesTheWholeRobotsPosesThereAndTouchesNoth
     whole.X_WB = Eigen::Translation3d(metres(rng), metres(rng), metres(rng)) *
                  Eigen::AngleAxisd(std::uniform_real_distribution<double>(-M_PI, M_PI)(rng),
                                    Eigen::Vector3d::UnitZ());
-    for (int j : cart.dof_joints()) {
-      const robot::Joint& joint = cart.joint(j);
-      if (joint.drive != robot::JointDrive::kHeld) continue;
-      whole.joint_values[joint.dof_index] =
-          std::uniform_real_distribution<double>(joint.limits.lower, joint.limits.upper)(rng);
-    }
+    RandomSetupJoints(cart, &rng, &whole);
     ASSERT_TRUE(ForwardKinematics(cart, test::RandomConfiguration(cart, &rng), &whole).ok());
     for (int link = 0; link < cart.num_links(); ++link) {
       RobotState part = whole;
