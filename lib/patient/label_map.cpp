@@ -197,6 +197,10 @@ LabelMap LoadLabelMap(const std::string& path, const std::string& names_file) {
                                         << " masks is a structure trocar uses (ribs, sternum, costal "
                                            "cartilages, vertebrae, heart, vessels), e.g. "
                                         << StemOf(files.front()));
+    TROCAR_THROW_UNLESS(std::any_of(map.volume.values.begin(), map.volume.values.end(),
+                                    [](float x) { return x > 0.0f; }),
+                        path << ": the label map labels no voxel (each of its " << value
+                             << " masks that trocar uses is empty)");
     return map;
   }
   TROCAR_THROW_UNLESS(IsRegularFile(path), path << ": label map not found");

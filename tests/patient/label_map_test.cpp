@@ -203,6 +203,11 @@ TEST(LabelMap, BadLabelMapsAreClearErrors) {
   WriteFileAtomically(dir + "/empty.seg.nrrd", zero);
   const std::string z = ErrorOf([&] { patient::LoadLabelMap(dir + "/empty.seg.nrrd"); });
   EXPECT_NE(z.find("empty.seg.nrrd: the label map labels no voxel"), std::string::npos) << z;
+  // The same for a folder of masks whose masks are all empty.
+  const std::string masks = Scratch("empty_masks");
+  WriteFileAtomically(masks + "/heart.nrrd", zero);
+  const std::string f = ErrorOf([&] { patient::LoadLabelMap(masks); });
+  EXPECT_NE(f.find("empty_masks: the label map labels no voxel"), std::string::npos) << f;
   // A segment index or a label-table key too large for any label: named, not "stoi".
   std::string huge = ReadTextFile(seg);
   const std::size_t at = huge.find("Segment0_");
