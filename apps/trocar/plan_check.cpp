@@ -347,6 +347,10 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
               d.norm() > scope_max + kSlack) {
             fail(where + "claimed in view, but it is " + std::to_string(angle * 180 / M_PI) +
                  " deg off the axis at " + Mm(d.norm()));
+          } else if (const collision::SightLine sight =
+                         world->FirstAcross(tip, sample_points[sample], planners::kSightMargin);
+                     !sight.clear()) {
+            fail(where + "claimed in view, but hidden behind the " + bodies[sight.body].name);
           }
           continue;
         }

@@ -242,8 +242,11 @@ void AddFixedMesh(CollisionWorld::Impl& w, const std::string& name, const Triang
   b.triangles = static_cast<long>(mesh.triangles.size());
   w.geometry.push_back(MakeMeshGeometry(mesh, w.options.bvh, context));
   w.convex.emplace_back();
-  w.mesh.push_back(w.options.exact_mesh_queries ? std::make_shared<const TriangleBvh>(mesh)
-                                                : nullptr);
+  // Patient meshes always get the exact hierarchy: the line-of-sight query needs it
+  // (CollisionWorld::FirstAcross); the checker uses it only with exact_mesh_queries.
+  w.mesh.push_back(w.options.exact_mesh_queries || patient
+                       ? std::make_shared<const TriangleBvh>(mesh)
+                       : nullptr);
   w.X_pose.push_back(X_WM);
   w.fixed_bodies.push_back(static_cast<int>(w.bodies.size()));
   w.triangles += b.triangles;
@@ -311,6 +314,30 @@ bool CollisionWorld::Allowed(int a, int b) const { return impl_->Allowed(a, b); 
 int CollisionWorld::auto_allowed_pairs() const { return impl_->auto_allowed; }
 PairClass CollisionWorld::Classify(int a, int b) const { return impl_->Class(a, b); }
 long CollisionWorld::triangle_count() const { return impl_->triangles; }
+SightLine CollisionWorld::FirstAcross(const Eigen::Vector3d& from_W, const Eigen::Vector3d& to_W,
+                                      double near_to) const {
+  SightLine out;
+  const Eigen::Vector3d d = to_W - from_W;
+  const double length = d.norm();
+  if (!(length > near_to)) return out;  // the whole line lies within the margin
+  const Eigen::Vector3d end_W = to_W - near_to * d / length;
+  double best = std::numeric_limits<double>::infinity();
+  for (int f : impl_->fixed_bodies) {
+    if (impl_->bodies[f].kind != Body::Kind::kPatient || !impl_->mesh[f]) continue;
+    const Eigen::Isometry3d X_MW = impl_->X_pose[f].inverse();
+    const MeshClosest c = impl_->mesh[f]->Closest(X_MW * from_W, X_MW * end_W, 1e-9);
+    if (!c.found()) continue;
+    const Eigen::Vector3d p_W = impl_->X_pose[f] * c.p_M_query;
+    const double along = (p_W - from_W).norm();
+    if (along < best) {
+      best = along;
+      out.body = f;
+      out.p_W = p_W;
+    }
+  }
+  return out;
+}
+
 int CollisionWorld::FindBody(const std::string& name) const {
   for (std::size_t i = 0; i < impl_->bodies.size(); ++i) {
     if (impl_->bodies[i].name == name) return static_cast<int>(i);

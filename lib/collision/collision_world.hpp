@@ -112,6 +112,13 @@ struct WorldOptions {
   unsigned acm_seed = 1;
 };
 
+/// Where a straight line first meets a patient structure (CollisionWorld::FirstAcross).
+struct SightLine {
+  int body = -1;  ///< the structure met; -1: the line is clear
+  Eigen::Vector3d p_W = Eigen::Vector3d::Zero();  ///< a point of the line on it
+  bool clear() const { return body < 0; }
+};
+
 /// A pair that may touch, by body name ("psm1_jaw_1_link", "heart", "table") or by a robot
 /// link's name, which covers all of its shapes.
 struct AllowedPair {
@@ -160,6 +167,15 @@ class CollisionWorld {
   PairClass Classify(int a, int b) const;
   int FindBody(const std::string& name) const;
   long triangle_count() const;
+  /// The patient structure (skin, bone, organ: Body::Kind::kPatient) that the straight line from
+  /// `from_W` to `to_W` meets nearest `from_W`, leaving out the last `near_to` metres of the line
+  /// (a point on a surface, seen at a grazing angle, is not hidden by that surface next to it);
+  /// clear when it meets none (a line wholly inside a closed surface meets none: a camera inside
+  /// an organ is a collision, found by the checker). An endoscope sees a target only along a clear line (issue #41,
+  /// item 5). With the patient bodies where the world holds them (a world with the targets moved
+  /// has its heart moved).
+  SightLine FirstAcross(const Eigen::Vector3d& from_W, const Eigen::Vector3d& to_W,
+                        double near_to) const;
 
   struct Impl;
   const Impl& impl() const { return *impl_; }

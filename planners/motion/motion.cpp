@@ -445,22 +445,28 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
       return out;
     }
   }
-  // Goals: inverse kinematics from the nominal pose, then from seeded random poses of the arm.
+  // Goals: inverse kinematics from the nominal pose and the problem's other wrist poses (the
+  // attempts the plan's claimed reach made: PortPlacementProblem::ReachSeed), then from seeded
+  // random poses of the arm.
   std::vector<Eigen::VectorXd> goals;
   std::string goal_failure;
   {
     std::mt19937 rng(seed);
     robot::RobotState ik_state = state_;
-    for (int r = 0; r < options.ik_restarts && static_cast<int>(goals.size()) < options.goal_states;
+    const int seeded = problem.ReachRestarts(arm_index);  // before the random ones
+    for (int r = 0; r < 1 + seeded + std::max(0, options.ik_restarts - 1) &&
+                    static_cast<int>(goals.size()) < options.goal_states;
          ++r) {
       ik_state.X_WB = problem_.placement().X_WB();
       ik_state.joint_values = problem_.joint_values();
       ik_state.q = problem_.q_start();
-      if (r > 0) {
+      if (r > seeded) {
         for (int c = 0; c < n; ++c) {
           ik_state.q[arm.q_indices[c]] =
               std::uniform_real_distribution<double>(space.lower(c), space.upper(c))(rng);
         }
+      } else {
+        problem.ReachSeed(arm_index, r, &ik_state);
       }
       if (!kinematics::ForwardKinematics(robot, ik_state.q, &ik_state).ok()) continue;
       const std::string failure = problem.SolveReach(arm_index, problem_.placement(),

@@ -1,6 +1,7 @@
 #include "port_placement/plan_io.hpp"
 
 #include "port_placement/fixed_ports.hpp"
+#include "port_placement/port_rules.hpp"
 
 #include <cstdio>
 #include <cstring>
@@ -278,6 +279,8 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
                     {"rcm_depth_m", po.rcm_depth},
                     {"gap_search_depth_m", po.gap_search_depth},
                     {"ik_tolerance_m", po.ik_tolerance},
+                    {"reach_restarts", po.reach_restarts},
+                    {"sight_margin_m", kSightMargin},
                     {"scope_half_fov_deg", po.scope_half_fov * 180 / M_PI},
                     {"scope_min_distance_m", po.scope_min_distance},
                     {"scope_max_distance_m", po.scope_max_distance},

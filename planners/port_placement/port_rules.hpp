@@ -33,4 +33,12 @@ inline double PortTrackLength(double pivot_depth, const Eigen::Vector3d& pivot,
 /// The shaft touching the heart, and the wrist touching it anywhere else, stay collisions.
 constexpr double kWorkSiteRadius = 0.015;
 
+/// An endoscope sees a target point only when the straight line from its camera to the point
+/// crosses no patient structure (issue #41, item 5: a scope behind the heart does not see the
+/// LAD), leaving out the line's last few millimetres: the point lies on a surface (the LAD on the
+/// heart, the LIMA on the chest wall's inner face) and a line reaching it at a grazing angle runs
+/// within the surface's own curvature there. 5 mm: the width of the vessel and the tissue beside
+/// it that the surgeon looks at; a modelling choice, not a fitted value (docs/decisions.md).
+constexpr double kSightMargin = 0.005;
+
 }  // namespace trocar::planners

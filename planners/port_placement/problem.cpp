@@ -382,6 +382,45 @@ std::string PortPlacementProblem::SolveReach(int a, const Placement& placement,
   return ReachFailure(*robot_, arm, *state, p_aim, port, max_reach_[a], ik);
 }
 
+namespace {
+// The arm's joints below its insertion joint (an instrument's roll and wrist), in q order.
+std::vector<int> DistalJoints(const PlanArm& arm) {
+  std::vector<int> distal;
+  bool below = false;
+  for (int i : arm.q_indices) {
+    if (below) distal.push_back(i);
+    below = below || i == arm.insertion_q;
+  }
+  return distal;
+}
+}  // namespace
+
+int PortPlacementProblem::ReachRestarts(int a) const {
+  return DistalJoints(arms_.at(a)).empty() ? 0 : options_.reach_restarts;
+}
+
+bool PortPlacementProblem::ReachSeed(int a, int attempt, robot::RobotState* state) const {
+  if (attempt == 0) return true;
+  if (attempt < 0 || attempt > ReachRestarts(a)) return false;
+  const std::vector<int> distal = DistalJoints(arms_.at(a));
+  // Halton sequence, bases 2, 3, 5, 7, ... (one per joint): evenly spread, and the same every
+  // time.
+  static constexpr int kPrimes[] = {2, 3, 5, 7, 11, 13, 17, 19, 23, 29};
+  for (std::size_t j = 0; j < distal.size(); ++j) {
+    const int base = kPrimes[j % 10];
+    double f = 1.0, h = 0.0;
+    for (int k = attempt; k > 0; k /= base) {
+      f /= base;
+      h += f * (k % base);
+    }
+    const int i = distal[j];
+    const double lo = std::isfinite(robot_->lower_limits()[i]) ? robot_->lower_limits()[i] : -M_PI;
+    const double hi = std::isfinite(robot_->upper_limits()[i]) ? robot_->upper_limits()[i] : M_PI;
+    state->q[i] = lo + h * (hi - lo);
+  }
+  return true;
+}
+
 void PortPlacementProblem::SetPorts(const Placement& placement,
                                     collision::CollisionChecker* checker,
                                     const Eigen::Vector3d* work_W) const {
@@ -770,6 +809,16 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
   // samples from the nominal pose. The straight scope looks along the shaft: its view axis is the
   // tool frame's axis nearest the shaft; an angled camera frame looks along the same axis of its
   // own frame. The roll is the arm's joint turning about the shaft.
+  // Whether a sample is hidden from a camera at p_W by a patient structure (kSightMargin).
+  const collision::CollisionWorld& sight_world = checker.world();
+  auto hidden_by = [&](const Eigen::Vector3d& p_W, int s) {
+    return sight_world.FirstAcross(p_W, samples[s].p_W, kSightMargin).body;
+  };
+  // The lines of sight from the scope's nominal tip, shared by every roll and camera frame tried
+  // (a roll turns the scope about its shaft: its tip stays where it is); found when first asked
+  // (-1: not yet).
+  std::vector<signed char> in_sight;
+  Eigen::Vector3d sight_from_W = Eigen::Vector3d::Zero();
   auto count_seen = [&](const robot::RobotState& st, const std::string& frame,
                         const Eigen::Vector3d& axis_F) {
     const Eigen::Isometry3d X_WC = kinematics::FramePose(st, robot.GetFrame(frame));
@@ -779,8 +828,11 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
       const Eigen::Vector3d d = samples[s].p_W - X_WC.translation();
       const double dist = d.norm();
       const double angle = std::acos(std::clamp(view.dot(d / std::max(dist, 1e-9)), -1.0, 1.0));
-      seen += angle <= options_.scope_half_fov && dist >= options_.scope_min_distance &&
-              dist <= options_.scope_max_distance;
+      if (angle > options_.scope_half_fov || dist < options_.scope_min_distance ||
+          dist > options_.scope_max_distance)
+        continue;
+      if (in_sight[s] < 0) in_sight[s] = hidden_by(sight_from_W, s) < 0 ? 1 : 0;
+      seen += in_sight[s];
     }
     return seen;
   };
@@ -799,6 +851,8 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
     }
     view.axis_F = Eigen::Vector3d::Unit(k) * (X_WT.linear().col(k).dot(shaft) < 0 ? -1.0 : 1.0);
     if (!skip_reach && nominal_ok[a]) {
+      in_sight.assign(ns, -1);
+      sight_from_W = X_WT.translation();
       int roll = -1;
       kinematics::Matrix6Xd J;
       kinematics::ComputeFrameJacobian(robot, state, robot.GetFrame(arm.tool_frame), &J);
@@ -874,8 +928,12 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
         const Eigen::Vector3d d = samples[s].p_W - tip;
         const double dist = d.norm();
         const double angle = std::acos(std::clamp(view.dot(d / std::max(dist, 1e-9)), -1.0, 1.0));
-        r.seen = nominal_ok[a] && !nominal.collision && angle <= options_.scope_half_fov &&
-                 dist >= options_.scope_min_distance && dist <= options_.scope_max_distance;
+        const bool in_view = nominal_ok[a] && !nominal.collision &&
+                             angle <= options_.scope_half_fov &&
+                             dist >= options_.scope_min_distance &&
+                             dist <= options_.scope_max_distance;
+        const int hidden = in_view ? hidden_by(tip, s) : -1;
+        r.seen = in_view && hidden < 0;
         r.reached = r.seen;
         r.approach = angle;
         if (!r.seen) {
@@ -887,6 +945,8 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
           else if (angle > options_.scope_half_fov)
             why << "outside the field of view (" << std::lround(angle / kDeg)
                 << " deg off the axis)";
+          else if (hidden >= 0)
+            why << "hidden behind the " << sight_world.bodies()[hidden].name;
           else
             why << "outside the working distance (" << std::lround(dist * 1e3) << " mm)";
           r.reason = why.str();
@@ -905,33 +965,50 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
         r.reason = "the nominal pose is in collision";
         continue;
       }
-      state = nominal_state;
       const Eigen::Vector3d p_aim = samples[s].p_W + options_.standoff * samples[s].n_W;
       const Eigen::Vector3d dir = (p_aim - port).normalized();
       r.approach = std::acos(std::clamp(dir.dot(-samples[s].n_W), -1.0, 1.0));
-      const IkOutcome ik = planners::SolveReach(robot, arm, p_aim, port, options_.ik_iterations,
-                                      options_.ik_tolerance, &state);
-      r.tip_error = ik.error;
-      r.q_arm.resize(arm.q_indices.size());
-      for (std::size_t c = 0; c < arm.q_indices.size(); ++c) r.q_arm[c] = state.q[arm.q_indices[c]];
-      if (!ik.converged) {
-        r.reason = ReachFailure(robot, arm, state, p_aim, port, max_reach_[a], ik);
-        continue;
-      }
-      checker.SetRobotState(state);
-      SetPorts(placement, &checker, &samples[s].p_W);  // the jaws may touch the organ there
-      if (checker.InCollision(how.sample_mask & collision::kAllMovingPairs)) {
-        if (detailed) {
-          const auto report = checker.Check(how.sample_mask & collision::kAllMovingPairs);
-          const auto& bodies = world_->bodies();
-          const auto& c = report.contacts.front();
-          r.reason = "collision: " + bodies[c.a].name + " - " + bodies[c.b].name;
+      // From the nominal pose, then, when that solution is in contact, from other wrist poses
+      // (ReachSeed); the first valid solution is kept, else the first attempt's answer and reason.
+      for (int attempt = 0;; ++attempt) {
+        state = nominal_state;
+        if (!ReachSeed(static_cast<int>(a), attempt, &state)) break;
+        const IkOutcome ik = planners::SolveReach(robot, arm, p_aim, port,
+                                                  options_.ik_iterations, options_.ik_tolerance,
+                                                  &state);
+        std::string why;
+        if (!ik.converged) {
+          if (attempt == 0) why = ReachFailure(robot, arm, state, p_aim, port, max_reach_[a], ik);
         } else {
-          r.reason = "collision";
+          checker.SetRobotState(state);
+          SetPorts(placement, &checker, &samples[s].p_W);  // the jaws may touch the organ there
+          if (!checker.InCollision(how.sample_mask & collision::kAllMovingPairs)) {
+            r.reached = true;
+          } else if (attempt == 0 && detailed) {
+            const auto report = checker.Check(how.sample_mask & collision::kAllMovingPairs);
+            const auto& bodies = world_->bodies();
+            const auto& c = report.contacts.front();
+            why = "collision: " + bodies[c.a].name + " - " + bodies[c.b].name;
+          } else if (attempt == 0) {
+            why = "collision";
+          }
         }
-        continue;
+        if (attempt == 0 || r.reached) {
+          r.tip_error = ik.error;
+          r.q_arm.resize(arm.q_indices.size());
+          for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
+            r.q_arm[c] = state.q[arm.q_indices[c]];
+        }
+        if (attempt == 0) r.reason = why;
+        if (r.reached) {
+          r.reason.clear();
+          break;
+        }
+        // Out of the arm's reach from its nominal pose: the outer joints decide that, and another
+        // wrist pose moves the tip by a centimetre at most; the restarts are for contacts.
+        if (attempt == 0 && !ik.converged) break;
       }
-      r.reached = true;
+      if (!r.reached) continue;
       kinematics::Matrix6Xd J_WT;
       kinematics::ComputeFrameJacobian(robot, state, robot.GetFrame(arm.tool_frame), &J_WT);
       std::vector<int> cols;

@@ -82,6 +82,12 @@ struct ProblemOptions {
   int placement_attempts = 3;
   /// Reach: inverse-kinematics iterations and success tolerance (m).
   int ik_iterations = 80;
+  /// An instrument whose solution from its nominal pose is in contact (or does not converge) is
+  /// solved again from this many other wrist poses (ReachSeed): the wrist bent another way tilts
+  /// the shaft about its pivot, off a rib or the heart it grazed. The same attempts in the
+  /// problem's reach and in the verification's goals, so that what a plan claims is what its
+  /// verification finds (issue #41, item 5).
+  int reach_restarts = 6;
   double ik_tolerance = 0.001;
   ScoreWeights weights;
   unsigned seed = 1;
@@ -251,6 +257,15 @@ class PortPlacementProblem {
   ///         limit (240 mm) exceeded: ...", "joint limit 'x' (upper), 12 mm short", ...).
   std::string SolveReach(int arm, const Placement& placement, const TargetSample& sample,
                          robot::RobotState* state) const;
+
+  /// The start of reach attempt `attempt` (0: the state as it is, the nominal pose; 1 to
+  /// ProblemOptions::reach_restarts: the arm's joints below its insertion joint — an instrument's
+  /// roll and wrist — set to the attempt's point of a Halton sequence over their limits, the
+  /// others left as they are). Deterministic. False when the attempt does not exist (beyond the
+  /// restarts, or an arm with no joint below an insertion joint).
+  bool ReachSeed(int arm, int attempt, robot::RobotState* state) const;
+  /// How many attempts ReachSeed gives beyond the first for an arm (0: the nominal pose only).
+  int ReachRestarts(int arm) const;
 
   /// Puts the collision checker's ports (where instruments may touch the skin) at the sites'
   /// pivots with their skin allowances; call after every CollisionChecker::SetRobotState. With a

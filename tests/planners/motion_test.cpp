@@ -141,6 +141,69 @@ TEST(Motion, EveryReturnedPathIsCollisionFreeAndWithinLimitsAtAFineStep) {
   EXPECT_GT(checked, 1000);
 }
 
+// Claimed equals verified (issue #41, item 5): the verification's goal search starts with the
+// very attempts the plan's reach made (the nominal pose, then PortPlacementProblem::ReachSeed's
+// wrist poses), so that every sample a plan claims an instrument reaches has a valid goal there;
+// and the attempts are the same every time, move only the joints below the insertion, and stay
+// within their limits.
+TEST(Motion, EverySampleAPlanClaimsReachedHasAValidGoalInItsVerification) {
+  const Fixture& f = OneArm();
+  const PortPlacementProblem& problem = *f.problem;
+  const PlanArm& arm = problem.arms()[0];
+  ASSERT_GT(problem.ReachRestarts(0), 0);
+  robot::RobotState a(problem.robot()), b(problem.robot());
+  a.q = b.q = problem.robot().neutral_configuration();
+  std::vector<Eigen::VectorXd> seen;
+  for (int k = 1; k <= problem.ReachRestarts(0); ++k) {
+    a.q = problem.robot().neutral_configuration();
+    ASSERT_TRUE(problem.ReachSeed(0, k, &a));
+    ASSERT_TRUE(problem.ReachSeed(0, k, &b));
+    EXPECT_EQ(a.q, b.q);
+    for (int i = 0; i < a.q.size(); ++i) {
+      const bool distal = std::find(arm.q_indices.begin(), arm.q_indices.end(), i) >
+                          std::find(arm.q_indices.begin(), arm.q_indices.end(), arm.insertion_q);
+      const bool in_arm =
+          std::find(arm.q_indices.begin(), arm.q_indices.end(), i) != arm.q_indices.end();
+      if (!(distal && in_arm)) {
+        EXPECT_EQ(a.q[i], problem.robot().neutral_configuration()[i]) << i;
+      }
+      EXPECT_GE(a.q[i], problem.robot().lower_limits()[i]);
+      EXPECT_LE(a.q[i], problem.robot().upper_limits()[i]);
+    }
+    for (const auto& q : seen) EXPECT_GT((q - a.q).norm(), 0.1) << "attempt " << k;
+    seen.push_back(a.q);
+  }
+  EXPECT_FALSE(problem.ReachSeed(0, problem.ReachRestarts(0) + 1, &a));
+
+  int claimed = 0, from_restarts = 0;
+  for (const RankedPlan& plan : f.result.plans) {
+    if (plan.evaluation.status != PlacementStatus::kPlaced) continue;
+    MotionOptions mo;
+    mo.ik_restarts = 1;  // the problem's attempts alone: no random restart to find it instead
+    const PlanVerification v = VerifyPlan(problem, plan, mo, 0.8, 2);
+    for (const SampleReach& r : plan.evaluation.reaches) {
+      if (!r.reached || problem.arms()[r.arm].role != ArmRole::kInstrument) continue;
+      ++claimed;
+      for (const TargetMotion& m : v.motions) {
+        if (m.arm != r.arm || m.sample != r.sample) continue;
+        EXPECT_NE(m.status, MotionStatus::kInvalidGoal)
+            << "sample " << r.sample << " claimed reached: " << m.reason;
+      }
+      // Reached from a restart: the claimed wrist is not where the nominal pose's solution puts it.
+      robot::RobotState st(problem.robot());
+      st.X_WB = plan.placement.X_WB();
+      st.joint_values = plan.evaluation.joint_values;
+      st.q = plan.evaluation.q_nominal;
+      problem.SolveReach(r.arm, plan.placement, problem.samples()[r.sample], &st);
+      Eigen::VectorXd q_first(arm.q_indices.size());
+      for (std::size_t c = 0; c < arm.q_indices.size(); ++c) q_first[c] = st.q[arm.q_indices[c]];
+      from_restarts += (q_first - r.q_arm).norm() > 1e-6;
+    }
+  }
+  EXPECT_GT(claimed, 2) << "too few claims to prove anything";
+  RecordProperty("claimed_from_restarts", from_restarts);
+}
+
 TEST(Motion, TheRecheckRejectsAPathThroughACollision) {
   const Fixture& f = OneArm();
   const RankedPlan& plan = f.result.plans.front();
