@@ -28,6 +28,26 @@ std::string ReadBinaryFile(const std::string& path) {
   return ReadFileBounded(path, Limits().max_file_bytes, "TROCAR_MAX_FILE_BYTES");
 }
 
+std::uint64_t RegularFileSize(const std::string& path) {
+  std::error_code ec;
+  TROCAR_THROW_UNLESS(std::filesystem::exists(path, ec), path << ": file not found");
+  TROCAR_THROW_UNLESS(std::filesystem::is_regular_file(path, ec), path << ": not a regular file");
+  const std::uintmax_t size = std::filesystem::file_size(path, ec);
+  TROCAR_THROW_UNLESS(!ec, path << ": cannot read its size: " << ec.message());
+  return size;
+}
+
+std::string ReadFilePrefix(const std::string& path, std::size_t max_bytes) {
+  const std::uint64_t size = RegularFileSize(path);
+  std::ifstream in(path, std::ios::binary);
+  TROCAR_THROW_UNLESS(in.good(), path << ": cannot open for reading: " << std::strerror(errno));
+  std::string content(static_cast<std::size_t>(std::min<std::uint64_t>(size, max_bytes)), '\0');
+  in.read(content.data(), static_cast<std::streamsize>(content.size()));
+  content.resize(static_cast<std::size_t>(in.gcount()));
+  TROCAR_THROW_UNLESS(!in.bad(), path << ": read failed: " << std::strerror(errno));
+  return content;
+}
+
 std::string ReadFileBounded(const std::string& path, std::uint64_t max_bytes, const char* env) {
   std::error_code ec;
   TROCAR_THROW_UNLESS(std::filesystem::exists(path, ec), path << ": file not found");
@@ -64,8 +84,18 @@ std::string TemporaryPrefix(const std::filesystem::path& target) {
   return target.filename().string() + ".tmp.";
 }
 
-// Removes the temporaries of `target` left by writers that are gone (killed while writing):
-// only this target's, only when the process that made one no longer exists.
+}  // namespace
+
+std::string TemporaryName(const std::string& target) {
+  namespace fs = std::filesystem;
+  static std::atomic<unsigned> counter{0};
+  std::random_device rd;
+  const fs::path t(target);
+  return (t.parent_path() / (TemporaryPrefix(t) + std::to_string(::getpid()) + "." +
+                             std::to_string(counter++) + "-" + std::to_string(rd() % 1000000)))
+      .string();
+}
+
 void RemoveStaleTemporaries(const std::filesystem::path& target) {
   namespace fs = std::filesystem;
   const fs::path dir = target.parent_path().empty() ? fs::path(".") : target.parent_path();
@@ -85,11 +115,9 @@ void RemoveStaleTemporaries(const std::filesystem::path& target) {
     if (pid <= 0 || pid == ::getpid()) continue;
     if (::kill(pid, 0) == 0 || errno != ESRCH) continue;  // alive (or not ours to judge)
     std::error_code ignored;
-    fs::remove(it->path(), ignored);
+    fs::remove_all(it->path(), ignored);  // a file, or a folder written as one (a phantom case)
   }
 }
-
-}  // namespace
 
 void WriteFileAtomically(const std::string& path, const std::string& content) {
   namespace fs = std::filesystem;

@@ -4,6 +4,7 @@
 /// then rename) so that no reader ever sees a half-written output.
 
 #include <cstdint>
+#include <filesystem>
 #include <string>
 
 namespace trocar {
@@ -17,6 +18,23 @@ std::string ReadBinaryFile(const std::string& path);
 
 /// Whole file, refused (naming the file, its size, the limit and `env`) beyond `max_bytes`.
 std::string ReadFileBounded(const std::string& path, std::uint64_t max_bytes, const char* env);
+
+/// At most the first `max_bytes` of a file (a header read before the data it describes, so that
+/// the data's declared size can be checked against the file before the data is read).
+/// @throws trocar::Error naming the file when it is missing or unreadable.
+std::string ReadFilePrefix(const std::string& path, std::size_t max_bytes);
+
+/// A fresh temporary name beside `target` ("<target>.tmp.<pid>.<n>-<r>"), for a file or a folder
+/// that is written whole and then renamed into place.
+std::string TemporaryName(const std::string& target);
+
+/// Removes the temporaries of `target` (files or folders named as TemporaryName names them) whose
+/// writer process is gone (killed while writing): only this target's, only when the process that
+/// made one no longer exists. WriteFileAtomically calls it before each write.
+void RemoveStaleTemporaries(const std::filesystem::path& target);
+
+/// The size of a regular file in bytes. @throws trocar::Error naming the file.
+std::uint64_t RegularFileSize(const std::string& path);
 
 /// Writes `content` to `path` through a temporary file in the same folder
 /// ("<name>.tmp.<pid>.<n>", created exclusively) and a rename. First removes

@@ -332,9 +332,11 @@ void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat f
   // Everything is written into a temporary folder inside the case, then moved into place with
   // the CT last: the CT's presence means the case is whole, so a run killed half-way leaves a
   // case that the next import regenerates instead of one that fails on every import.
-  std::random_device rd;
-  const fs::path temp = fs::path(dir) / (".phantom.tmp" + std::to_string(rd() % 1000000));
-  fs::remove_all(temp, ec);
+  // A folder left by a generation that was killed is removed by the next one (only once its
+  // writer is gone: RemoveStaleTemporaries).
+  const fs::path target = fs::path(dir) / ".phantom";
+  RemoveStaleTemporaries(target);
+  const fs::path temp = TemporaryName(target.string());
   fs::create_directories(temp / "markups", ec);
   TROCAR_THROW_UNLESS(!ec, temp.string() << ": cannot create a temporary folder: " << ec.message());
   struct Cleanup {

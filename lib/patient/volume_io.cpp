@@ -249,8 +249,55 @@ std::vector<std::string> SplitVectors(const std::string& raw) {
   return out;
 }
 
+// A header is read before the data it describes, at most this much of it.
+constexpr std::size_t kMaxHeaderBytes = std::size_t{1} << 20;
+
+// The data a header declares, checked against the file that holds it before that file is read
+// (issue #44, item 2: a 128-byte header over a 3 GB data file read the 3 GB before its error).
+// Raw data must be exactly the `needed` bytes past `offset`, as Convert requires (the same
+// messages); a compressed file can be at most a little larger than what it inflates to (deflate's
+// stored blocks add 5 bytes per 64 KiB, gzip a header and a trailer per member).
+void CheckDeclaredSize(const std::string& file, std::uint64_t offset, std::uint64_t needed,
+                       bool compressed) {
+  const std::uint64_t size = RegularFileSize(file);
+  if (compressed) {
+    const std::uint64_t most = offset + needed + (offset + needed) / 100 + (std::uint64_t{64} << 10);
+    TROCAR_THROW_UNLESS(size <= most, file << ": " << size
+                                           << " bytes of compressed data, more than a stream of "
+                                              "the "
+                                           << offset + needed
+                                           << " bytes its header describes can take");
+    return;
+  }
+  TROCAR_THROW_UNLESS(size >= offset && size - offset >= needed,
+                      file << ": voxel data is truncated: " << (size >= offset ? size - offset : 0)
+                           << " bytes, expected " << needed);
+  TROCAR_THROW_UNLESS(size - offset == needed,
+                      file << ": voxel data has " << size - offset - needed << " bytes more than the "
+                           << needed << " its header describes");
+}
+
+// A header read as a prefix of its file: it must end within the prefix (a blank line, or the
+// line naming the data) unless the prefix is the whole file.
+void CheckHeaderEnded(const std::string& path, const std::string& prefix, bool ended) {
+  TROCAR_THROW_UNLESS(ended || prefix.size() == RegularFileSize(path) ||
+                          RegularFileSize(path) <= kMaxHeaderBytes,
+                      path << ": its header does not end within its first " << kMaxHeaderBytes
+                           << " bytes");
+}
+
+// A header's prefix cut at its last complete line when the file goes on past it.
+std::string HeaderPrefix(const std::string& path) {
+  std::string text = ReadFilePrefix(path, kMaxHeaderBytes);
+  if (text.size() < RegularFileSize(path)) {
+    const std::size_t last = text.rfind('\n');
+    text.resize(last == std::string::npos ? 0 : last + 1);
+  }
+  return text;
+}
+
 Volume LoadNrrd(const std::string& path) {
-  const std::string text = ReadBinaryFile(path);
+  const std::string text = HeaderPrefix(path);
   TROCAR_THROW_UNLESS(text.rfind("NRRD000", 0) == 0,
                       path << ": not a NRRD file (it must start with NRRD000x)");
   std::map<std::string, std::string> fields;
@@ -276,6 +323,7 @@ Volume LoadNrrd(const std::string& path) {
                         path << ": header line '" << Trim(line) << "' is not 'field: value'");
     fields[Lower(Trim(line.substr(0, colon)))] = Trim(line.substr(colon + 2));
   }
+  CheckHeaderEnded(path, text, data_start != std::string::npos);
   auto field = [&](const std::string& name) -> const std::string& {
     const auto it = fields.find(name);
     TROCAR_THROW_UNLESS(it != fields.end(), path << ": missing field '" << name << "'");
@@ -352,12 +400,14 @@ Volume LoadNrrd(const std::string& path) {
     data_name = JoinPath(ParentDirectory(path), name);
     TROCAR_THROW_UNLESS(IsRegularFile(data_name), path << ": field 'data file': '" << name
                                                        << "' not found (looked for " << data_name << ")");
+    CheckDeclaredSize(data_name, 0, count * BytesOf(type), encoding != "raw");
     data = ReadBinaryFile(data_name);
     v.files.push_back(data_name);
   } else {
     TROCAR_THROW_UNLESS(data_start != std::string::npos,
                         path << ": no attached data and no 'data file' field");
-    data = text.substr(data_start);
+    CheckDeclaredSize(path, data_start, count * BytesOf(type), encoding != "raw");
+    data = ReadBinaryFile(path).substr(data_start);
   }
   if (encoding != "raw") data = Inflate(data, data_name, count * BytesOf(type));
   v.values = Convert(data, 0, type, big_endian, count, 1.0, 0.0, data_name);
@@ -369,14 +419,11 @@ Volume LoadNrrd(const std::string& path) {
 // NIfTI-1
 
 Volume LoadNifti(const std::string& path) {
-  std::string bytes = ReadBinaryFile(path);
+  // The header first, to size the rest: the file is checked against it before the voxels are
+  // read, and they never inflate past what it describes.
+  std::string bytes = ReadFilePrefix(path, kMaxHeaderBytes);
   const bool gzipped = EndsWith(Lower(path), ".gz");
-  std::string compressed;
-  if (gzipped) {
-    // The header first, to size the rest: the voxels never inflate past what it describes.
-    compressed = std::move(bytes);
-    bytes = Inflate(compressed, path, 352, /*prefix_only=*/true);
-  }
+  if (gzipped) bytes = Inflate(bytes, path, 352, /*prefix_only=*/true);
   TROCAR_THROW_UNLESS(bytes.size() >= 352, path << ": too short for a NIfTI-1 header ("
                                                 << bytes.size() << " bytes)");
   std::int32_t header_size;
@@ -479,7 +526,9 @@ Volume LoadNifti(const std::string& path) {
   TROCAR_THROW_UNLESS(std::isfinite(vox_offset) && vox_offset >= 348 && vox_offset < 1e9,
                       path << ": vox_offset " << vox_offset << " is not just past the header");
   const std::size_t data_offset = static_cast<std::size_t>(vox_offset);
-  if (gzipped) bytes = Inflate(compressed, path, data_offset + count * BytesOf(type));
+  CheckDeclaredSize(path, data_offset, count * BytesOf(type), gzipped);
+  bytes = gzipped ? Inflate(ReadBinaryFile(path), path, data_offset + count * BytesOf(type))
+                  : ReadBinaryFile(path);
   TROCAR_THROW_UNLESS(bytes.size() >= data_offset,
                       path << ": " << bytes.size() << " bytes, shorter than its vox_offset "
                            << data_offset);
@@ -515,7 +564,7 @@ Volume LoadNifti(const std::string& path) {
 // MetaImage
 
 Volume LoadMetaImage(const std::string& path) {
-  const std::string text = ReadBinaryFile(path);
+  const std::string text = HeaderPrefix(path);
   std::map<std::string, std::string> fields;
   std::size_t at = 0;
   std::size_t data_start = std::string::npos;
@@ -535,6 +584,7 @@ Volume LoadMetaImage(const std::string& path) {
       break;
     }
   }
+  CheckHeaderEnded(path, text, data_start != std::string::npos);
   auto field = [&](const std::string& name) -> const std::string& {
     const auto it = fields.find(name);
     TROCAR_THROW_UNLESS(it != fields.end(), path << ": missing field '" << name << "'");
@@ -598,14 +648,18 @@ Volume LoadMetaImage(const std::string& path) {
   const std::string file = field("ElementDataFile");
   std::string data;
   std::string data_name = path;
+  const bool compressed =
+      fields.count("CompressedData") && Lower(fields["CompressedData"]) == "true";
   if (file == "LOCAL") {
     TROCAR_THROW_UNLESS(data_start != std::string::npos && data_start <= text.size(),
                         path << ": ElementDataFile = LOCAL but no data follows");
-    data = text.substr(data_start);
+    CheckDeclaredSize(path, data_start, count * BytesOf(type_it->second), compressed);
+    data = ReadBinaryFile(path).substr(data_start);
   } else {
     data_name = JoinPath(ParentDirectory(path), file);
     TROCAR_THROW_UNLESS(IsRegularFile(data_name), path << ": field 'ElementDataFile': '" << file
                                                        << "' not found (looked for " << data_name << ")");
+    CheckDeclaredSize(data_name, 0, count * BytesOf(type_it->second), compressed);
     data = ReadBinaryFile(data_name);
     v.files.push_back(data_name);
   }

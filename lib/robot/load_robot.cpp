@@ -20,6 +20,13 @@ Eigen::Isometry3d ReadPose(const YamlReader& r, const YAML::Node& node, const st
       node["xyz"] ? r.Vector3(node["xyz"], path + ".xyz") : Eigen::Vector3d::Zero();
   const Eigen::Vector3d rpy =
       node["rpy"] ? r.Vector3(node["rpy"], path + ".rpy") : Eigen::Vector3d::Zero();
+  // Physical ranges (issue #44, item 3), as for a URDF's <origin>: an angle of 1e308 rad is a
+  // finite number and some rotation, and nobody meant it.
+  TROCAR_THROW_UNLESS(xyz.cwiseAbs().maxCoeff() <= 100.0,
+                      r.Where(node["xyz"], path + ".xyz") << ": outside 100 m either way");
+  TROCAR_THROW_UNLESS(rpy.cwiseAbs().maxCoeff() <= 2 * M_PI + 1e-9,
+                      r.Where(node["rpy"], path + ".rpy")
+                          << ": outside one turn either way (|angle| <= 2 pi rad)");
   return MakeTransform(xyz, rpy);
 }
 

@@ -150,6 +150,27 @@ XmlCensus ScanUrdfXml(const std::string& xml, const std::string& path) {
         name_attribute = m[3].matched ? m[3].str() : m[4].str();
       }
     }
+    if (element == "origin") {
+      // urdfdom turns rpy into a quaternion (1e308 rad becomes some finite rotation) and takes
+      // any xyz: the values are checked as written (issue #44, item 3).
+      static const std::regex kVector("(^|\\s)(rpy|xyz)\\s*=\\s*(\"([^\"]*)\"|'([^']*)')");
+      const std::string attributes = tag.substr(name_end);
+      for (auto it = std::sregex_iterator(attributes.begin(), attributes.end(), kVector);
+           it != std::sregex_iterator(); ++it) {
+        const std::string key = (*it)[2].str();
+        const std::string value = (*it)[4].matched ? (*it)[4].str() : (*it)[5].str();
+        std::istringstream numbers(value);
+        double x = 0.0;
+        while (numbers >> x) {
+          const double bound = key == "rpy" ? 2 * M_PI + 1e-9 : 100.0;
+          TROCAR_THROW_UNLESS(std::isfinite(x) && std::abs(x) <= bound,
+                              path << ":" << line_of(at) << ": <origin " << key << "=\"" << value
+                                   << "\">: " << x << " is outside "
+                                   << (key == "rpy" ? "one turn either way (|angle| <= 2 pi rad)"
+                                                    : "100 m either way"));
+        }
+      }
+    }
     if (stack.size() == 2 && stack[0] == "robot" && stack[1] == "link") {
       if (element == "collision") ++census.collisions[link_names[1]];
       if (element == "visual") ++census.visuals[link_names[1]];

@@ -17,6 +17,11 @@
 namespace trocar::planners {
 namespace {
 
+/// Physical ranges of a plan's numbers (issue #44 item 1): a room is metres across (m), and a
+/// joint turns a few times at most or slides a few metres (rad or m).
+constexpr double kMaxRoomCoordinate = 100.0;
+constexpr double kMaxJointValue = 1000.0;
+
 using nlohmann::json;
 
 /// A JSON value with its path in the document, for messages.
@@ -66,6 +71,18 @@ struct Field {
     if (Size() != 3) Fail("3 numbers");
     return {(*this)[0].Number(), (*this)[1].Number(), (*this)[2].Number()};
   }
+  /// A point of the operating room (m): within kMaxRoomCoordinate of its origin.
+  Eigen::Vector3d Position() const {
+    const Eigen::Vector3d p = Vec3();
+    if (p.cwiseAbs().maxCoeff() > kMaxRoomCoordinate) Fail("a point within 100 m of the room's origin");
+    return p;
+  }
+  /// A unit direction (within 1e-6).
+  Eigen::Vector3d Direction() const {
+    const Eigen::Vector3d d = Vec3();
+    if (std::abs(d.norm() - 1.0) > 1e-6) Fail("a unit vector");
+    return d;
+  }
   Eigen::Isometry3d Pose() const {
     if (Size() != 4) Fail("a 4x4 matrix");
     Eigen::Matrix4d m;
@@ -92,7 +109,13 @@ struct Field {
   std::vector<std::pair<std::string, double>> NamedNumbers() const {
     if (!j.is_object()) Fail("an object of joint names and values");
     std::vector<std::pair<std::string, double>> out;
-    for (const auto& [name, value] : j.items()) out.emplace_back(name, (*this)[name].Number());
+    for (const auto& [name, value] : j.items()) {
+      const double v = (*this)[name].Number();
+      // Joint values in rad or m: 1e300 is no pose (a limit check downstream would still pass
+      // it to sin and cos first).
+      if (std::abs(v) > kMaxJointValue) (*this)[name].Fail("a joint value within 1000 (rad or m)");
+      out.emplace_back(name, v);
+    }
     return out;
   }
 };
@@ -121,6 +144,7 @@ Eigen::Isometry3d CartPose(const Field& cart) {
 StoredPlan ReadPlan(const Field& p) {
   StoredPlan plan;
   plan.rank = p["rank"].Integer();
+  if (plan.rank < 1) p["rank"].Fail("a rank from 1");
   plan.status = p["status"].String();
   plan.score = p["score"].Number();
   plan.rank_score = p["rank_score"].Number();
@@ -133,8 +157,8 @@ StoredPlan ReadPlan(const Field& p) {
     StoredPort port;
     port.arm = ports[i]["arm"].String();
     port.candidate = ports[i]["candidate"].String();
-    port.p_W = ports[i]["p_W"].Vec3();
-    port.rcm_W = ports[i]["rcm_W"].Vec3();
+    port.p_W = ports[i]["p_W"].Position();
+    port.rcm_W = ports[i]["rcm_W"].Position();
     plan.ports.push_back(port);
   }
   if (p.Has("views")) {
@@ -157,6 +181,7 @@ StoredPlan ReadPlan(const Field& p) {
     const Field v = p["verification"];
     plan.verified = true;
     plan.verified_coverage = v["verified_coverage"].Number();
+    plan.claimed_coverage = v["claimed_coverage"].Number();
     plan.served_fraction = v["served_fraction"].Number();
     plan.verified_suitable = v["suitable"].Bool();
     plan.verification_reasons = v["reasons"].Strings();
@@ -268,8 +293,8 @@ PlanFile ReadPlanFile(const std::string& path) {
     StoredSample s;
     s.index = samples[i]["index"].Integer();
     s.target = samples[i]["target"].String();
-    s.p_W = samples[i]["p_W"].Vec3();
-    s.n_W = samples[i]["n_W"].Vec3();
+    s.p_W = samples[i]["p_W"].Position();
+    s.n_W = samples[i]["n_W"].Direction();
     file.samples.push_back(s);
   }
   const Field plans = root["plans"];

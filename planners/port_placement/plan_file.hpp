@@ -74,6 +74,7 @@ struct StoredPlan {
   std::vector<StoredTerm> terms;
   bool verified = false;  ///< has a "verification" part
   double verified_coverage = 0.0, served_fraction = 0.0;
+  double claimed_coverage = 0.0;  ///< the plan's own reach figure, beside the verified one
   bool verified_suitable = false;
   std::vector<std::string> verification_reasons;
   std::vector<StoredMotion> motions;

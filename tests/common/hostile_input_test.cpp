@@ -2,6 +2,8 @@
 // crash, hang, exhaust memory or pass silently, and checks that it now ends in a clear error (or
 // a warning and a sound result) naming the file and what was wrong.
 #include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <cstring>
@@ -235,15 +237,80 @@ TEST_F(Hostile, FilesBeyondTheLimitAreRefusedBeforeTheyAreRead) {
   { std::ofstream(path, std::ios::binary) << "NRRD0004\n"; }
   fs::resize_file(path, (std::uintmax_t{9} << 29));  // 4.5 GiB, sparse
   const double before = PeakRssMb();
-  const std::string e = ErrorOf([&] { patient::LoadVolume(path); });
+  const std::string e = ErrorOf([&] { ReadBinaryFile(path); });
   EXPECT_HAS(e, "huge.nrrd: 4831838208 bytes, more than trocar reads (limit 4294967296");
   EXPECT_HAS(e, "TROCAR_MAX_FILE_BYTES");
+  // A volume reader reads its header first, and this one never ends.
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(path); }), "huge.nrrd: its header does not end");
   EXPECT_LT(PeakRssMb() - before, 100.0);
   // Text formats have their own, smaller bound.
   const std::string yaml = dir_ + "/huge.yaml";
   { std::ofstream(yaml) << "a: 1\n"; }
   fs::resize_file(yaml, std::uintmax_t{300} << 20);
   EXPECT_HAS(ErrorOf([&] { robot::LoadRobot(yaml); }), "TROCAR_MAX_TEXT_BYTES");
+}
+
+// Issue #44 item 2: a small header over a large data file. The header's declared size is
+// checked against the file that holds the voxels before that file is read: a 128-byte header
+// over a 3 GB sparse file read the 3 GB before its error. Detached and attached data, raw and
+// compressed, NRRD, MetaImage and NIfTI: each refused by name and size, none read.
+TEST_F(Hostile, AHeadersDeclaredDataSizeIsCheckedAgainstTheFileBeforeItIsRead) {
+  const std::uintmax_t big = std::uintmax_t{3} << 30;  // 3 GiB, sparse: no disk used
+  const double before = PeakRssMb();
+  auto sparse = [&](const std::string& path, const std::string& head) {
+    { std::ofstream(path, std::ios::binary) << head; }
+    fs::resize_file(path, big);
+  };
+  const std::string header = "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 10 10 10\n"
+                             "space directions: (1,0,0) (0,1,0) (0,0,1)\nspace origin: (0,0,0)\n";
+  // Detached raw data: 1000 bytes declared, 3 GiB there.
+  { std::ofstream(dir_ + "/a.nhdr") << header << "encoding: raw\ndata file: a.raw\n"; }
+  sparse(dir_ + "/a.raw", "");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/a.nhdr"); }),
+             "a.raw: voxel data has 3221224472 bytes more than the 1000 its header describes");
+  // Detached gzip data: no stream of 1000 bytes is 3 GiB long.
+  { std::ofstream(dir_ + "/b.nhdr") << header << "encoding: gzip\ndata file: b.raw.gz\n"; }
+  sparse(dir_ + "/b.raw.gz", "");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/b.nhdr"); }),
+             "b.raw.gz: 3221225472 bytes of compressed data, more than a stream of the 1000 bytes");
+  // Attached data.
+  sparse(dir_ + "/c.nrrd", header + "encoding: raw\n\n");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/c.nrrd"); }), "bytes more than the 1000");
+  // Too little data is named the same way, before anything is read.
+  { std::ofstream(dir_ + "/d.nhdr") << header << "encoding: raw\ndata file: d.raw\n"; }
+  { std::ofstream(dir_ + "/d.raw", std::ios::binary) << std::string(999, '\1'); }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/d.nhdr"); }),
+             "d.raw: voxel data is truncated: 999 bytes, expected 1000");
+  // MetaImage, detached and local.
+  const std::string mha = "ObjectType = Image\nNDims = 3\nDimSize = 10 10 10\nElementSpacing = 1 1 1\n"
+                          "ElementType = MET_UCHAR\n";
+  { std::ofstream(dir_ + "/e.mhd") << mha << "ElementDataFile = e.raw\n"; }
+  sparse(dir_ + "/e.raw", "");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/e.mhd"); }), "e.raw: voxel data has");
+  sparse(dir_ + "/f.mha", mha + "ElementDataFile = LOCAL\n");
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/f.mha"); }), "f.mha: voxel data has");
+  // A header that never ends within its first MiB (no blank line before the sparse zeros).
+  sparse(dir_ + "/g.nrrd", header);
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/g.nrrd"); }), "does not end within its first");
+  // NIfTI-1: a 10x10x10 uint8 header with vox_offset 352, and 3 GiB after it.
+  {
+    std::string h(352, '\0');
+    auto put16 = [&](int at, std::int16_t x) { std::memcpy(&h[at], &x, 2); };
+    auto put32 = [&](int at, std::int32_t x) { std::memcpy(&h[at], &x, 4); };
+    auto putf = [&](int at, float x) { std::memcpy(&h[at], &x, 4); };
+    put32(0, 348);
+    put16(40, 3), put16(42, 10), put16(44, 10), put16(46, 10), put16(48, 1), put16(50, 1), put16(52, 1);
+    put16(70, 2), put16(72, 8);  // DT_UINT8
+    putf(76, 1), putf(80, 1), putf(84, 1), putf(88, 1);
+    putf(108, 352);
+    put16(252, 0), put16(254, 1);  // qform none, sform scanner
+    putf(280, 1), putf(300, 1), putf(320, 1);
+    std::memcpy(&h[344], "n+1", 4);
+    sparse(dir_ + "/h.nii", h);
+  }
+  EXPECT_HAS(ErrorOf([&] { patient::LoadVolume(dir_ + "/h.nii"); }), "h.nii: voxel data has");
+  // None of the 3 GiB files was read.
+  EXPECT_LT(PeakRssMb() - before, 100.0) << "peak RSS grew by " << PeakRssMb() - before << " MB";
 }
 
 // The phantom at its finest voxels over its widest field of view needed 12 GB; now the voxel
@@ -431,6 +498,26 @@ TEST_F(Hostile, ImplausibleRobotValuesAreRefusedByField) {
       "joints: [{name: j, type: revolute, parent: base, child: tip, axis: [0, 0, 1], "
       "limits: {lower: -.inf, upper: .inf, velocity: .inf}}]\n");
   EXPECT_NO_THROW(robot::LoadRobot(inf_limits));
+  // Origins within physical ranges (issue #44 item 3): urdfdom turns rpy="1e308 ..." into some
+  // finite rotation, so the URDF's values are checked as written; the YAML's the same way.
+  auto urdf = [&](const std::string& name, const std::string& origin) {
+    return Write(name, "<robot name='r'><link name='base'/><link name='tip'/>"
+                       "<joint name='j' type='revolute'><parent link='base'/><child link='tip'/>" +
+                           origin +
+                           "<axis xyz='0 0 1'/><limit lower='-1' upper='1' effort='1' "
+                           "velocity='1'/></joint></robot>\n");
+  };
+  EXPECT_HAS(ErrorOf([&] { robot::LoadRobot(urdf("rpy.urdf", "<origin rpy='1e308 1e308 1e308'/>")); }),
+             "rpy.urdf:1: <origin rpy=\"1e308 1e308 1e308\">: 1e+308 is outside one turn");
+  EXPECT_HAS(ErrorOf([&] { robot::LoadRobot(urdf("xyz.urdf", "<origin xyz=\"0 -2e5 0\"/>")); }),
+             "xyz.urdf:1: <origin xyz=\"0 -2e5 0\">: -200000 is outside 100 m either way");
+  EXPECT_NO_THROW(robot::LoadRobot(urdf("ok.urdf", "<origin xyz='0 0 0.3' rpy='-3.14159 0 6.2831'/>")));
+  const std::string yaml_rpy = Write(
+      "rpy.yaml",
+      "links: [{name: base}, {name: tip}]\n"
+      "joints: [{name: j, type: revolute, parent: base, child: tip, axis: [0, 0, 1], "
+      "origin: {rpy: [0, 0, 1e308]}, limits: {lower: -1, upper: 1}}]\n");
+  EXPECT_HAS(ErrorOf([&] { robot::LoadRobot(yaml_rpy); }), "outside one turn either way");
 }
 
 // Markups: numbers out of range and fields of the wrong type were "internal error".
@@ -595,7 +682,21 @@ TEST_F(Hostile, APhantomCaseWrittenHalfWayHasNoCt) {
         << "temporary folder left behind: " << entry.path();
   }
   fs::remove_all(dir_ + "/markups/LIMA.mrk.json");
+  // A generation killed half-way leaves its folder (its process gone); the next generation
+  // removes it, and leaves a live writer's alone (issue #44 item 5).
+  const pid_t gone = ::fork();
+  if (gone == 0) ::_exit(0);
+  ASSERT_GT(gone, 0);
+  ASSERT_EQ(::waitpid(gone, nullptr, 0), gone);
+  const std::string stale = dir_ + "/.phantom.tmp." + std::to_string(gone) + ".0-1";
+  const std::string live = dir_ + "/.phantom.tmp." + std::to_string(::getppid()) + ".0-2";
+  fs::create_directories(stale + "/markups");
+  WriteFileAtomically(stale + "/markups/LAD.mrk.json", "{}");
+  fs::create_directories(live);
   patient::WritePhantomCase(ph, dir_);
+  EXPECT_FALSE(fs::exists(stale)) << "a killed generation's folder is left behind";
+  EXPECT_TRUE(fs::exists(live)) << "a live writer's folder was removed";
+  fs::remove_all(live);
   EXPECT_TRUE(fs::exists(dir_ + "/ct.nrrd"));
   EXPECT_NO_THROW(patient::ImportPatient(dir_, {false, false}));
 }

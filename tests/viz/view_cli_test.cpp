@@ -314,6 +314,35 @@ TEST_F(ViewCli, HostilePlanFilesAreRefusedNamingTheFieldByEveryReaderAndNothingI
     }
     EXPECT_EQ(ReadTextFile(path), c.text) << c.name;
   }
+  // Physical ranges, by the typed reader (which check --plan, verify and signoff read through
+  // first): a port at 1e308, a joint at 1e300 rad, a rank below 1 or fractional, a normal that is
+  // not a unit vector.
+  std::vector<Case> ranges;
+  doc = good;
+  doc["plans"][0]["ports"][0]["p_W"][0] = 1e308;
+  ranges.push_back({"port", doc.dump(), "plans[0].ports[0].p_W: expected a point within 100 m"});
+  doc = good;
+  doc["plans"][0]["q_nominal"][doc["plans"][0]["q_nominal"].begin().key()] = 1e300;
+  ranges.push_back({"joint", doc.dump(), "expected a joint value within 1000"});
+  doc = good;
+  doc["plans"][0]["rank"] = -1;
+  ranges.push_back({"rank", doc.dump(), "plans[0].rank: expected a rank from 1"});
+  doc = good;
+  doc["plans"][0]["rank"] = 1.5;
+  ranges.push_back({"fraction", doc.dump(), "plans[0].rank: expected an integer"});
+  doc = good;
+  doc["target_samples"][0]["n_W"] = {0, 0, 3};
+  ranges.push_back({"normal", doc.dump(), "target_samples[0].n_W: expected a unit vector"});
+  for (const Case& c : ranges) {
+    const std::string path = Out("hostile_" + c.name + ".json");
+    WriteFileAtomically(path, c.text);
+    try {
+      planners::ReadPlanFile(path);
+      ADD_FAILURE() << c.name << ": read";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(c.says), std::string::npos) << c.name << ": " << e.what();
+    }
+  }
   // Too many values for the stated limit: refused while parsing, naming the limit's variable.
   InputLimits small = Limits();
   const InputLimits kept = small;
@@ -459,6 +488,37 @@ TEST_F(ViewCli, ASceneSavedAndLoadedRendersTheSamePicture) {
   bad = doc;
   bad["plan_index"] = 0;
   refuse(bad, "plan_index");
+  // Physical ranges (issue #44 item 1), read in this process: each named by its field.
+  auto refused = [&](const nlohmann::json& d, const std::string& named) {
+    WriteFileAtomically(Out("bad_scene.json"), d.dump());
+    try {
+      ReadSceneFile(Out("bad_scene.json"));
+      ADD_FAILURE() << "accepted; expected an error naming " << named;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(named), std::string::npos) << e.what();
+    }
+  };
+  bad = doc;
+  bad["camera"]["position"] = {1e300, 0, 0};
+  refused(bad, "camera: expected a position and a focal point within 100 m");
+  bad = doc;
+  {
+    const auto& c = doc["camera"];
+    for (int k = 0; k < 3; ++k)
+      bad["camera"]["view_up"][k] = c["focal_point"][k].get<double>() - c["position"][k].get<double>();
+  }
+  refused(bad, "camera.view_up: expected an up direction across the view direction");
+  for (const double n : {-5.0, 1e300, 1.7}) {
+    bad = doc;
+    bad["style"]["patient_triangles"] = n;
+    refused(bad, "style.patient_triangles: expected a whole number of triangles");
+  }
+  bad = doc;
+  bad["q"][doc["q"].begin().key()] = 1e300;
+  refused(bad, "expected a joint value within 1000");
+  bad = doc;
+  bad["X_WB"][0][3] = 1e308;
+  refused(bad, "X_WB: expected a base within 100 m");
   run = Trocar("view patients/phantom-default --scene " + Out("scene.json") + common + Out("bad_scene.png"));
   EXPECT_EQ(run.exit_code, 1) << run.output;
 }
