@@ -116,7 +116,9 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
     }
     h << "</table>\n";
     if (p.verified) {
-      h << "<p>verified motions: coverage " << Num(100 * p.verified_coverage, 0) << " %, samples served "
+      h << "<p>verified motions: coverage " << Num(100 * p.verified_coverage, 0) << " % (claimed "
+        << Num(100 * p.claimed_coverage, 0) << " %, " << (p.verified_coverage >= p.claimed_coverage ? "+" : "")
+        << Num(100 * (p.verified_coverage - p.claimed_coverage), 0) << " points by verification), samples served "
         << Num(100 * p.served_fraction, 0) << " %: <span class=\"" << (p.verified_suitable ? "suitable" : "unsuitable")
         << "\">" << (p.verified_suitable ? "suitable" : "not suitable") << "</span></p><ul>";
       for (const auto& r : p.verification_reasons) h << "<li>" << Escape(r) << "</li>";

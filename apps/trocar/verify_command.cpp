@@ -51,7 +51,9 @@ void PrintVerification(const planners::PlanVerification& v, std::ostream& out) {
   std::sort(times.begin(), times.end());
   out << std::fixed << std::setprecision(0) << "  verified motions: " << solved << " of "
       << v.motions.size() << " (" << v.verified_coverage * 100 << " %, claimed "
-      << v.claimed_coverage * 100 << " %), samples served " << v.served_fraction * 100
+      << v.claimed_coverage * 100 << " %, " << std::showpos
+      << (v.verified_coverage - v.claimed_coverage) * 100 << std::noshowpos
+      << " points by verification), samples served " << v.served_fraction * 100
       << " %, median planning " << std::setprecision(1)
       << (times.empty() ? 0.0 : times[times.size() / 2] * 1e3) << " ms, " << std::setprecision(2)
       << v.seconds << " s on " << v.threads << " thread" << (v.threads == 1 ? "" : "s") << "\n";
