@@ -58,6 +58,17 @@ int main(int argc, char** argv) {
        "NRRD0004\ntype: short\ndimension: 3\nspace: left-posterior-superior\nsizes: 2 2 2\n"
        "space directions: (1,0,0) (0,1,0) (0,0,2.5)\nspace origin: (0,0,0)\nendian: big\n"
        "encoding: raw\n\n" + std::string(16, '\x01'));
+  // A scene file and a device file as trocar writes and documents them (text, tiny).
+  Text(out + "/scene/scene.json",
+       "{\"format\": \"trocar-scene\", \"version\": 1, \"case\": \"c\", \"plan\": \"\", "
+       "\"robot\": \"r.yaml\", \"plan_index\": 1, \"X_WB\": [[1,0,0,0.5],[0,1,0,0],[0,0,1,0],"
+       "[0,0,0,1]], \"q\": {\"j1\": 0.1}, \"camera\": {\"position\": [2,-2,2], \"focal_point\": "
+       "[0,0,1], \"view_up\": [0,0,1], \"view_angle_deg\": 30}, \"style\": {\"background\": "
+       "[0,0,0], \"flat\": true, \"patient_triangles\": 50000, \"colours\": {\"heart\": [1,0,0]}, "
+       "\"opacities\": {\"skin\": 0.3}, \"visible\": {\"table\": false}}}\n");
+  Text(out + "/device/devices.yaml",
+       "devices:\n  - {name: left,  arm: psm1, units: mm, scale: 3, device_to_camera_rpy: [0, 0, 90 deg]}\n"
+       "  - {name: right, arm: psm2, units: m}\n  - {name: senior, pointer: true}\n");
   // MetaImage, raw and zlib.
   Text(out + "/metaimage/raw.mha",
        "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementSpacing = 1 1 2\n"
