@@ -15,7 +15,13 @@
 #include <vtkConeSource.h>
 #include <vtkCubeSource.h>
 #include <vtkCylinderSource.h>
+#include <vtkArrowSource.h>
+#include <vtkFollower.h>
 #include <vtkImageData.h>
+#include <vtkLegendBoxActor.h>
+#include <vtkPlaneSource.h>
+#include <vtkTextProperty.h>
+#include <vtkVectorText.h>
 #include <vtkLight.h>
 #include <vtkMatrix4x4.h>
 #include <vtkNew.h>
@@ -600,6 +606,104 @@ void Scene::Apply(const CameraPose& pose, vtkRenderer* renderer, const FrameCame
   }
 }
 
+bool Scene::ShowsOverlay(const std::string& name) const {
+  const SceneStyle& style = impl_->style;
+  if (!style.flat) return style.Visible(name);
+  const auto it = style.visible.find(name);
+  return it != style.visible.end() && it->second;
+}
+
+void Scene::AddOrientationMarker(vtkRenderer* renderer, const CameraPose& view) const {
+  // The patient's directions in W: LPS's +x is left, -y anterior, +z head; without a patient,
+  // the table's (head toward +x_W).
+  Eigen::Matrix3d R_WP = Eigen::Matrix3d::Identity();
+  if (impl_->patient) R_WP = impl_->patient->X_WP.linear();
+  const struct {
+    const char* group;
+    const char* letter;
+    Eigen::Vector3d d_W;
+  } axes[] = {{"marker:head", "H", R_WP * Eigen::Vector3d::UnitZ()},
+              {"marker:left", "L", R_WP * Eigen::Vector3d::UnitX()},
+              {"marker:anterior", "A", R_WP * -Eigen::Vector3d::UnitY()}};
+  vtkCamera* camera = renderer->GetActiveCamera();
+  const Eigen::Vector3d forward = (view.focal_point - view.position).normalized();
+  const Eigen::Vector3d eye = -5.8 * forward;  // the arrows and their letters fit the square
+  camera->SetPosition(eye.data());
+  camera->SetFocalPoint(0, 0, 0);
+  camera->SetViewUp(view.view_up.data());
+  camera->SetViewAngle(30);
+  camera->OrthogonalizeViewUp();
+  for (const auto& axis : axes) {
+    Eigen::Vector3d colour = impl_->style.Colour(axis.group);
+    vtkNew<vtkArrowSource> arrow;
+    arrow->SetShaftRadius(0.05);
+    arrow->SetTipRadius(0.13);
+    arrow->SetTipLength(0.3);
+    arrow->SetShaftResolution(16);
+    arrow->SetTipResolution(16);
+    vtkNew<vtkPolyDataMapper> mapper;
+    mapper->SetInputConnection(arrow->GetOutputPort());
+    vtkNew<vtkActor> actor;
+    actor->SetMapper(mapper);
+    // The arrow source points along +x: turn it onto the axis.
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    X.linear() = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitX(), axis.d_W).toRotationMatrix();
+    actor->SetUserMatrix(ToVtk(X));
+    vtkNew<vtkVectorText> text;
+    text->SetText(axis.letter);
+    vtkNew<vtkPolyDataMapper> text_mapper;
+    text_mapper->SetInputConnection(text->GetOutputPort());
+    vtkNew<vtkFollower> label;
+    label->SetMapper(text_mapper);
+    label->SetScale(0.32);
+    Eigen::Vector3d at = 1.25 * axis.d_W;
+    label->SetPosition(at.data());
+    label->SetCamera(camera);
+    for (vtkActor* a : {static_cast<vtkActor*>(actor), static_cast<vtkActor*>(label)}) {
+      a->GetProperty()->SetColor(colour.data());
+      if (impl_->style.flat) {
+        a->GetProperty()->SetAmbient(1.0);
+        a->GetProperty()->SetDiffuse(0.0);
+        a->GetProperty()->SetSpecular(0.0);
+      }
+      renderer->AddActor(a);
+    }
+  }
+  renderer->ResetCameraClippingRange();
+}
+
+void Scene::AddLegend(vtkRenderer* renderer) const {
+  std::vector<std::pair<std::string, std::string>> entries;  // group, label
+  for (const auto& g : impl_->groups) {
+    if (g.actors.empty() || !impl_->style.Visible(g.name)) continue;
+    if (g.name == "floor" || g.name == "cones" || g.name == "pointer") continue;
+    const bool target = g.name.rfind("target:", 0) == 0;
+    std::string label = target ? g.name.substr(7) + " (target)" : g.name;
+    if (g.name == "candidates") label = "port candidates";
+    entries.push_back({g.name, label});
+  }
+  if (entries.empty()) return;
+  vtkNew<vtkPlaneSource> square;
+  square->Update();
+  vtkNew<vtkLegendBoxActor> legend;
+  legend->SetNumberOfEntries(static_cast<int>(entries.size()));
+  for (std::size_t i = 0; i < entries.size(); ++i) {
+    Eigen::Vector3d c = impl_->style.Colour(entries[i].first);
+    legend->SetEntry(static_cast<int>(i), square->GetOutput(), entries[i].second.c_str(), c.data());
+  }
+  legend->BorderOff();
+  legend->UseBackgroundOn();  // the entries' names readable over any scene
+  legend->SetBackgroundColor(0.08, 0.08, 0.10);
+  legend->SetBackgroundOpacity(0.7);
+  legend->GetEntryTextProperty()->SetFontSize(14);
+  legend->GetEntryTextProperty()->SetColor(impl_->style.flat ? 1.0 : 0.95, 1.0, 1.0);
+  legend->GetPositionCoordinate()->SetCoordinateSystemToNormalizedViewport();
+  legend->GetPositionCoordinate()->SetValue(0.78, 0.02);
+  legend->GetPosition2Coordinate()->SetCoordinateSystemToNormalizedViewport();
+  legend->GetPosition2Coordinate()->SetValue(0.21, std::min(0.05 * entries.size(), 0.5));
+  renderer->AddViewProp(legend);
+}
+
 long Scene::triangle_count() const {
   long n = 0;
   for (const auto& g : impl_->groups) {
@@ -694,6 +798,19 @@ Image Render(const Scene& scene, const Views& views, int width, int height) {
                        views[i].first.kind != ViewSpec::Kind::kRoom;
     Scene::Apply(views[i].second, renderer, scope ? &views[i].first.camera : nullptr);
     window->AddRenderer(renderer);
+    if (scope) continue;
+    if (scene.ShowsOverlay("legend")) scene.AddLegend(renderer);
+    if (scene.ShowsOverlay("orientation")) {
+      // A square in the view's lower-left corner, a fifth of its smaller side, over the view.
+      const double side = 0.2 * std::min(static_cast<double>(height), width / n);
+      vtkNew<vtkRenderer> corner;
+      corner->SetViewport(i / n, 0, i / n + side / width, side / height);
+      corner->SetLayer(1);
+      corner->InteractiveOff();
+      window->SetNumberOfLayers(2);
+      scene.AddOrientationMarker(corner, views[i].second);
+      window->AddRenderer(corner);
+    }
   }
   window->Render();
   vtkNew<vtkWindowToImageFilter> grab;

@@ -125,6 +125,20 @@ class Scene {
   /// the renderer's automatic lights off.
   static void Apply(const CameraPose& pose, vtkRenderer* renderer, const FrameCamera* scope = nullptr);
 
+  /// Overlays of an external view (issue #43 item 2): "orientation", a marker of the patient's
+  /// head, left and front (arrows and letters in the groups' colours "marker:head",
+  /// "marker:left", "marker:anterior"), and "legend", the structures and targets shown with their
+  /// colours. Shown unless the style hides them; a flat style (pixel tests) shows them only when
+  /// its `visible` names them.
+  bool ShowsOverlay(const std::string& name) const;
+  /// Draws the orientation marker into `renderer` (a small corner renderer over the view) with
+  /// its camera turned as `view`'s, so that its arrows point where the patient's head, left and
+  /// front are in that view.
+  void AddOrientationMarker(vtkRenderer* renderer, const CameraPose& view) const;
+  /// Adds the legend (lower right) to `renderer`: one entry per visible structure, target and
+  /// port group, in its colour.
+  void AddLegend(vtkRenderer* renderer) const;
+
   /// Triangles drawn (visible groups).
   long triangle_count() const;
   int actor_count() const;

@@ -31,6 +31,7 @@
 #include <QTimer>
 #include <QVBoxLayout>
 #include <QVTKOpenGLNativeWidget.h>
+#include <vtkCallbackCommand.h>
 #include <vtkCamera.h>
 #include <vtkGenericOpenGLRenderWindow.h>
 #include <vtkInteractorStyleTrackballCamera.h>
@@ -165,6 +166,30 @@ class Workstation {
     scene_->AddTo(scope_);
     render_window_->AddRenderer(external_);
     render_window_->AddRenderer(scope_);
+    // The external view's overlays (issue #43 item 2): the legend, and the orientation marker in
+    // a corner renderer over it that turns with the external camera.
+    if (scene_->ShowsOverlay("legend")) scene_->AddLegend(external_);
+    if (scene_->ShowsOverlay("orientation")) {
+      render_window_->SetNumberOfLayers(2);
+      marker_->SetLayer(1);
+      marker_->InteractiveOff();
+      marker_->SetViewport(0, 0, 0.09, 0.16);
+      scene_->AddOrientationMarker(marker_, ExternalPose());
+      render_window_->AddRenderer(marker_);
+      vtkNew<vtkCallbackCommand> follow;
+      follow->SetClientData(this);
+      follow->SetCallback([](vtkObject*, unsigned long, void* self, void*) {
+        auto* w = static_cast<Workstation*>(self);
+        const CameraPose view = w->ExternalPose();
+        vtkCamera* c = w->marker_->GetActiveCamera();
+        const Eigen::Vector3d eye = -5.8 * (view.focal_point - view.position).normalized();
+        c->SetPosition(eye.data());
+        c->SetFocalPoint(0, 0, 0);
+        c->SetViewUp(view.view_up.data());
+        c->OrthogonalizeViewUp();
+      });
+      external_->GetActiveCamera()->AddObserver(vtkCommand::ModifiedEvent, follow);
+    }
     vtkNew<ThesisCameraStyle> style;
     style->SetDefaultRenderer(external_);
     render_window_->GetInteractor()->SetInteractorStyle(style);
@@ -717,7 +742,7 @@ class Workstation {
   QMainWindow window_;
   QVTKOpenGLNativeWidget* vtk_widget_ = nullptr;
   vtkSmartPointer<vtkGenericOpenGLRenderWindow> render_window_;
-  vtkNew<vtkRenderer> external_, scope_;
+  vtkNew<vtkRenderer> external_, scope_, marker_;
   QListWidget* plans_ = nullptr;
   QTextBrowser* details_ = nullptr;
   QLineEdit* surgeon_ = nullptr;

@@ -356,6 +356,83 @@ TEST(Scene, TheEndoscopesLineOfSightRuleAgreesWithWhatItsViewShows) {
   RecordProperty("hidden_points", hidden);
 }
 
+// Issue #43 item 2: the external view carries an orientation marker (arrows to the patient's
+// head, left and front, in the lower-left corner) that turns with the view, and a legend (lower
+// right) with an entry in each shown group's colour and none for a hidden group. Flat colours:
+// each arrow's pixels lie from the corner's centre in the direction the view projects that
+// patient direction to, over several cameras around the patient.
+TEST(Scene, TheOrientationMarkerPointsWhereThePatientsAxesGoAndTheLegendNamesWhatIsShown) {
+  auto patient = Phantom();
+  SceneStyle style = FlatStyle();
+  style.colours["marker:head"] = {1.0, 0.0, 1.0};
+  style.colours["marker:left"] = {0.0, 0.5, 1.0};
+  style.colours["marker:anterior"] = {1.0, 0.5, 0.0};
+  Scene scene(patient, nullptr, style);
+  scene.SetVisible("orientation", true);
+  const int w = 480, h = 320;
+  const Eigen::Vector3d head = patient->X_WP.linear() * Eigen::Vector3d::UnitZ();
+  const Eigen::Vector3d left = patient->X_WP.linear() * Eigen::Vector3d::UnitX();
+  const Eigen::Vector3d front = patient->X_WP.linear() * -Eigen::Vector3d::UnitY();
+  const double side = 0.2 * std::min(w, h);  // the corner renderer's square (Render)
+  const Eigen::Vector2d centre(side / 2, h - side / 2);
+  int checked = 0;
+  for (int k = 0; k < 6; ++k) {
+    CameraPose pose = scene.ExternalCamera(double(w) / h);
+    // Around the patient's long axis and from above: the marker must follow.
+    const Eigen::Vector3d target = pose.focal_point;
+    const double turn = k * M_PI / 3;
+    const Eigen::Vector3d offset = Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitZ()) * (pose.position - target);
+    pose.position = target + offset;
+    const Image image = Render(scene, {{ViewSpec{}, pose}}, w, h);
+    const Eigen::Vector3d f = (pose.focal_point - pose.position).normalized();
+    const Eigen::Vector3d r = f.cross(pose.view_up).normalized(), u = r.cross(f);
+    for (const auto& [group, d] : {std::pair<std::string, Eigen::Vector3d>{"marker:head", head},
+                                   {"marker:left", left}, {"marker:anterior", front}}) {
+      const Eigen::Vector2d on_screen(d.dot(r), -d.dot(u));  // image y runs down
+      const auto want = Rgb8(style.colours[group]);
+      Eigen::Vector2d sum = Eigen::Vector2d::Zero();
+      long n = 0;
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+          if (!Near(image.Pixel(x, y), want)) continue;
+          EXPECT_TRUE(x < side + 2 && y > h - side - 2) << group << ": a marker pixel outside the corner";
+          sum += Eigen::Vector2d(x, y) - centre;
+          ++n;
+        }
+      if (on_screen.norm() < 0.4) continue;  // pointing at the camera or away: foreshortened
+      ASSERT_GT(n, 10) << group << " not drawn, camera " << k;
+      const Eigen::Vector2d mean = sum / n;
+      const double cosine = mean.normalized().dot(on_screen.normalized());
+      EXPECT_GT(cosine, std::cos(35 * M_PI / 180))
+          << group << ", camera " << k << ": drawn toward (" << mean.transpose() << "), expected ("
+          << on_screen.transpose() << ")";
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 10);
+  // The legend: with it, each shown group's colour gains a symbol's pixels in the lower right;
+  // a hidden group's does not.
+  scene.SetVisible("orientation", false);
+  scene.SetVisible("ribs", false);
+  // (The camera looks away from the patient, so that what lies in that corner is the legend's.)
+  CameraPose away = scene.ExternalCamera(double(w) / h);
+  away.focal_point = away.position + (away.position - away.focal_point);
+  const Views views = {{ViewSpec{}, away}};
+  const Image without = Render(scene, views, w, h);
+  scene.SetVisible("legend", true);
+  const Image with = Render(scene, views, w, h);
+  auto in_corner = [&](const Image& image, const Eigen::Vector3d& colour) {
+    const auto want = Rgb8(colour);
+    long n = 0;
+    for (int y = h / 2; y < h; ++y)
+      for (int x = 3 * w / 4; x < w; ++x) n += Near(image.Pixel(x, y), want);
+    return n;
+  };
+  for (const std::string group : {"skin", "heart", "target:LAD", "target:LIMA"})
+    EXPECT_GT(in_corner(with, style.Colour(group)), in_corner(without, style.Colour(group)) + 20) << group;
+  EXPECT_EQ(in_corner(with, style.Colour("ribs")), in_corner(without, style.Colour("ribs")));
+}
+
 // Issue #16: the teaching pointer (thesis §6.3.3) is drawn in the external view and in the
 // endoscope's, where it is put; hidden until placed.
 TEST(Scene, ThePointerIsDrawnInBothViewsWhereItIsPut) {
