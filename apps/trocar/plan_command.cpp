@@ -96,6 +96,9 @@ int RunPlan(PlanOptions o) {
               << ": " << patient->targets.size() << " targets, " << problem.samples().size()
               << " target samples, " << patient->port_candidates.size()
               << " port candidate curves\n";
+    // What the import could not find matters to the plan (a missing sternum moves the midline
+    // and the LIMA; issue #42 item 3): said before planning, cached loads included.
+    for (const auto& w : imported.report.warnings) std::cout << "  warning: " << w << "\n";
     std::cout << "robot " << robot->name() << ": arms";
     for (const auto& a : problem.arms())
       std::cout << " " << a.name << " (" << planners::ToString(a.role) << ")";

@@ -518,6 +518,28 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
       }
     }
   });
+  // Nothing missing silently (issue #42 item 3): a structure the scan covers that the model
+  // lacks is a warning naming it and why it matters. The ribs found on both sides mean the scan
+  // covers the front of the chest between them, where the sternum is; ribs on one side only
+  // (the other side in the scan: not a cut face) mean the other side's were not found.
+  {
+    const bool left = !seg.bones.ribs_left.empty(), right = !seg.bones.ribs_right.empty();
+    if (left && right && m.Find("sternum") == nullptr) {
+      report.warnings.push_back(
+          "no sternum found, though the ribs of both sides are (the scan covers the front of the "
+          "chest): the midline, the parasternal lines and the LIMA's course are placed without "
+          "it; give a label map (labels:) with the sternum, or check the bone threshold");
+    }
+    for (const int side : {+1, -1}) {
+      const bool here = side > 0 ? left : right, there = side > 0 ? right : left;
+      const char* name = side > 0 ? "left" : "right";
+      if (here || !there) continue;
+      if (std::find(m.cut_faces.begin(), m.cut_faces.end(), name) != m.cut_faces.end()) continue;
+      report.warnings.push_back(std::string("no ribs found on the ") + name +
+                                " side, though the scan covers it and the other side's are "
+                                "found: its intercostal spaces (ports) are missing");
+    }
+  }
   stage("targets", [&] {
     for (const auto& spec : c.targets) {
       const auto markups = LoadMarkups(spec.markups);

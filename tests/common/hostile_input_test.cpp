@@ -313,6 +313,55 @@ TEST_F(Hostile, AHeadersDeclaredDataSizeIsCheckedAgainstTheFileBeforeItIsRead) {
   EXPECT_LT(PeakRssMb() - before, 100.0) << "peak RSS grew by " << PeakRssMb() - before << " MB";
 }
 
+// Issue #42 item 3, nothing missing silently: a scan whose sternum is not found (erased from a
+// phantom: its bone turned to muscle) imports with a warning naming the sternum; the same
+// phantom whole imports without it.
+TEST_F(Hostile, ASternumTheScanCoversButTheImportDoesNotFindIsAWarning) {
+  patient::PhantomParameters p;
+  p.voxel_size = 0.004;
+  patient::Phantom ph = patient::GeneratePhantom(p);
+  const std::string whole = dir_ + "/whole", erased = dir_ + "/erased";
+  patient::WritePhantomCase(ph, whole);
+  auto warnings_of = [](const std::string& dir) {
+    std::string all;
+    for (const auto& w : patient::ImportCase(dir, {false, false}).report.warnings) all += w + "\n";
+    return all;
+  };
+  EXPECT_EQ(warnings_of(whole).find("no sternum"), std::string::npos) << warnings_of(whole);
+  // The sternum: the bone within 2.2 cm of the midline at the front of the rib cage.
+  patient::Volume& ct = ph.ct;
+  double x_mid = 0, y_front = 1e9;
+  long bone = 0;
+  std::vector<Eigen::Vector3d> bone_P;
+  for (int k = 0; k < ct.size.z(); ++k)
+    for (int j = 0; j < ct.size.y(); ++j)
+      for (int i = 0; i < ct.size.x(); ++i) {
+        if (ct.values[ct.Index(i, j, k)] < patient::PhantomHu::kBone - 1) continue;
+        const Eigen::Vector3d p_P = ct.origin_P + ct.index_to_P * Eigen::Vector3d(i, j, k);
+        x_mid += p_P.x();
+        y_front = std::min(y_front, p_P.y());  // LPS: the front is toward -y
+        ++bone;
+      }
+  ASSERT_GT(bone, 0);
+  x_mid /= bone;
+  long turned = 0;
+  for (int k = 0; k < ct.size.z(); ++k)
+    for (int j = 0; j < ct.size.y(); ++j)
+      for (int i = 0; i < ct.size.x(); ++i) {
+        float& v = ct.values[ct.Index(i, j, k)];
+        const Eigen::Vector3d p_P = ct.origin_P + ct.index_to_P * Eigen::Vector3d(i, j, k);
+        if (v >= patient::PhantomHu::kBone - 1 && std::abs(p_P.x() - x_mid) <= 0.022 &&
+            p_P.y() <= y_front + 0.02) {
+          v = patient::PhantomHu::kMuscle;
+          ++turned;
+        }
+      }
+  ASSERT_GT(turned, 20);
+  patient::WritePhantomCase(ph, erased);
+  const std::string said = warnings_of(erased);
+  EXPECT_NE(said.find("no sternum found, though the ribs of both sides are"), std::string::npos) << said;
+}
+
 // The phantom at its finest voxels over its widest field of view needed 12 GB; now the voxel
 // count is checked before the volume is allocated.
 TEST_F(Hostile, ThePhantomsLargestGridIsRefusedBeforeAllocation) {
