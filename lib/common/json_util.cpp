@@ -42,6 +42,14 @@ json ParseJsonText(const std::string& text, const std::string& where, const std:
                          << LimitHint(limits.max_json_values, "TROCAR_MAX_JSON_VALUES"));
     }
   };
+  auto bounded_string = [&](const json& parsed, const std::string& at) {
+    if (parsed.is_string() && parsed.get_ref<const std::string&>().size() > limits.max_json_string) {
+      TROCAR_THROW(where << ": " << (at.empty() ? "the document" : at) << ": a string of "
+                         << parsed.get_ref<const std::string&>().size() << " bytes, more than "
+                         << limits.max_json_string << " "
+                         << LimitHint(limits.max_json_string, "TROCAR_MAX_JSON_STRING"));
+    }
+  };
   // Runs on every event as the parser meets it, before the value is built into the document.
   json::parser_callback_t check = [&](int /*depth*/, json::parse_event_t event, json& parsed) {
     switch (event) {
@@ -63,6 +71,7 @@ json ParseJsonText(const std::string& text, const std::string& where, const std:
         break;
       }
       case json::parse_event_t::key: {
+        bounded_string(parsed, ChildPath(open) + " (a key)");
         Open& top = open.back();
         top.key = parsed.get<std::string>();
         if (!top.keys.insert(top.key).second) {
@@ -78,6 +87,7 @@ json ParseJsonText(const std::string& text, const std::string& where, const std:
         break;
       case json::parse_event_t::value:
         counted(ChildPath(open));
+        bounded_string(parsed, ChildPath(open));
         if (!open.empty() && open.back().array) ++open.back().next;
         break;
     }

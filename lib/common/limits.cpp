@@ -46,6 +46,7 @@ const InputLimits& Limits() {
     FromEnvironment("TROCAR_MAX_YAML_NODES", &limits.max_yaml_nodes);
     FromEnvironment("TROCAR_MAX_JSON_VALUES", &limits.max_json_values);
     FromEnvironment("TROCAR_MAX_JSON_DEPTH", &limits.max_json_depth);
+    FromEnvironment("TROCAR_MAX_JSON_STRING", &limits.max_json_string);
     FromEnvironment("TROCAR_MAX_RECORDED_SAMPLES", &limits.max_recorded_samples);
     current = new InputLimits(limits);  // lives for the process
   }

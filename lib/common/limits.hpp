@@ -26,6 +26,9 @@ struct InputLimits {
   /// million keep the parsed document near 200 MB whatever the text)
   std::uint64_t max_json_values = 2000000;
   int max_json_depth = 64;                    ///< TROCAR_MAX_JSON_DEPTH: JSON nesting
+  /// TROCAR_MAX_JSON_STRING: bytes in one JSON string or key (a plan's longest, a message with
+  /// its collision pairs, is a few hundred)
+  std::uint64_t max_json_string = 65536;
   /// TROCAR_MAX_RECORDED_SAMPLES: rows a teleop record keeps (~200 MB); longer runs are thinned
   std::uint64_t max_recorded_samples = 500000;
 };

@@ -21,6 +21,8 @@ namespace {
 /// joint turns a few times at most or slides a few metres (rad or m).
 constexpr double kMaxRoomCoordinate = 100.0;
 constexpr double kMaxJointValue = 1000.0;
+/// Sizes a plan can hold: an arm's joints, a motion's waypoints.
+constexpr std::size_t kMaxArmJoints = 64, kMaxWaypoints = 100000;
 
 using nlohmann::json;
 
@@ -197,7 +199,10 @@ StoredPlan ReadPlan(const Field& p) {
       if (m.Has("min_clearance_m")) motion.min_clearance = m["min_clearance_m"].Number();
       if (m.Has("waypoints")) {
         motion.joints = m["joints"].Strings();
+        if (motion.joints.size() > kMaxArmJoints) m["joints"].Fail("at most 64 joints of one arm");
         const Field w = m["waypoints"];
+        // A simplified path has tens of waypoints; the re-check steps it at a fine step.
+        if (w.Size() > kMaxWaypoints) w.Fail("at most 100000 waypoints");
         for (std::size_t k = 0; k < w.Size(); ++k) {
           if (w[k].Size() != motion.joints.size()) {
             w[k].Fail(std::to_string(motion.joints.size()) + " joint values");
@@ -302,6 +307,12 @@ PlanFile ReadPlanFile(const std::string& path) {
   for (std::size_t i = 0; i < plans.Size(); ++i) {
     file.plans.push_back(ReadPlan(plans[i]));
     const StoredPlan& plan = file.plans.back();
+    // One motion per (arm, sample) at most.
+    TROCAR_THROW_UNLESS(plan.motions.size() <= file.arms.size() * file.samples.size(),
+                        path << ": plans[" << i << "].verification.motions: "
+                             << plan.motions.size() << " motions, more than one per arm ("
+                             << file.arms.size() << ") and target sample (" << file.samples.size()
+                             << ")");
     for (const StoredMotion& m : plan.motions) {
       TROCAR_THROW_UNLESS(m.sample >= 0 && m.sample < static_cast<int>(file.samples.size()),
                           path << ": plans[" << i << "].verification: a motion names sample "

@@ -19,6 +19,7 @@
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "common/json_util.hpp"
 #include "common/limits.hpp"
 #include "control/recorder.hpp"
 #include "patient/markups.hpp"
@@ -360,6 +361,45 @@ TEST_F(Hostile, ASternumTheScanCoversButTheImportDoesNotFindIsAWarning) {
   patient::WritePhantomCase(ph, erased);
   const std::string said = warnings_of(erased);
   EXPECT_NE(said.find("no sternum found, though the ribs of both sides are"), std::string::npos) << said;
+}
+
+// Issue #44 item 1: a stated limit per JSON string and key (TROCAR_MAX_JSON_STRING), named with
+// the string's path; a string within it is read.
+TEST_F(Hostile, JsonStringsAndKeysAreBoundedByAStatedLimit) {
+  const std::string big(70000, 'x'), fine(60000, 'y');
+  EXPECT_HAS(ErrorOf([&] { ParseJsonText("{\"a\": [1, \"" + big + "\"]}", "f.json", "a plan"); }),
+             "f.json: a[1]: a string of 70000 bytes, more than 65536");
+  EXPECT_HAS(ErrorOf([&] { ParseJsonText("{\"a\": {\"" + big + "\": 1}}", "f.json", "a plan"); }),
+             "(a key): a string of 70000 bytes");
+  EXPECT_HAS(ErrorOf([&] { ParseJsonText("\"" + big + "\"", "f.json", "a plan"); }),
+             "TROCAR_MAX_JSON_STRING");
+  EXPECT_EQ(ParseJsonText("{\"a\": \"" + fine + "\"}", "f.json", "a plan")["a"].get<std::string>().size(),
+            60000u);
+}
+
+// Issue #44 must-hold: a huge JSON file (here 40 MB of twenty million numbers, where a 160 MB plan
+// once took 4 GB) is refused at the value limit with memory proportional to the file: the text,
+// and the values up to the limit, never the whole document.
+TEST_F(Hostile, AHugeJsonFileIsRefusedWithMemoryProportionalToTheFile) {
+  const std::string path = dir_ + "/huge.json";
+  {
+    std::ofstream out(path, std::ios::binary);
+    out << "{\"plans\": [";
+    const std::string chunk = [] {
+      std::string c;
+      for (int i = 0; i < 100000; ++i) c += "1,";
+      return c;
+    }();
+    for (int i = 0; i < 200; ++i) out << chunk;
+    out << "1]}";
+  }
+  const double file_mb = static_cast<double>(fs::file_size(path)) / (1 << 20);
+  const double before = PeakRssMb();
+  EXPECT_HAS(ErrorOf([&] { ReadJsonFile(path, "a plan file"); }), "TROCAR_MAX_JSON_VALUES");
+  // The text twice (read, then parsed from) and two million values (~100 MB); the whole
+  // document would be twenty million values (over 300 MB).
+  EXPECT_LT(PeakRssMb() - before, 2 * file_mb + 150.0)
+      << "peak RSS grew by " << PeakRssMb() - before << " MB for a " << file_mb << " MB file";
 }
 
 // The phantom at its finest voxels over its widest field of view needed 12 GB; now the voxel
