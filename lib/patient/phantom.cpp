@@ -115,13 +115,21 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   const double a_p = ribs.a_r - in.rib_radius - 0.004;  // pleura
   const double b_p = ribs.b_r - in.rib_radius - 0.004;
 
-  // Heart: an ellipsoid against the anterior chest wall, left of the midline, at the level of
-  // the 4th-6th ribs.
-  const Eigen::Vector3d semi = Eigen::Vector3d(0.065, 0.055, 0.07) * in.heart_scale;
-  Eigen::Vector3d heart(0.025, -b_p + semi.y() + 0.008, ribs.Z(4, ribs.phi0) - 0.02);
+  // Heart: an ellipsoid turned as real hearts lie (docs/phantom.md: the principal axes of the
+  // heart masks of two real CTs), its front 8 mm behind the anterior pleura, left of the
+  // midline, at the level of the 4th-6th ribs.
+  const Eigen::Vector3d e_long = Eigen::Vector3d(0.677, -0.486, -0.548).normalized();
+  Eigen::Vector3d e_short = Eigen::Vector3d(0.092, -0.668, 0.724);
+  e_short = (e_short - e_short.dot(e_long) * e_long).normalized();
+  Eigen::Matrix3d heart_axes;
+  heart_axes << e_long, e_short.cross(e_long), e_short;
+  const Eigen::Vector3d semi = Eigen::Vector3d(0.074, 0.053, 0.043) * in.heart_scale;
+  out.truth.heart_semi_axes = semi;
+  out.truth.heart_axes = heart_axes;
+  const double front_reach = out.truth.HeartReach(Eigen::Vector3d(0, -1, 0));
+  Eigen::Vector3d heart(0.03, -b_p + front_reach + 0.008, ribs.Z(4, ribs.phi0) - 0.02);
   heart += in.heart_offset + heart_jitter;
   out.truth.heart_centre = heart;
-  out.truth.heart_semi_axes = semi;
 
   Volume& v = out.ct;
   const double h = in.voxel_size;
@@ -191,8 +199,7 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
           // Mediastinum between the lungs, in front of the spine.
           if ((x * x) / (0.05 * 0.05) + ((y - 0.01) * (y - 0.01)) / (b_p * b_p) <= 1.0) hu = PhantomHu::kMuscle;
         }
-        const Eigen::Vector3d d = (p - heart).cwiseQuotient(semi);
-        const double r = d.norm();
+        const double r = out.truth.HeartCoordinates(p).norm();
         if (r <= 1.0) hu = r <= 1.0 - 0.008 / semi.minCoeff() ? PhantomHu::kBlood : PhantomHu::kMyocardium;
         const double rv = std::hypot(x, y - vertebra_y);
         if (rv <= vertebra_r) {
@@ -263,14 +270,16 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
       out.truth.intercostal_side.push_back(side);
     }
   }
-  // LAD: down the anterior interventricular groove, base to apex, on the epicardium.
+  // LAD: down the anterior interventricular groove on the sternocostal surface, from the base
+  // (behind the sternum's left edge) to the apex (left, forward, low), a little toward the left
+  // ventricle's side of the surface, on the epicardium.
   for (int s = 0; s <= 24; ++s) {
-    const double t = -0.75 + 1.45 * s / 24.0;  // from superior (base) to inferior (apex)
-    const double u = -0.1;                      // slightly right of the heart's left-right centre
+    const double t = -0.7 + 1.6 * s / 24.0;  // along the long axis, base to apex
+    const double u = 0.15;                   // toward the left ventricle
     const double w = std::sqrt(std::max(0.0, 1.0 - t * t - u * u));
-    const Eigen::Vector3d surface = heart + Eigen::Vector3d(u * semi.x(), -w * semi.y(), -t * semi.z());
-    const Eigen::Vector3d normal =
-        Eigen::Vector3d(u / semi.x(), -w / semi.y(), -t / semi.z()).normalized();
+    const Eigen::Vector3d unit(t, u, w);
+    const Eigen::Vector3d surface = heart + heart_axes * unit.cwiseProduct(semi);
+    const Eigen::Vector3d normal = (heart_axes * unit.cwiseQuotient(semi)).normalized();
     out.truth.lad.push_back(surface + 0.0015 * normal);
     out.truth.lad_normals.push_back(normal);
   }
@@ -373,6 +382,8 @@ void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat f
   }
   truth["heart_centre_m"] = {t.heart_centre.x(), t.heart_centre.y(), t.heart_centre.z()};
   truth["heart_semi_axes_m"] = {t.heart_semi_axes.x(), t.heart_semi_axes.y(), t.heart_semi_axes.z()};
+  for (int c = 0; c < 3; ++c)
+    truth["heart_axes"].push_back({t.heart_axes(0, c), t.heart_axes(1, c), t.heart_axes(2, c)});
   WriteFileAtomically(JoinPath(tmp, "truth.json"), truth.dump(1));
   if (write_patient_yaml) {
     const PhantomParameters& p = phantom.parameters;

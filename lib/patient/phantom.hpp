@@ -24,7 +24,9 @@ struct PhantomParameters {
   double rib_spacing = 0.028;     ///< m, between rib centres at the back
   double rib_radius = 0.0055;     ///< m, rib cross-section
   double rib_drop = 0.05;         ///< m, how much lower a rib's front end is than its back
-  double heart_scale = 1.0;       ///< scales the heart's semi-axes (0.065, 0.055, 0.07) m
+  /// Scales the heart's semi-axes (0.074, 0.053, 0.043) m along its long, middle and short axes
+  /// (`PhantomTruth::heart_axes`).
+  double heart_scale = 1.0;
   Eigen::Vector3d heart_offset = Eigen::Vector3d::Zero();  ///< m, added to the heart centre
   double voxel_size = 0.002;      ///< m, in-plane (x, y)
   double slice_spacing = 0.0;     ///< m, between axial slices (0: the voxel size; clinical CT 1-3 mm)
@@ -61,7 +63,22 @@ struct PhantomTruth {
   Curve lad;   ///< left anterior descending artery on the heart's anterior surface, base to apex
   Curve lima;  ///< left internal mammary (thoracic) artery inside the chest wall, top to bottom
   Eigen::Vector3d heart_centre = Eigen::Vector3d::Zero();
+  /// The heart ellipsoid's semi-axes (m) along the columns of `heart_axes`.
   Eigen::Vector3d heart_semi_axes = Eigen::Vector3d::Zero();
+  /// The heart ellipsoid's axes in the patient frame (columns, a rotation): the long axis from the
+  /// base to the apex (left, anterior, inferior), the middle axis toward the left ventricle
+  /// (left, posterior, superior), the short axis out of the sternocostal surface (anterior,
+  /// superior). docs/phantom.md gives the real hearts they were measured on.
+  Eigen::Matrix3d heart_axes = Eigen::Matrix3d::Identity();
+  /// A patient point in the heart ellipsoid's unit coordinates: inside the heart when its norm is
+  /// at most 1.
+  Eigen::Vector3d HeartCoordinates(const Eigen::Vector3d& p_P) const {
+    return (heart_axes.transpose() * (p_P - heart_centre)).cwiseQuotient(heart_semi_axes);
+  }
+  /// How far the heart reaches from its centre along a unit direction in the patient frame (m).
+  double HeartReach(const Eigen::Vector3d& direction_P) const {
+    return (heart_axes.transpose() * direction_P).cwiseProduct(heart_semi_axes).norm();
+  }
   /// LAD surface normals (outward from the heart), one per LAD point.
   std::vector<Eigen::Vector3d> lad_normals;
 };

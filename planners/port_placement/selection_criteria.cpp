@@ -19,16 +19,38 @@ const char* kBonatti =
     "Bonatti et al., Robotic CABG, in Sellke (ed.), Atlas of Cardiac Surgical Techniques, ch. 7; "
     "Kiaii et al., ibid. ch. 6 (../shared/reference/port-placement.md)";
 
-// The bony chest wall: ribs and sternum, each its own hierarchy.
+// The chest wall, for depths under it: its ribs and sternum, with the intercostal spaces between
+// them closed (the muscle there is wall too). A point's depth is measured toward the skin point
+// nearest it: the nearest stretch of bone a shaft of `kSpaceBridge` radius along that line meets
+// (a space is 15-20 mm wide, so the ribs bounding a space lie within it of the space's middle),
+// or the nearest bone if that is nearer. Without a skin, the nearest bone.
 struct Wall {
+  static constexpr double kSpaceBridge = 0.015;  // m
   std::vector<std::unique_ptr<collision::TriangleBvh>> parts;
-  double Distance(const Eigen::Vector3d& p) const {
+  std::vector<Eigen::Vector3d> bone_vertices;
+  std::unique_ptr<collision::TriangleBvh> skin;
+  double NearestBone(const Eigen::Vector3d& p) const {
     double best = std::numeric_limits<double>::infinity();
     for (const auto& b : parts) {
       const auto c = b->Closest(p, p);
       if (c.found()) best = std::min(best, c.distance);
     }
     return best;
+  }
+  double Distance(const Eigen::Vector3d& p) const {
+    const double nearest = NearestBone(p);
+    if (!skin) return nearest;
+    const auto out = skin->Closest(p, p);
+    if (!out.found() || out.distance < 1e-9) return nearest;
+    const Eigen::Vector3d u = (out.p_M_mesh - p) / out.distance;
+    double best = std::numeric_limits<double>::infinity();
+    for (const Eigen::Vector3d& v : bone_vertices) {
+      const Eigen::Vector3d d = v - p;
+      const double t = d.dot(u);
+      if (t <= 0.0 || t >= best) continue;
+      if ((d - t * u).squaredNorm() <= kSpaceBridge * kSpaceBridge) best = t;
+    }
+    return std::min(nearest, best);
   }
 };
 
@@ -103,6 +125,11 @@ SelectionCriteria MeasureSelectionCriteria(const patient::PatientModel& m,
   Wall wall;
   if (ribs) wall.parts.push_back(std::make_unique<collision::TriangleBvh>(ribs->mesh));
   if (sternum) wall.parts.push_back(std::make_unique<collision::TriangleBvh>(sternum->mesh));
+  for (const patient::Structure* bone : {ribs, sternum})
+    if (bone) wall.bone_vertices.insert(wall.bone_vertices.end(), bone->mesh.vertices.begin(),
+                                        bone->mesh.vertices.end());
+  if (const patient::Structure* skin_for_wall = Find(m, "skin"))
+    wall.skin = std::make_unique<collision::TriangleBvh>(skin_for_wall->mesh);
   std::unique_ptr<collision::TriangleBvh> heart_bvh;
   if (heart) heart_bvh = std::make_unique<collision::TriangleBvh>(heart->mesh);
   auto missing = [](const std::vector<std::pair<const char*, const void*>>& need) {
@@ -127,7 +154,8 @@ SelectionCriteria MeasureSelectionCriteria(const patient::PatientModel& m,
       c.how =
           "the median distance from the heart's left lateral wall (its vertices within 1 cm of "
           "its leftmost point: the left ventricle's free wall; the model has no separate "
-          "ventricle) to the ribs and sternum, on the CT";
+          "ventricle) to the chest wall (ribs and sternum, the intercostal spaces between them "
+          "closed), on the CT";
       double leftmost = -HUGE_VAL;
       for (const auto& v : heart->mesh.vertices) leftmost = std::max(leftmost, v.x());  // LPS: left +x
       std::vector<double> d;
@@ -189,7 +217,9 @@ SelectionCriteria MeasureSelectionCriteria(const patient::PatientModel& m,
       std::vector<double> d;
       for (const auto& p : lad->points) d.push_back(wall.Distance(p));
       c.value = Median(d) * 1e3;
-      c.how = "the median over the LAD's points of their distance to the ribs and sternum, on the CT";
+      c.how =
+          "the median over the LAD's points of their distance to the chest wall (ribs and sternum, "
+          "the intercostal spaces between them closed), on the CT";
     }
     out.criteria.push_back(c);
   }

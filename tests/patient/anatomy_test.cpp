@@ -645,8 +645,7 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
         for (int j = 0; j < heart.size.y(); ++j) {
           for (int i = 0; i < heart.size.x(); ++i) {
             const Eigen::Vector3d q = roll.Back(heart.PatientPoint(i, j, k));
-            const bool in = ((q - ph.truth.heart_centre).cwiseQuotient(ph.truth.heart_semi_axes))
-                                .squaredNorm() <= 1.0;
+            const bool in = ph.truth.HeartCoordinates(q).squaredNorm() <= 1.0;
             heart.values[heart.Index(i, j, k)] = in ? 1.0f : 0.0f;
             heart_voxels += in;
           }
@@ -684,8 +683,7 @@ TEST(ShapeAnatomy, APatientRolledInTheScannerIsSortedUprightAndModelledWhereHeLi
           for (int i = 0; i < map.size.x(); ++i) {
             const Eigen::Vector3d q = roll.Back(map.PatientPoint(i, j, k));
             float& label = map.values[map.Index(i, j, k)];
-            if (((q - ph.truth.heart_centre).cwiseQuotient(ph.truth.heart_semi_axes))
-                    .squaredNorm() <= 1.0)
+            if (ph.truth.HeartCoordinates(q).squaredNorm() <= 1.0)
               label = 25.0f;
             if (rolled.values[rolled.Index(i, j, k)] < 200.0f) continue;
             double best = 0.008;
@@ -1196,7 +1194,7 @@ TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCorte
     // The vein: the heart's top plus 2 cm, 4.5 cm behind the front skin at the rib cage's
     // midline, from 4 cm right of it to 3 cm left.
     const Eigen::Vector3d c = ph.truth.heart_centre;
-    const double z = c.z() + ph.truth.heart_semi_axes.z() + 0.02;
+    const double z = c.z() + ph.truth.HeartReach(Eigen::Vector3d::UnitZ()) + 0.02;
     double mid_x = 0.0;
     int points = 0;
     for (const auto& rib : ph.truth.ribs) {

@@ -79,12 +79,12 @@ TEST(Heart, FoundInThePhantomsContrastWhereItWasMade) {
     patient::Mask truth;
     truth.size = ph.ct.size;
     truth.inside.assign(ph.ct.voxel_count(), 0);
-    const Eigen::Vector3d c = ph.truth.heart_centre, semi = ph.truth.heart_semi_axes;
+    const Eigen::Vector3d c = ph.truth.heart_centre;
     for (int k = 0; k < ph.ct.size.z(); ++k)
       for (int j = 0; j < ph.ct.size.y(); ++j)
         for (int i = 0; i < ph.ct.size.x(); ++i)
           truth.inside[ph.ct.Index(i, j, k)] =
-              (ph.ct.PatientPoint(i, j, k) - c).cwiseQuotient(semi).norm() <= 1.0;
+              ph.truth.HeartCoordinates(ph.ct.PatientPoint(i, j, k)).norm() <= 1.0;
     EXPECT_GT(Dice(heart, truth), 0.9);
     EXPECT_LT((Centroid(ph.ct, heart) - c).norm(), 0.005);
   }
@@ -159,13 +159,13 @@ TEST(Heart, WithoutContrastTheMediastinumApproximatesTheHeart) {
     patient::Mask truth;
     truth.size = ph.ct.size;
     truth.inside.assign(ph.ct.voxel_count(), 0);
-    const Eigen::Vector3d c = ph.truth.heart_centre, semi = ph.truth.heart_semi_axes;
+    const Eigen::Vector3d c = ph.truth.heart_centre;
     long both = 0, in_truth = 0;
     for (int k = 0; k < ph.ct.size.z(); ++k)
       for (int j = 0; j < ph.ct.size.y(); ++j)
         for (int i = 0; i < ph.ct.size.x(); ++i) {
           const long n = ph.ct.Index(i, j, k);
-          truth.inside[n] = (ph.ct.PatientPoint(i, j, k) - c).cwiseQuotient(semi).norm() <= 1.0;
+          truth.inside[n] = ph.truth.HeartCoordinates(ph.ct.PatientPoint(i, j, k)).norm() <= 1.0;
           in_truth += truth.inside[n];
           both += truth.inside[n] && heart.inside[n];
         }

@@ -60,7 +60,10 @@ struct OwnCheck {
         plan(plan),
         state(problem.robot()),
         checker(problem.world()) {}
-  bool Valid(int arm, const Eigen::VectorXd& q_arm, std::string* why) {
+  // `work_W`: the sample the motion goes to, where the instrument's jaws may touch the organ
+  // (the contact rule at the target, applied by the verification to the whole query).
+  bool Valid(int arm, const Eigen::VectorXd& q_arm, std::string* why,
+             const Eigen::Vector3d* work_W = nullptr) {
     Eigen::VectorXd q = plan.evaluation.q_nominal;
     const PlanArm& a = problem.arms()[arm];
     for (std::size_t c = 0; c < a.q_indices.size(); ++c) q[a.q_indices[c]] = q_arm[c];
@@ -76,7 +79,7 @@ struct OwnCheck {
       return false;
     }
     checker.SetRobotState(state);
-    problem.SetPorts(plan.placement, &checker);
+    problem.SetPorts(plan.placement, &checker, work_W);
     const auto report = checker.Check();
     if (report.collision) {
       *why = problem.world()->bodies()[report.contacts[0].a].name + " - " +
@@ -115,8 +118,8 @@ TEST(Motion, EveryReturnedPathIsCollisionFreeAndWithinLimitsAtAFineStep) {
         EXPECT_NEAR(m.path.front()[c], plan.evaluation.q_nominal[arm.q_indices[c]], 1e-9);
       // Ends with the tool at the sample's aim point.
       std::string why;
-      ASSERT_TRUE(own.Valid(0, m.path.back(), &why)) << why;
       const TargetSample& s = f.problem->samples()[m.sample];
+      ASSERT_TRUE(own.Valid(0, m.path.back(), &why, &s.p_W)) << why;
       const Eigen::Vector3d aim = s.p_W + f.problem->options().standoff * s.n_W;
       const Eigen::Vector3d tip =
           kinematics::FramePose(own.state, f.robot->GetFrame(arm.tool_frame)).translation();
@@ -128,7 +131,7 @@ TEST(Motion, EveryReturnedPathIsCollisionFreeAndWithinLimitsAtAFineStep) {
         for (int i = 0; i <= n; ++i) {
           const Eigen::VectorXd q = m.path[k - 1] + d * (static_cast<double>(i) / n);
           ++checked;
-          ASSERT_TRUE(own.Valid(0, q, &why))
+          ASSERT_TRUE(own.Valid(0, q, &why, &s.p_W))
               << "sample " << m.sample << " segment " << k << " step " << i << ": " << why;
         }
       }
@@ -214,16 +217,28 @@ TEST(Motion, TheRecheckRejectsAPathThroughACollision) {
   Eigen::VectorXd start(arm.q_indices.size());
   for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
     start[c] = plan.evaluation.q_nominal[arm.q_indices[c]];
-  // Push the instrument in to its insertion limit toward the targets: through the heart or the
+  // Push the instrument in to its insertion limit: along its start aim, or turned by the two
+  // joints above it (the nearest turn first) until the tool goes through the heart or the
   // chest's far side. The path's two ends are each checked; the state between must be too.
-  Eigen::VectorXd deep = start;
   const auto c_ins = std::find(arm.q_indices.begin(), arm.q_indices.end(), arm.insertion_q) -
                      arm.q_indices.begin();
-  deep[c_ins] = f.robot->upper_limits()[arm.insertion_q];
+  ASSERT_GE(c_ins, 2) << "the premise: two joints above the insertion";
   std::string why;
   OwnCheck own(*f.problem, plan);
   ASSERT_TRUE(own.Valid(0, start, &why)) << why;
-  ASSERT_FALSE(own.Valid(0, deep, &why)) << "the premise: fully inserted, the tool hits something";
+  Eigen::VectorXd deep = start;
+  bool hits = false;
+  for (int ring = 0; ring <= 6 && !hits; ++ring) {
+    for (int k = 0; k < std::max(1, 8 * ring) && !hits; ++k) {
+      const double turn = 0.1 * ring, about = 2.0 * M_PI * k / std::max(1, 8 * ring);
+      deep = start;
+      deep[c_ins] = f.robot->upper_limits()[arm.insertion_q];
+      deep[c_ins - 2] += turn * std::cos(about);
+      deep[c_ins - 1] += turn * std::sin(about);
+      hits = !own.Valid(0, deep, &why) && why.find("limit") == std::string::npos;
+    }
+  }
+  ASSERT_TRUE(hits) << "the premise: fully inserted, the tool hits something";
   const std::string failure = context.Recheck(0, {start, deep, start}, 0.002);
   EXPECT_NE(failure.find("collision"), std::string::npos) << failure;
   // The failure is found where it starts (inside the segment), not only at the deep end.
