@@ -131,6 +131,25 @@ int RunPlan(PlanOptions o) {
       baseline_why_not = e.what();
     }
   }
+  // Beside optimised plans, the baseline a surgeon would compare them with: the template placed
+  // on this patient (when its spaces are named: otherwise why not, in the plan file), or the
+  // surgeon's own ports.
+  // Placed before the search, which starts from it (PortPlacementOptions::initial): the best
+  // plan then scores at least as well as what a surgeon would have done.
+  std::vector<planners::Baseline> baselines;
+  if (given.empty() && o.baseline != "none") {
+    planners::Baseline b;
+    b.kind = o.baseline == "template" ? "template" : "surgeon";
+    b.name = o.baseline == "template" ? planners::TecabTemplate().title : o.baseline;
+    if (baseline_ports.empty()) {
+      b.why_not = baseline_why_not;
+    } else {
+      b.fixed = planners::PlanFixedPorts(problem, baseline_ports, o.optimizer);
+      b.placed = true;
+      o.optimizer.initial.push_back(b.fixed.plan.placement);
+    }
+    baselines.push_back(std::move(b));
+  }
   planners::PortPlacementResult result;
   if (given.empty()) {
     result = planners::OptimizePorts(problem, o.optimizer);
@@ -148,20 +167,8 @@ int RunPlan(PlanOptions o) {
     result.plans.push_back(std::move(f.plan));
     for (const auto& n : f.ports.notes) std::cout << "note: " << n << "\n";
   }
-  // Beside optimised plans, the baseline a surgeon would compare them with: the template placed
-  // on this patient (when its spaces are named: otherwise why not, in the plan file), or the
-  // surgeon's own ports.
-  if (given.empty() && o.baseline != "none") {
-    planners::Baseline b;
-    b.kind = o.baseline == "template" ? "template" : "surgeon";
-    b.name = o.baseline == "template" ? planners::TecabTemplate().title : o.baseline;
-    if (baseline_ports.empty()) {
-      b.why_not = baseline_why_not;
-    } else {
-      b.fixed = planners::PlanFixedPorts(problem, baseline_ports, o.optimizer);
-      b.placed = true;
-      result.evaluations += b.fixed.evaluations;
-    }
+  for (auto& b : baselines) {
+    if (b.placed) result.evaluations += b.fixed.evaluations;
     result.baselines.push_back(std::move(b));
   }
   // Verified motions for every ranked plan (unless --no-verify), then the plans re-ranked with

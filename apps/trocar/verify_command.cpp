@@ -140,6 +140,8 @@ int RunVerify(const VerifyOptions& o) {
     const json& scoring = doc.at("scoring");
     const json& weights = scoring.at("weights");
     po.weights.coverage = weights.at("coverage").get<double>();
+    // Plans written before stop 51 have no served term: scored without it.
+    po.weights.served = weights.contains("served") ? weights.at("served").get<double>() : 0.0;
     po.weights.dexterity = weights.at("dexterity").get<double>();
     po.weights.approach = weights.at("approach").get<double>();
     po.weights.triangulation = weights.at("triangulation").get<double>();

@@ -283,9 +283,15 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
     out.truth.lad.push_back(surface + 0.0015 * normal);
     out.truth.lad_normals.push_back(normal);
   }
-  // LIMA: inside the anterior chest wall, 3 cm left of the midline, top to bottom.
+  // LIMA: inside the anterior chest wall, 3 cm left of the midline, over the stretch a harvest
+  // takes down: from the first rib's front end to the 6th intercostal space, where the artery
+  // divides (docs/phantom.md); with fewer ribs, to the lowest space.
+  const int lowest_space = std::min(5, in.ribs_per_side - 2);
+  const double lima_top = ribs.Z(0, ribs.phi1);
+  const double lima_bottom =
+      0.5 * (ribs.Z(lowest_space, ribs.phi1) + ribs.Z(lowest_space + 1, ribs.phi1));
   for (int s = 0; s <= 20; ++s) {
-    const double z = ribs.z_top + 0.01 - (6.5 * spacing) * s / 20.0;
+    const double z = lima_top + (lima_bottom - lima_top) * s / 20.0;
     out.truth.lima.emplace_back(0.03, -b_p - 0.002, z);
   }
   for (const auto& rib : out.truth.ribs) {

@@ -85,7 +85,15 @@ PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPla
   v.served_fraction =
       ns > 0 ? static_cast<double>(std::count(v.served.begin(), v.served.end(), true)) / ns : 0.0;
   const ScoreWeights& w = problem.options().weights;
-  v.rank_score = plan.rank_score - w.coverage / w.sum() * (v.claimed_coverage - v.verified_coverage);
+  const std::vector<bool>& claimed = plan.evaluation.served;
+  const double claimed_served =
+      claimed.empty() ? 0.0
+                      : static_cast<double>(std::count(claimed.begin(), claimed.end(), true)) /
+                            static_cast<double>(claimed.size());
+  v.rank_score = plan.rank_score -
+                 (w.coverage * (v.claimed_coverage - v.verified_coverage) +
+                  w.served * (claimed_served - v.served_fraction)) /
+                     w.sum();
   // The verdict from verified motions: each target served on its share of samples.
   const auto& targets = problem.patient().targets;
   v.suitable = placed && ns > 0;

@@ -399,6 +399,10 @@ Evaluation EvaluateFinalPlan(const PortPlacementProblem& problem, const Placemen
 PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
                                   const PortPlacementOptions& options) {
   ValidateOptions(options);
+  for (const Placement& p : options.initial)
+    TROCAR_THROW_UNLESS(p.sites.size() == problem.arms().size(),
+                        "initial placement: " << p.sites.size() << " ports for "
+                                              << problem.arms().size() << " arms");
   const auto t0 = Clock::now();
   const auto deadline = t0 + std::chrono::duration_cast<Clock::duration>(
                                  std::chrono::duration<double>(options.time_limit));
@@ -518,10 +522,17 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     // algorithm's own starts over the whole box.
     // A third of the global budget at most (the grid is ordered best triad first), the rest to
     // the algorithm: the evaluations in all stay the option's.
+    // The given initial placements (the template's) come first, inside the same budget.
     std::vector<std::vector<double>> seeds = cannon_grid(&result.grid);
     const std::size_t seed_budget = static_cast<std::size_t>(std::max(0, options.evaluations / 3));
+    for (auto it = options.initial.rbegin(); it != options.initial.rend(); ++it)
+      seeds.insert(seeds.begin(), problem.Encode(*it));
     if (seeds.size() > seed_budget) seeds.resize(seed_budget);
-    result.grid = "seeds (the first " + std::to_string(seeds.size()) + "): " + result.grid;
+    result.grid = "seeds (the first " + std::to_string(seeds.size()) +
+                  (options.initial.empty()
+                       ? std::string()
+                       : ", " + std::to_string(options.initial.size()) + " given placements first") +
+                  "): " + result.grid;
     archive = evaluate_all(seeds, "seeds: Cannon's grid", options.evaluations);
     const int starts = options.starts;
     std::vector<std::vector<Sample>> archives(starts);

@@ -51,6 +51,11 @@ struct PortPlacementOptions {
   /// Share of each target's samples that must be served (both instruments reach, the scope sees)
   /// for the patient to be suitable.
   double suitable_fraction = 0.8;
+  /// Placements evaluated first, before Cannon's grid and the global algorithm, and kept in the
+  /// archive the polished plans are chosen from: the search starts from what surgeons do (`trocar
+  /// plan` passes the published template's ports with the cart found for them), so the best plan
+  /// scores at least as well as they do. Not used by the exhaustive baseline.
+  std::vector<Placement> initial;
   /// Called with the fraction done (0..1) and a stage name, from the calling thread only.
   std::function<void(double, const std::string&)> progress;
 };

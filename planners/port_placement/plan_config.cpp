@@ -41,7 +41,7 @@ void ReadPlanConfig(const std::string& case_dir, ProblemOptions* options) {
   if (plan["weights"]) {
     const YAML::Node w = plan["weights"];
     y.ExpectMap(w, "plan.weights",
-                {"coverage", "dexterity", "approach", "triangulation", "endoscope", "spacing",
+                {"coverage", "served", "dexterity", "approach", "triangulation", "endoscope", "spacing",
                  "clearance_arm_arm", "clearance_arm_patient", "clearance_instrument_rib"});
     ScoreWeights& sw = options->weights;
     auto read = [&](const char* key, double* value) {
@@ -53,6 +53,7 @@ void ReadPlanConfig(const std::string& case_dir, ProblemOptions* options) {
       *value = v;
     };
     read("coverage", &sw.coverage);
+    read("served", &sw.served);
     read("dexterity", &sw.dexterity);
     read("approach", &sw.approach);
     read("triangulation", &sw.triangulation);

@@ -267,6 +267,7 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
                       {"robustness_weight", options.robustness_weight}};
   doc["scoring"] = {{"weights",
                      {{"coverage", w.coverage},
+                      {"served", w.served},
                       {"dexterity", w.dexterity},
                       {"approach", w.approach},
                       {"triangulation", w.triangulation},

@@ -162,8 +162,8 @@ double InverseCondition(const Eigen::MatrixXd& J) {
 }  // namespace
 
 double ScoreWeights::sum() const {
-  return coverage + dexterity + approach + triangulation + endoscope + spacing + clearance_arm_arm +
-         clearance_arm_patient + clearance_instrument_rib;
+  return coverage + served + dexterity + approach + triangulation + endoscope + spacing +
+         clearance_arm_arm + clearance_arm_patient + clearance_instrument_rib;
 }
 
 Eigen::Isometry3d Placement::X_WB() const {
@@ -212,7 +212,8 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
                       "samples per target: " << options.samples_per_target << ", expected >= 1");
   TROCAR_THROW_UNLESS(options.weights.sum() > 0.0, "score weights: their sum must be positive");
   for (double w :
-       {options.weights.coverage, options.weights.dexterity, options.weights.approach,
+       {options.weights.coverage, options.weights.served, options.weights.dexterity,
+        options.weights.approach,
         options.weights.triangulation, options.weights.endoscope, options.weights.spacing,
         options.weights.clearance_arm_arm, options.weights.clearance_arm_patient,
         options.weights.clearance_instrument_rib}) {
@@ -1062,6 +1063,11 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
       "share of (instrument, target sample) pairs reached within joint and insertion limits, every "
       "arm "
       "collision-free");
+  const double served =
+      ns > 0 ? static_cast<double>(std::count(ev.served.begin(), ev.served.end(), true)) / ns : 0.0;
+  add("served", "fraction", served, served, w.served,
+      "share of target samples every instrument reaches and the endoscope (when there is one) "
+      "sees: the two-handed work under vision the verdict asks for");
   add("dexterity", "1", dexterity / per_reached, dexterity / per_reached * coverage, w.dexterity,
       "mean inverse condition number of the tool Jacobian at the reached samples (length 0.1 m), "
       "times coverage");

@@ -33,7 +33,13 @@ namespace trocar::planners {
 /// Weights of the score terms (they need not sum to 1; the total is divided by their sum).
 /// Defaults and their sources are in docs/plan-format.md ("Score terms").
 struct ScoreWeights {
-  double coverage = 0.35;   ///< reachability first: Sun & Yeung 2007, Xu et al. 2021
+  /// Reachability first (Sun & Yeung 2007, Xu et al. 2021), 0.35 in all: each instrument's
+  /// share of the samples it reaches (`coverage`), and the share of samples every instrument
+  /// reaches and the endoscope sees (`served`: the anastomosis and the harvest are two-handed,
+  /// under vision; the verdict's own measure). Until stop 51 coverage alone, 0.35: plans where
+  /// one instrument reached the LAD and the other the LIMA ranked first and served nothing.
+  double coverage = 0.15;
+  double served = 0.20;
   double dexterity = 0.10;  ///< Trejos et al. 2007, Azimian et al. 2010
   double approach =
       0.10;  ///< approach cones at the targets: Azimian et al. 2010 (thesis fig. 2.10)

@@ -410,6 +410,91 @@ TEST(OptimizePorts, OptimisedBestIsAtLeastTheExhaustiveBaselineOnTheBundledPhant
   EXPECT_GE(a, optimised.best_global_score - 1e-12);
 }
 
+// The search starts from the placements it is given (the template's ports in `trocar plan`): a
+// small search given a strong placement ends at least as well as that placement scores, where
+// the same small search alone ends below it.
+TEST(OptimizePorts, ASearchGivenAPlacementEndsAtLeastAsWellAsIt) {
+  const PortPlacementProblem problem(Phantom(), Cart(), {});
+  PortPlacementOptions big = Small(2);
+  big.evaluations = 400;
+  big.top_k = 1;
+  big.robustness_shift = 0.0;
+  const PortPlacementResult strong = OptimizePorts(problem, big);
+  ASSERT_FALSE(strong.plans.empty());
+  const Placement given = strong.plans[0].placement;
+  Workspace ws(problem);
+  const double given_score =
+      problem.Evaluate(problem.Decode(problem.Encode(given)), &ws).score;
+  PortPlacementOptions small = Small(2);
+  small.evaluations = 16;
+  small.polish_evaluations = 4;
+  small.top_k = 1;
+  small.seed = 3;
+  small.robustness_shift = 0.0;
+  const PortPlacementResult alone = OptimizePorts(problem, small);
+  ASSERT_FALSE(alone.plans.empty());
+  EXPECT_LT(alone.plans[0].evaluation.score, given_score) << "the premise: the small search alone falls short";
+  small.initial = {given};
+  const PortPlacementResult seeded = OptimizePorts(problem, small);
+  ASSERT_FALSE(seeded.plans.empty());
+  EXPECT_GE(seeded.plans[0].evaluation.score, given_score - 1e-12);
+  EXPECT_NE(seeded.grid.find("1 given placements first"), std::string::npos) << seeded.grid;
+  // A placement for another number of arms is refused, naming it.
+  Placement wrong = given;
+  wrong.sites.pop_back();
+  small.initial = {wrong};
+  EXPECT_THROW(
+      {
+        try {
+          OptimizePorts(problem, small);
+        } catch (const Error& e) {
+          EXPECT_NE(std::string(e.what()).find("initial placement"), std::string::npos) << e.what();
+          throw;
+        }
+      },
+      Error);
+}
+
+// The served term is the share of samples every instrument reaches and the endoscope sees, as
+// the plan's own per-sample list says, and it counts in the score with its weight.
+TEST(PortPlacementProblem, TheServedTermIsTheShareOfSamplesEveryArmServes) {
+  ProblemOptions po;
+  const PortPlacementProblem problem(Phantom(), Cart(), po);
+  PortPlacementOptions o = Small(2);
+  o.top_k = 2;
+  const PortPlacementResult result = OptimizePorts(problem, o);
+  int checked = 0;
+  for (const RankedPlan& plan : result.plans) {
+    const Evaluation& ev = plan.evaluation;
+    if (ev.status != PlacementStatus::kPlaced) continue;
+    const ScoreTerm* served = ev.Find("served");
+    ASSERT_NE(served, nullptr);
+    int n = 0;
+    for (std::size_t s = 0; s < ev.served.size(); ++s) {
+      bool all = true;
+      for (const auto& r : ev.reaches) {
+        if (r.sample != static_cast<int>(s)) continue;
+        const PlanArm& arm = problem.arms()[r.arm];
+        all = all && (arm.role == ArmRole::kInstrument ? r.reached : true);
+      }
+      bool seen = false, scope = false;
+      for (const auto& r : ev.reaches) {
+        if (r.sample != static_cast<int>(s) || problem.arms()[r.arm].role != ArmRole::kEndoscope)
+          continue;
+        scope = true;
+        seen = seen || r.seen;
+      }
+      EXPECT_EQ(ev.served[s], all && (!scope || seen)) << "sample " << s;
+      n += ev.served[s];
+    }
+    EXPECT_DOUBLE_EQ(served->value, static_cast<double>(n) / ev.served.size());
+    EXPECT_EQ(served->weight, po.weights.served);
+    ++checked;
+  }
+  EXPECT_GT(checked, 0);
+  EXPECT_NEAR(po.weights.coverage + po.weights.served, 0.35, 1e-12);
+}
+
 // Every sample a plan calls reached is re-checked here with the robot model and a fresh
 // collision checker (not the problem's code): tool tip at the aim, joints in limits, no contact.
 TEST(OptimizePorts, ReachedSamplesAreReallyReachedAndCollisionFree) {
@@ -439,7 +524,8 @@ TEST(OptimizePorts, ReachedSamplesAreReallyReachedAndCollisionFree) {
           kinematics::FramePose(state, problem.robot().GetFrame(arm.tool_frame)).translation();
       EXPECT_LT((tip - (s.p_W + po.standoff * s.n_W)).norm(), po.ik_tolerance + 1e-6);
       checker.SetRobotState(state);
-      problem.SetPorts(plan.placement, &checker);
+      // The contact rule at the target: the jaws may touch the organ the sample lies on, there.
+      problem.SetPorts(plan.placement, &checker, &s.p_W);
       EXPECT_FALSE(checker.InCollision());
       ++checked;
     }
