@@ -41,6 +41,7 @@
 #include <vtkTubeFilter.h>
 #include <vtkWindowToImageFilter.h>
 
+#include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
@@ -218,8 +219,11 @@ struct Scene::Impl {
     int link = -1;
     Eigen::Isometry3d X_LG = Eigen::Isometry3d::Identity();
     vtkSmartPointer<vtkActor> actor;
+    const robot::Geometry* geometry = nullptr;  ///< in the robot model (shared, immutable)
   };
   std::vector<LinkActor> links;
+  /// The skin's hierarchy, built when the external camera first looks for a clear direction.
+  mutable std::unique_ptr<collision::TriangleBvh> skin_bvh;
   std::vector<int> highlighted, near;
   bool pointer_shown = false;
 
@@ -386,6 +390,143 @@ struct Scene::Impl {
     Add(name, poly);
   }
 
+  /// Swept spheres (segment, radius) around the robot's drawn shapes at its current pose: a
+  /// capsule or cylinder its axis, a box its longest side with the other two's half-diagonal, a
+  /// sphere its centre, a mesh its drawn bounds' diagonal.
+  struct Swept {
+    Eigen::Vector3d a, b;
+    double radius;
+  };
+  std::vector<Swept> RobotSwept() const {
+    std::vector<Swept> out;
+    if (!robot || !state) return out;
+    for (const LinkActor& la : links) {
+      if (!la.geometry || la.link >= static_cast<int>(state->X_WL.size()) ||
+          !la.actor->GetVisibility())
+        continue;
+      const Eigen::Isometry3d X_WG = state->X_WL[la.link] * la.X_LG;
+      const robot::Geometry& g = *la.geometry;
+      const Eigen::Vector3d s = g.size;
+      switch (g.shape) {
+        case robot::Geometry::Shape::kCapsule:
+        case robot::Geometry::Shape::kCylinder:
+          out.push_back({X_WG * Eigen::Vector3d(0, 0, -s.y() / 2),
+                         X_WG * Eigen::Vector3d(0, 0, s.y() / 2), s.x()});
+          break;
+        case robot::Geometry::Shape::kSphere:
+          out.push_back({X_WG.translation(), X_WG.translation(), s.x()});
+          break;
+        case robot::Geometry::Shape::kBox: {
+          int k = 0;
+          s.maxCoeff(&k);
+          Eigen::Vector3d along = Eigen::Vector3d::Zero();
+          along[k] = s[k] / 2;
+          Eigen::Vector3d rest = s / 2;
+          rest[k] = 0;
+          out.push_back({X_WG * (-along), X_WG * along, rest.norm()});
+          break;
+        }
+        default: {
+          double b[6];
+          la.actor->GetBounds(b);
+          if (!(b[0] <= b[1])) break;
+          const Eigen::Vector3d lo(b[0], b[2], b[4]), hi(b[1], b[3], b[5]);
+          out.push_back({(lo + hi) / 2, (lo + hi) / 2, (hi - lo).norm() / 2});
+        }
+      }
+    }
+    return out;
+  }
+
+  /// The external camera's direction onto the chest: the default one (`horizontal` turned up by
+  /// 45 degrees), unless the robot's arms or the body itself hide the ports from there; then, of
+  /// the directions around the vertical (every 30 degrees, at 45 and 63 degrees of elevation,
+  /// nearest the default first), the first that hides at most 2 % more of them than the least
+  /// hidden. The points looked at: about 300 each of the ports' markers, the candidate curves and
+  /// the skin. A point is hidden when the line from the camera to it passes through one of the
+  /// robot's drawn shapes (RobotSwept), and a port's or a candidate's also when it passes through
+  /// the skin short of its last centimetre (the ports seen from the other side of the body).
+  Eigen::Vector3d LeastHiddenDirection(const Eigen::Vector3d& centre, double distance,
+                                       const Eigen::Vector3d& horizontal) const {
+    const Eigen::Vector3d h = Eigen::Vector3d(horizontal.x(), horizontal.y(), 0).normalized();
+    const Eigen::Vector3d first = (h + Eigen::Vector3d::UnitZ()).normalized();
+    const std::vector<Swept> shapes = RobotSwept();
+    std::vector<Eigen::Vector3d> points;
+    for (const char* name : {"ports", "candidates"}) {
+      const Group* group = FindGroup(name);
+      if (group) AddPoints(*group, &points);
+    }
+    const std::size_t on_ports = points.size();  // these may also be hidden by the body
+    if (const Group* group = FindGroup("skin")) AddPoints(*group, &points);
+    const patient::Structure* skin_structure = patient ? patient->Find("skin") : nullptr;
+    if (!skin_bvh && skin_structure && !skin_structure->mesh.triangles.empty())
+      skin_bvh = std::make_unique<collision::TriangleBvh>(skin_structure->mesh);
+    if (points.empty() || (shapes.empty() && !skin_bvh)) return first;
+    const Eigen::Isometry3d X_PW = patient->X_WP.inverse();
+    auto hidden = [&](const Eigen::Vector3d& direction) {
+      const Eigen::Vector3d camera = centre + distance * direction;
+      int n = 0;
+      for (std::size_t i = 0; i < points.size(); ++i) {
+        const Eigen::Vector3d& p = points[i];
+        bool blocked = false;
+        for (const Swept& s : shapes) {
+          Eigen::Vector3d c1, c2;
+          if (collision::SegmentSegmentClosest(camera, p, s.a, s.b, &c1, &c2) <
+              s.radius * s.radius) {
+            blocked = true;
+            break;
+          }
+        }
+        if (!blocked && skin_bvh && i < on_ports) {
+          const Eigen::Vector3d to = p - camera;
+          const double length = to.norm();
+          if (length > 0.02) {
+            const Eigen::Vector3d short_of = camera + to * ((length - 0.01) / length);
+            blocked = skin_bvh->Closest(X_PW * camera, X_PW * short_of, 1e-9).found();
+          }
+        }
+        n += blocked;
+      }
+      return static_cast<double>(n) / static_cast<double>(points.size());
+    };
+    std::vector<Eigen::Vector3d> candidates;
+    for (int k : {0, 1, -1, 2, -2, 3, -3, 4, -4, 5, -5, 6}) {
+      const double turn = k * kPi / 6;
+      const Eigen::Vector3d turned(std::cos(turn) * h.x() - std::sin(turn) * h.y(),
+                                   std::sin(turn) * h.x() + std::cos(turn) * h.y(), 0.0);
+      for (double up : {1.0, 2.0}) candidates.push_back((turned + up * Eigen::Vector3d::UnitZ()).normalized());
+    }
+    std::vector<double> share;
+    for (const auto& d : candidates) share.push_back(hidden(d));
+    const double least = *std::min_element(share.begin(), share.end());
+    for (std::size_t i = 0; i < candidates.size(); ++i)
+      if (share[i] <= least + 0.02) return candidates[i];
+    return first;
+  }
+
+  /// Up to about 300 of a group's drawn points, in the world frame.
+  static void AddPoints(const Group& group, std::vector<Eigen::Vector3d>* points) {
+    vtkIdType total = 0;
+    for (const auto& actor : group.actors) {
+      vtkPolyData* poly = vtkPolyData::SafeDownCast(actor->GetMapper()->GetInput());
+      if (poly) total += poly->GetNumberOfPoints();
+    }
+    const vtkIdType stride = std::max<vtkIdType>(1, total / 300);
+    for (const auto& actor : group.actors) {
+      vtkPolyData* poly = vtkPolyData::SafeDownCast(actor->GetMapper()->GetInput());
+      if (!poly || poly->GetNumberOfPoints() == 0) continue;
+      vtkMatrix4x4* m = actor->GetMatrix();
+      for (vtkIdType i = 0; i < poly->GetNumberOfPoints(); i += stride) {
+        double p[3];
+        poly->GetPoint(i, p);
+        const double in[4] = {p[0], p[1], p[2], 1.0};
+        double out[4];
+        m->MultiplyPoint(in, out);
+        points->emplace_back(out[0], out[1], out[2]);
+      }
+    }
+  }
+
   void BuildRobot() {
     const robot::RobotModel& r = *robot;
     for (int l = 0; l < r.num_links(); ++l) {
@@ -395,7 +536,7 @@ struct Scene::Impl {
         vtkSmartPointer<vtkPolyData> poly = ShapePolyData(g);
         if (!poly) continue;
         auto actor = Add("robot", poly);
-        if (actor) links.push_back({l, g.X_LG, actor});
+        if (actor) links.push_back({l, g.X_LG, actor, &g});
       }
     }
     state = std::make_unique<robot::RobotState>(r);
@@ -554,11 +695,13 @@ CameraPose Scene::ExternalCamera(double aspect, Framing framing) const {
     away.z() = 0;
     if (away.norm() > 0.05) horizontal = away.normalized() + Eigen::Vector3d(-0.45, 0, 0);
   }
-  const Eigen::Vector3d direction = (horizontal.normalized() + Eigen::Vector3d(0, 0, 1.0)).normalized();
   const double half = pose.view_angle_deg / 2 * kPi / 180;
   const double half_h = std::atan(std::tan(half) * std::max(aspect, 1e-3));
   const double fit = std::min(half, half_h);
-  pose.position = pose.focal_point + direction * radius / std::sin(fit) * 0.7;
+  const double distance = radius / std::sin(fit) * 0.7;
+  Eigen::Vector3d direction = (horizontal.normalized() + Eigen::Vector3d(0, 0, 1.0)).normalized();
+  if (chest) direction = impl_->LeastHiddenDirection(centre, distance, horizontal);
+  pose.position = pose.focal_point + direction * distance;
   pose.view_up = Eigen::Vector3d::UnitZ();
   return pose;
 }
