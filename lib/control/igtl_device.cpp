@@ -267,6 +267,7 @@ struct IgtlDeviceServer::Impl {
     std::string pending;  ///< bytes queued to send
     std::chrono::steady_clock::time_point accepted;
     bool proved = false;  ///< has sent a valid pose or buttons message
+    std::uint32_t peer = 0;  ///< the peer's IPv4 address (network order)
   };
   std::vector<Connection> connections;
 
@@ -376,15 +377,41 @@ struct IgtlDeviceServer::Impl {
       const int n = ::poll(fds.data(), fds.size(), 20);
       if (n <= 0) continue;
       if (fds[0].revents & POLLIN) {
-        const int fd = ::accept(listen_fd, nullptr, nullptr);
+        sockaddr_in from{};
+        socklen_t from_size = sizeof(from);
+        const int fd = ::accept(listen_fd, reinterpret_cast<sockaddr*>(&from), &from_size);
         if (fd >= 0) {
+          const std::uint32_t peer = from.sin_addr.s_addr;
+          // One address's connections that have not spoken yet: past its limit, its own oldest
+          // gives its slot.
+          auto unproved_from = [&](std::uint32_t address) {
+            return static_cast<int>(std::count_if(connections.begin(), connections.end(),
+                                                  [&](const Connection& c) {
+                                                    return c.fd >= 0 && !c.proved && c.peer == address;
+                                                  }));
+          };
+          if (unproved_from(peer) >= options.max_unproved_per_address) {
+            Connection* oldest = nullptr;
+            for (Connection& c : connections)
+              if (c.fd >= 0 && !c.proved && c.peer == peer && (!oldest || c.accepted < oldest->accepted))
+                oldest = &c;
+            if (oldest) Close(*oldest);
+          }
           if (static_cast<int>(std::count_if(connections.begin(), connections.end(), [](const Connection& c) {
                 return c.fd >= 0;
               })) >= options.max_connections) {
-            // Full: the oldest connection that has not proved itself a device gives its slot.
+            // Full: a connection that has not proved itself a device gives its slot: the oldest
+            // of the address holding the most such connections.
             Connection* oldest = nullptr;
-            for (Connection& c : connections)
-              if (c.fd >= 0 && !c.proved && (!oldest || c.accepted < oldest->accepted)) oldest = &c;
+            int most = 0;
+            for (Connection& c : connections) {
+              if (c.fd < 0 || c.proved) continue;
+              const int n = unproved_from(c.peer);
+              if (!oldest || n > most || (n == most && c.accepted < oldest->accepted)) {
+                oldest = &c;
+                most = n;
+              }
+            }
             if (oldest) Close(*oldest);
           }
           if (static_cast<int>(std::count_if(connections.begin(), connections.end(), [](const Connection& c) {
@@ -399,6 +426,7 @@ struct IgtlDeviceServer::Impl {
             c.fd = fd;
             c.id = next_connection_id++;
             c.accepted = std::chrono::steady_clock::now();
+            c.peer = peer;
             c.parser = std::make_unique<IgtlStreamParser>(options.max_body, [this](const std::string& name) {
               return options.units.count(name) ? options.units.at(name) : options.default_units;
             });
@@ -458,6 +486,9 @@ IgtlDeviceServer::IgtlDeviceServer(const IgtlServerOptions& options) : impl_(std
   impl_->options = options;
   TROCAR_THROW_UNLESS(options.max_body >= 48 && options.max_connections >= 1,
                       "device server: a body bound of at least 48 bytes and one connection");
+  TROCAR_THROW_UNLESS(options.max_unproved_per_address >= 1,
+                      "device server: " << options.max_unproved_per_address
+                                        << " connections per address: expected at least 1");
   TROCAR_THROW_UNLESS(std::isfinite(options.idle_timeout_s) && options.idle_timeout_s > 0 &&
                           options.idle_timeout_s <= 3600,
                       "device server: idle timeout " << options.idle_timeout_s

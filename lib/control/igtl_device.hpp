@@ -84,6 +84,12 @@ struct IgtlServerOptions {
   /// Open connections at most. When every slot is taken, a new connection takes the slot of
   /// the oldest one that has not yet sent a valid message (a device that has is never put out).
   int max_connections = 16;
+  /// Connections from one peer address that have not yet sent a valid message, at most: a new
+  /// one past it takes the slot of that address's oldest such connection, so one host's idle or
+  /// garbage clients recycle their own slots and never those of other hosts (at most this many of
+  /// `max_connections`). Devices that have spoken do not count. At least 1; above
+  /// `max_connections` it is that.
+  int max_unproved_per_address = 8;
   /// Seconds a connection may stay open without sending a valid message before it is closed
   /// (idle or garbage-only clients do not keep the slots from the devices).
   double idle_timeout_s = 5.0;

@@ -77,8 +77,15 @@ std::string TransformBody(const Eigen::Isometry3d& X, double mm_per_unit = 1000)
 
 class RawClient {
  public:
-  explicit RawClient(int port) {
+  /// `from`: the local address to connect from (another host on the loopback net, 127.x.y.z).
+  explicit RawClient(int port, const char* from = nullptr) {
     fd_ = ::socket(AF_INET, SOCK_STREAM, 0);
+    if (from) {
+      sockaddr_in local{};
+      local.sin_family = AF_INET;
+      ::inet_pton(AF_INET, from, &local.sin_addr);
+      EXPECT_EQ(::bind(fd_, reinterpret_cast<sockaddr*>(&local), sizeof(local)), 0) << from;
+    }
     sockaddr_in a{};
     a.sin_family = AF_INET;
     a.sin_port = htons(static_cast<std::uint16_t>(port));
@@ -86,6 +93,17 @@ class RawClient {
     EXPECT_EQ(::connect(fd_, reinterpret_cast<sockaddr*>(&a), sizeof(a)), 0);
   }
   ~RawClient() { ::close(fd_); }
+  /// The server closed this connection within `ms` milliseconds.
+  bool ClosedWithin(int ms) {
+    char c;
+    for (int i = 0; i <= ms / 10; ++i) {
+      const ssize_t n = ::recv(fd_, &c, 1, MSG_DONTWAIT);
+      if (n == 0) return true;
+      if (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    return false;
+  }
   /// The server closed this connection (the stream's end is read).
   bool Closed() {
     char c;
@@ -551,6 +569,45 @@ TEST(IgtlDevice, IdleConnectionsNeverKeepADeviceOut) {
   EXPECT_EQ(closed, static_cast<int>(idle.size()));
   // And a bad timeout is refused.
   options.idle_timeout_s = 0;
+  EXPECT_THROW(IgtlDeviceServer bad(options), Error);
+}
+
+// #44 item 6, limits per address: one host's idle connections recycle their own slots, never
+// another host's (here the loopback net's 127.0.0.2 and 127.0.0.3), and a device still gets in.
+TEST(IgtlDevice, OneHostsIdleConnectionsNeverTakeAnotherHostsSlots) {
+  IgtlServerOptions options = AnyPort();
+  options.max_connections = 7;  // room for the two hosts' 3 each and a device
+  options.max_unproved_per_address = 3;
+  options.idle_timeout_s = 30;  // the limits act here, not the timeout
+  IgtlDeviceServer server(options);
+  std::vector<std::unique_ptr<RawClient>> other, flood;
+  for (int i = 0; i < 3; ++i) other.push_back(std::make_unique<RawClient>(server.port(), "127.0.0.3"));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  for (int i = 0; i < 10; ++i) {
+    flood.push_back(std::make_unique<RawClient>(server.port(), "127.0.0.2"));
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  for (std::size_t i = 0; i < other.size(); ++i)
+    EXPECT_FALSE(other[i]->ClosedWithin(100)) << "the other host's connection " << i << " was put out";
+  int flood_closed = 0;
+  for (auto& c : flood) flood_closed += c->ClosedWithin(100);
+  EXPECT_EQ(flood_closed, 7) << "the flooding host keeps 3 slots";
+  // A device from a third address gets in, and keeps streaming while the flood goes on.
+  Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+  RawClient device(server.port());
+  DeviceSample s;
+  std::uint64_t seq = 0;
+  std::chrono::steady_clock::time_point at;
+  device.Send(Message("TRANSFORM", "left", TransformBody(X)));
+  ASSERT_TRUE(Eventually([&] { return server.Latest("left", &s, &seq, &at); }));
+  for (int i = 0; i < 6; ++i) flood.push_back(std::make_unique<RawClient>(server.port(), "127.0.0.2"));
+  const std::uint64_t last = seq;
+  device.Send(Message("TRANSFORM", "left", TransformBody(X)));
+  ASSERT_TRUE(Eventually([&] { return server.Latest("left", &s, &seq, &at) && seq > last; }));
+  for (std::size_t i = 0; i < other.size(); ++i) EXPECT_FALSE(other[i]->ClosedWithin(50)) << i;
+  // A limit of zero is refused.
+  options.max_unproved_per_address = 0;
   EXPECT_THROW(IgtlDeviceServer bad(options), Error);
 }
 
