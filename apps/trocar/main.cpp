@@ -38,6 +38,10 @@ int main(int argc, char** argv) {
               << "': the inputs need more memory than this machine has (lower the phantom's or "
                  "the CT's resolution, or the limits TROCAR_MAX_VOXELS / TROCAR_MAX_FILE_BYTES)\n";
     return 1;
+  } catch (const trocar::InternalError& e) {
+    std::cerr << "internal error: " << e.what()
+              << " (a fault in trocar, not in the input: please report it with the command)\n";
+    return 2;
   } catch (const std::exception& e) {
     std::cerr << "internal error: " << e.what() << "\n";
     return 2;

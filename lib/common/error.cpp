@@ -4,4 +4,17 @@ namespace trocar::internal {
 
 void ThrowError(const std::string& message) { throw Error(message); }
 
+void ThrowInternal(const char* file, int line, const std::string& message) {
+  // The path from the source tree's top folder (lib/, planners/, viz/, apps/, tests/, bench/).
+  std::string place = file ? file : "?";
+  for (const char* top : {"/lib/", "/planners/", "/viz/", "/apps/", "/tests/", "/bench/"}) {
+    const std::size_t at = place.rfind(top);
+    if (at != std::string::npos) {
+      place = place.substr(at + 1);
+      break;
+    }
+  }
+  throw InternalError(place + ":" + std::to_string(line) + ": " + message);
+}
+
 }  // namespace trocar::internal

@@ -1,6 +1,8 @@
 #pragma once
 /// @file
-/// Errors for bad user input (thrown) versus internal invariants (assert).
+/// Errors for bad user input (trocar::Error, TROCAR_THROW_UNLESS) versus the program's own
+/// invariants (trocar::InternalError, TROCAR_CHECK): `trocar` prints the first as "error: ..."
+/// and exits 1, the second as "internal error: FILE:LINE: ..." and exits 2, never aborting.
 ///
 /// Every message names the place (file, field, element), the offending value and what was
 /// expected, e.g. `robots/arm.yaml:12:5: joints[2].limits: lower 1.2 > upper 0.9`.
@@ -17,8 +19,18 @@ class Error : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// Thrown when the program's own invariant fails: a bug, not the user's input (e.g. a plan file
+/// trocar has just written does not parse back). Not a trocar::Error, so no handler of bad input
+/// takes it for one.
+class InternalError : public std::logic_error {
+ public:
+  using std::logic_error::logic_error;
+};
+
 namespace internal {
 [[noreturn]] void ThrowError(const std::string& message);
+/// Throws InternalError with the place ("planners/motion/verify.cpp:220: ...").
+[[noreturn]] void ThrowInternal(const char* file, int line, const std::string& message);
 }  // namespace internal
 
 }  // namespace trocar
@@ -32,6 +44,17 @@ namespace internal {
       trocar_message_stream_ << message;             \
       ::trocar::internal::ThrowError(trocar_message_stream_.str()); \
     }                                                \
+  } while (false)
+
+/// Throws trocar::InternalError naming this source line when the program's own invariant
+/// `condition` is false. Usage: TROCAR_CHECK(plans.size() == verifications.size(), "...");
+#define TROCAR_CHECK(condition, message)                                                  \
+  do {                                                                                    \
+    if (!(condition)) {                                                                   \
+      std::ostringstream trocar_message_stream_;                                          \
+      trocar_message_stream_ << message;                                                  \
+      ::trocar::internal::ThrowInternal(__FILE__, __LINE__, trocar_message_stream_.str()); \
+    }                                                                                     \
   } while (false)
 
 /// Throws trocar::Error unconditionally with a streamed message.

@@ -3,6 +3,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <exception>
 #include <chrono>
 #include <cmath>
 #include <nlohmann/json.hpp>
@@ -48,7 +49,10 @@ PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPla
     const int n_threads = threads > 0 ? threads : omp_get_max_threads();
     v.threads = std::max(1, std::min(n_threads, std::max(queries, 1)));
     std::vector<long> checks(v.threads, 0);
-    std::string error;
+    // The failure of the lowest query, rethrown as it was (a bad input stays trocar::Error, a
+    // fault stays trocar::InternalError), whatever the threads' timing.
+    std::exception_ptr error;
+    int error_query = queries;
 #pragma omp parallel num_threads(v.threads)
     {
       MotionContext context(motion_problem);
@@ -56,14 +60,17 @@ PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPla
       for (int k = 0; k < queries; ++k) {
         try {
           v.motions[k] = context.Plan(instruments[k / ns], k % ns, options);
-        } catch (const std::exception& e) {
+        } catch (...) {
 #pragma omp critical(trocar_verify_error)
-          if (error.empty()) error = e.what();
+          if (k < error_query) {
+            error = std::current_exception();
+            error_query = k;
+          }
         }
       }
       checks[omp_get_thread_num()] = context.checks();
     }
-    TROCAR_THROW_UNLESS(error.empty(), error);
+    if (error) std::rethrow_exception(error);
     v.states_checked = std::accumulate(checks.begin(), checks.end(), 0L);
   }
   int solved = 0;
@@ -140,7 +147,7 @@ std::vector<std::size_t> VerifiedOrder(const std::vector<PlanVerification>& veri
 
 void RankByVerification(PortPlacementResult* result,
                         std::vector<PlanVerification>* verifications) {
-  TROCAR_THROW_UNLESS(result->plans.size() == verifications->size(),
+  TROCAR_CHECK(result->plans.size() == verifications->size(),
                       "ranking: " << verifications->size() << " verifications for "
                                   << result->plans.size() << " plans");
   const std::vector<std::size_t> order = VerifiedOrder(*verifications);
@@ -217,22 +224,27 @@ json VerificationJson(const PortPlacementProblem& problem, const PlanVerificatio
 std::string AddVerificationJson(const std::string& plan_json, const PortPlacementProblem& problem,
                                 const std::vector<PlanVerification>& verifications,
                                 const std::vector<PlanVerification>& baselines) {
-  json doc = json::parse(plan_json);
+  // The plan document trocar has just written: one that does not parse back is a fault here.
+  json doc;
+  try {
+    doc = json::parse(plan_json);
+  } catch (const json::exception& e) {
+    TROCAR_CHECK(false, "the plan document written a moment ago does not parse back: " << e.what());
+  }
   if (!baselines.empty()) {
     std::size_t next = 0;
     for (json& b : doc.at("baselines")) {
       if (!b.value("placed", false)) continue;
-      TROCAR_THROW_UNLESS(next < baselines.size(),
-                          "plan file: more placed baselines than verifications");
+      TROCAR_CHECK(next < baselines.size(), "plan file: more placed baselines than verifications");
       const PlanVerification& v = baselines[next++];
       b["plan"]["verification"] = VerificationJson(problem, v);
       b["verdict"]["verified"] = {{"suitable", v.suitable}, {"reasons", v.reasons}};
     }
   }
   json& plans = doc.at("plans");
-  TROCAR_THROW_UNLESS(plans.size() == verifications.size(),
-                      "plan file: " << plans.size() << " plans, " << verifications.size()
-                                    << " verifications");
+  TROCAR_CHECK(plans.size() == verifications.size(),
+               "plan file: " << plans.size() << " plans, " << verifications.size()
+                             << " verifications");
   for (std::size_t k = 0; k < verifications.size(); ++k)
     plans[k]["verification"] = VerificationJson(problem, verifications[k]);
   if (!verifications.empty()) {

@@ -400,9 +400,9 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
                                   const PortPlacementOptions& options) {
   ValidateOptions(options);
   for (const Placement& p : options.initial)
-    TROCAR_THROW_UNLESS(p.sites.size() == problem.arms().size(),
-                        "initial placement: " << p.sites.size() << " ports for "
-                                              << problem.arms().size() << " arms");
+    TROCAR_CHECK(p.sites.size() == problem.arms().size(),
+                 "initial placement: " << p.sites.size() << " ports for " << problem.arms().size()
+                                       << " arms");
   const auto t0 = Clock::now();
   const auto deadline = t0 + std::chrono::duration_cast<Clock::duration>(
                                  std::chrono::duration<double>(options.time_limit));

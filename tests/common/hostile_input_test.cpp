@@ -792,3 +792,27 @@ TEST_F(Hostile, APhantomCaseWrittenHalfWayHasNoCt) {
 
 }  // namespace
 }  // namespace trocar
+
+// #45 item 4: the program's own invariants are not bad input. TROCAR_CHECK throws
+// InternalError (which no handler of trocar::Error takes), naming the source line from the
+// tree's top folder; TROCAR_THROW_UNLESS stays trocar::Error.
+TEST(Errors, AFailedInvariantIsAnInternalErrorNamingItsPlaceNotABadInput) {
+  bool caught_as_input = false, caught_as_internal = false;
+  std::string what;
+  try {
+    try {
+      TROCAR_CHECK(1 + 1 == 3, "two is " << 2);
+    } catch (const trocar::Error&) {
+      caught_as_input = true;
+    }
+  } catch (const trocar::InternalError& e) {
+    caught_as_internal = true;
+    what = e.what();
+  }
+  EXPECT_FALSE(caught_as_input);
+  EXPECT_TRUE(caught_as_internal);
+  EXPECT_EQ(what.rfind("tests/common/hostile_input_test.cpp:", 0), 0u) << what;
+  EXPECT_NE(what.find(": two is 2"), std::string::npos) << what;
+  EXPECT_NO_THROW(TROCAR_CHECK(true, "never built"));
+  EXPECT_THROW(TROCAR_THROW_UNLESS(false, "bad input"), trocar::Error);
+}
