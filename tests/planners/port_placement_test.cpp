@@ -439,7 +439,7 @@ TEST(OptimizePorts, ASearchGivenAPlacementEndsAtLeastAsWellAsIt) {
   ASSERT_FALSE(seeded.plans.empty());
   EXPECT_GE(seeded.plans[0].evaluation.score, given_score - 1e-12);
   EXPECT_NE(seeded.grid.find("1 given placements first"), std::string::npos) << seeded.grid;
-  // A placement for another number of arms is refused, naming it.
+  // A placement for another number of arms is the caller's fault (an internal error), named.
   Placement wrong = given;
   wrong.sites.pop_back();
   small.initial = {wrong};
@@ -447,12 +447,12 @@ TEST(OptimizePorts, ASearchGivenAPlacementEndsAtLeastAsWellAsIt) {
       {
         try {
           OptimizePorts(problem, small);
-        } catch (const Error& e) {
+        } catch (const InternalError& e) {
           EXPECT_NE(std::string(e.what()).find("initial placement"), std::string::npos) << e.what();
           throw;
         }
       },
-      Error);
+      InternalError);
 }
 
 // The served term is the share of samples every instrument reaches and the endoscope sees, as
