@@ -270,15 +270,19 @@ TEST(SelectionCriteria, MeasuredOnTheCtTheyFollowTheAnatomy) {
   EXPECT_NEAR(get(base, "chest_ap_to_transverse").value, 100.0 * 0.24 / 0.34, 5.0);
   EXPECT_NEAR(get(base, "camera_port_to_mediastinum").value,
               DistanceToMesh(ct->Find("heart")->mesh, pivot) * 1e3, 1e-6);
-  auto moved = std::make_shared<patient::PatientModel>(*ct);
+  // The model with its heart and the LAD on it moved by `d_P`.
+  auto heart_moved = [&](const Eigen::Vector3d& d_P) {
+    auto moved = std::make_shared<patient::PatientModel>(*ct);
+    for (auto& s : moved->structures)
+      if (s.name == "heart")
+        for (auto& v : s.mesh.vertices) v += d_P;
+    for (auto& t : moved->targets)
+      if (t.name == "LAD")
+        for (auto& p : t.points) p += d_P;
+    return moved;
+  };
   const Eigen::Vector3d back(0.0, 0.010, 0.0);  // LPS: posterior
-  for (auto& s : moved->structures)
-    if (s.name == "heart")
-      for (auto& v : s.mesh.vertices) v += back;
-  for (auto& t : moved->targets)
-    if (t.name == "LAD")
-      for (auto& p : t.points) p += back;
-  const SelectionCriteria deeper = MeasureSelectionCriteria(*moved, &pivot);
+  const SelectionCriteria deeper = MeasureSelectionCriteria(*heart_moved(back), &pivot);
   const double lad0 = get(base, "lad_to_chest_wall").value, lad1 = get(deeper, "lad_to_chest_wall").value;
   EXPECT_GT(lad1, lad0 + 6.0);
   EXPECT_LT(lad1, lad0 + 10.5);
@@ -290,15 +294,7 @@ TEST(SelectionCriteria, MeasuredOnTheCtTheyFollowTheAnatomy) {
   SelectionCriteria close;
   double forward_mm = 0.0;
   for (; forward_mm < 2.0 * lad0; forward_mm += 1.0) {
-    const Eigen::Vector3d forward(0.0, -forward_mm * 1e-3, 0.0);
-    auto against = std::make_shared<patient::PatientModel>(*ct);
-    for (auto& s : against->structures)
-      if (s.name == "heart")
-        for (auto& v : s.mesh.vertices) v += forward;
-    for (auto& t : against->targets)
-      if (t.name == "LAD")
-        for (auto& p : t.points) p += forward;
-    close = MeasureSelectionCriteria(*against, &pivot);
+    close = MeasureSelectionCriteria(*heart_moved(Eigen::Vector3d(0.0, -forward_mm * 1e-3, 0.0)), &pivot);
     if (get(close, "lad_to_chest_wall").value < 15.0) break;
   }
   EXPECT_LT(forward_mm, 2.0 * lad0);
