@@ -462,7 +462,7 @@ struct Scene::Impl {
     if (!skin_bvh && skin_structure && !skin_structure->mesh.triangles.empty())
       skin_bvh = std::make_unique<collision::TriangleBvh>(skin_structure->mesh);
     if (points.empty() || (shapes.empty() && !skin_bvh)) return first;
-    const Eigen::Isometry3d X_PW = patient->X_WP.inverse();
+    const Eigen::Isometry3d X_PW = patient ? patient->X_WP.inverse() : Eigen::Isometry3d::Identity();
     auto hidden = [&](const Eigen::Vector3d& direction) {
       const Eigen::Vector3d camera = centre + distance * direction;
       int n = 0;

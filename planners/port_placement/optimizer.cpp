@@ -524,7 +524,9 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     // the algorithm: the evaluations in all stay the option's.
     // The given initial placements (the template's) come first, inside the same budget.
     std::vector<std::vector<double>> seeds = cannon_grid(&result.grid);
-    const std::size_t seed_budget = static_cast<std::size_t>(std::max(0, options.evaluations / 3));
+    // The given placements are evaluated even when a third of a tiny budget cannot hold them.
+    const std::size_t seed_budget = std::max(
+        static_cast<std::size_t>(std::max(0, options.evaluations / 3)), options.initial.size());
     for (auto it = options.initial.rbegin(); it != options.initial.rend(); ++it)
       seeds.insert(seeds.begin(), problem.Encode(*it));
     if (seeds.size() > seed_budget) seeds.resize(seed_budget);
