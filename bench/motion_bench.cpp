@@ -117,7 +117,7 @@ int main(int argc, char** argv) {
     int free = 0;
     for (const auto& s : states) {
       checker.SetRobotState(s);
-      problem.SetPorts(plan.placement, &checker);
+      problem.SetPorts(plan.placement, s, &checker);
       free += !checker.InCollision();
     }
     const double collision_only = Seconds(t0) / n;

@@ -19,6 +19,7 @@
 #include "kinematics/forward_kinematics.hpp"
 #include "patient/patient_model.hpp"
 #include "port_placement/plan_io.hpp"
+#include "port_placement/port_rules.hpp"
 #include "robot/load_robot.hpp"
 
 namespace trocar::apps {
@@ -141,11 +142,21 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       return c.found() ? c.distance : 0.0;
     };
     std::vector<Eigen::Vector3d> incisions_W;  // per arm, of the plan being checked
-    auto allowance = [&](std::size_t a, const Eigen::Vector3d& pivot_W) {
-      const double track = a < incisions_W.size()
-                               ? planners::PortTrackLength(depth(pivot_W), pivot_W, incisions_W[a])
-                               : depth(pivot_W);
-      return track + world->options().port_radius;
+    // An instrument's allowance follows its cannula's track in the pose checked
+    // (planners::TrackAllowance).
+    auto allowance = [&](std::size_t a, const Eigen::Vector3d& pivot_W,
+                         const robot::RobotState& state) {
+      const double d = depth(pivot_W);
+      const double r = world->options().port_radius;
+      if (a >= incisions_W.size()) return d + r;
+      const double cut = planners::PortTrackLength(d, pivot_W, incisions_W[a]) + r;
+      const std::string tool = field(arms[a], "tool_frame").get<std::string>();
+      if (!skin_bvh || field(arms[a], "role").get<std::string>() != "instrument" || tool.empty())
+        return cut;
+      const Eigen::Vector3d tip_W =
+          kinematics::FramePose(state, robot->GetFrame(tool)).translation();
+      return std::max(cut, planners::TrackAllowance(*skin_bvh, d, X_PW * pivot_W,
+                                                    X_PW * incisions_W[a], X_PW * tip_W, r));
     };
     // The contact rule at the target (port_rules.hpp, kWorkSiteRadius): with `work_W` (the
     // sample being worked on), each instrument's wrist and jaws may touch the organ there.
@@ -156,7 +167,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       checker.ClearWorkSites();
       for (std::size_t a = 0; a < world_port.size() && a < pivots_W.size(); ++a) {
         if (world_port[a] < 0) continue;
-        checker.SetPortPosition(world_port[a], pivots_W[a], allowance(a, pivots_W[a]));
+        checker.SetPortPosition(world_port[a], pivots_W[a], allowance(a, pivots_W[a], state));
         if (work_W && field(arms[a], "role").get<std::string>() == "instrument")
           checker.SetWorkSite(world_port[a], *work_W, planners::kWorkSiteRadius);
       }

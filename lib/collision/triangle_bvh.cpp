@@ -592,4 +592,58 @@ SweptSphereContact TriangleBvh::BoxTouches(const Eigen::Isometry3d& X_MB, const 
   return TouchesWith(BoxQuery(X_MB, half), 0.0, exclude_centre, exclude_radius);
 }
 
+double TriangleBvh::FirstHit(const Vector3d& origin_M, const Vector3d& dir_M, double max_t) const {
+  double best = std::numeric_limits<double>::infinity();
+  if (triangles_.empty() || !(max_t > 0.0)) return best;
+  const double n = dir_M.norm();
+  if (!(n > 0.0)) return best;
+  const Vector3d d = dir_M / n;
+  const Vector3d inv(1.0 / d.x(), 1.0 / d.y(), 1.0 / d.z());
+  // Slab test: the ray's parameter interval inside the box, clipped to [0, limit].
+  auto enters = [&](const Node& node, double limit) {
+    double t0 = 0.0, t1 = limit;
+    for (int k = 0; k < 3; ++k) {
+      double a = (node.lo[k] - origin_M[k]) * inv[k], b = (node.hi[k] - origin_M[k]) * inv[k];
+      if (std::isnan(a) || std::isnan(b)) {  // parallel to the slab, on its boundary
+        if (origin_M[k] < node.lo[k] || origin_M[k] > node.hi[k]) return false;
+        continue;
+      }
+      if (a > b) std::swap(a, b);
+      t0 = std::max(t0, a);
+      t1 = std::min(t1, b);
+      if (t0 > t1) return false;
+    }
+    return true;
+  };
+  int stack[128];
+  int top = 0;
+  if (!enters(nodes_[0], max_t)) return best;
+  stack[top++] = 0;
+  while (top > 0) {
+    const Node& node = nodes_[stack[--top]];
+    if (!enters(node, std::min(best, max_t))) continue;
+    if (node.count > 0) {
+      for (int i = node.first; i < node.first + node.count; ++i) {
+        // Moller-Trumbore, both faces.
+        const Triangle& t = triangles_[i];
+        const Vector3d e1 = t.v1 - t.v0, e2 = t.v2 - t.v0;
+        const Vector3d p = d.cross(e2);
+        const double det = e1.dot(p);
+        if (std::abs(det) < 1e-15) continue;
+        const Vector3d s = origin_M - t.v0;
+        const double u = s.dot(p) / det;
+        if (u < 0.0 || u > 1.0) continue;
+        const Vector3d q = s.cross(e1);
+        const double v = d.dot(q) / det;
+        if (v < 0.0 || u + v > 1.0) continue;
+        const double hit = e2.dot(q) / det;
+        if (hit >= 0.0 && hit <= max_t && hit < best) best = hit;
+      }
+      continue;
+    }
+    for (int c : {node.first, node.first + 1}) stack[top++] = c;
+  }
+  return best;
+}
+
 }  // namespace trocar::collision

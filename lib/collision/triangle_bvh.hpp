@@ -85,6 +85,11 @@ class TriangleBvh {
                                 const Eigen::Vector3d& exclude_centre = Eigen::Vector3d::Zero(),
                                 double exclude_radius = -1.0) const;
 
+  /// The distance along the ray from `origin_M` in direction `dir_M` (any length) to the first
+  /// triangle it crosses, either face, within `max_t` (m); infinity when none.
+  double FirstHit(const Eigen::Vector3d& origin_M, const Eigen::Vector3d& dir_M,
+                  double max_t = std::numeric_limits<double>::infinity()) const;
+
   /// Brute force over every triangle (tests): Closest and ClosestToBox must agree with these.
   MeshClosest ClosestBruteForce(const Eigen::Vector3d& a_M, const Eigen::Vector3d& b_M) const;
   MeshClosest ClosestToBoxBruteForce(const Eigen::Isometry3d& X_MB,

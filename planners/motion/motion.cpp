@@ -299,7 +299,7 @@ MotionContext::MotionContext(const MotionProblem& problem)
 MotionContext::~MotionContext() = default;
 
 void MotionContext::SetPorts() {
-  problem_.problem().SetPorts(problem_.placement(), checker_.get(), has_work_ ? &work_W_ : nullptr);
+  problem_.problem().SetPorts(problem_.placement(), state_, checker_.get(), has_work_ ? &work_W_ : nullptr);
 }
 
 bool MotionContext::Valid(const Eigen::VectorXd& q, std::string* why) {

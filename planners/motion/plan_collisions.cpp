@@ -4,6 +4,7 @@
 
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
+#include "kinematics/forward_kinematics.hpp"
 #include "port_placement/port_rules.hpp"
 
 namespace trocar::planners {
@@ -28,10 +29,10 @@ PlanCollisions::PlanCollisions(const patient::PatientModel& patient,
   // Each arm's port: RCM ports by frame, shaft ports after them in arm order.
   int shaft = 0;
   for (const auto& port : world_->ports()) shaft += port.frame.empty() ? 0 : 1;
-  std::unique_ptr<collision::TriangleBvh> skin;
   if (const patient::Structure* s = patient.Find("skin"); s && !s->mesh.triangles.empty())
-    skin = std::make_unique<collision::TriangleBvh>(s->mesh);
+    skin_ = std::make_unique<collision::TriangleBvh>(s->mesh);
   const Eigen::Isometry3d X_PW = patient.X_WP.inverse();
+  X_PW_ = X_PW;
   for (std::size_t a = 0; a < file.arms.size(); ++a) {
     const std::string& rcm = file.arms[a].rcm_frame;
     int index = rcm.empty() ? shaft++ : -1;
@@ -42,12 +43,16 @@ PlanCollisions::PlanCollisions(const patient::PatientModel& patient,
     port_of_arm_.push_back(index);
     double depth = 0.0;
     const Eigen::Vector3d pivot_P = X_PW * plan.ports[a].rcm_W;
-    if (skin) {
-      const auto c = skin->Closest(pivot_P, pivot_P);
+    if (skin_) {
+      const auto c = skin_->Closest(pivot_P, pivot_P);
       if (c.found()) depth = c.distance;
     }
     allowance_.push_back(PortTrackLength(depth, pivot_P, X_PW * plan.ports[a].p_W) +
                          world_->options().port_radius);
+    depth_.push_back(depth);
+    incisions_P_.push_back(X_PW * plan.ports[a].p_W);
+    const std::string& tool = file.arms[a].tool_frame;
+    tool_frame_.push_back(tool.empty() ? robot::Frame{} : robot_->GetFrame(tool));
   }
   pivots_.reserve(plan.ports.size());
   for (const StoredPort& port : plan.ports) pivots_.push_back(port.rcm_W);
@@ -64,7 +69,15 @@ void PlanCollisions::SetState(const robot::RobotState& state, int work_sample) {
   checker_->SetRobotState(state);
   checker_->ClearWorkSites();
   for (std::size_t a = 0; a < port_of_arm_.size(); ++a) {
-    checker_->SetPortPosition(port_of_arm_[a], pivots_[a], allowance_[a]);
+    double allowance = allowance_[a];
+    if (skin_ && instrument_[a] && tool_frame_[a].link >= 0 && !state.X_WL.empty()) {
+      const Eigen::Vector3d tip_W =
+          kinematics::FramePose(state, tool_frame_[a]).translation();
+      allowance = std::max(allowance,
+                           TrackAllowance(*skin_, depth_[a], X_PW_ * pivots_[a], incisions_P_[a],
+                                          X_PW_ * tip_W, world_->options().port_radius));
+    }
+    checker_->SetPortPosition(port_of_arm_[a], pivots_[a], allowance);
     if (work_sample >= 0 && instrument_[a])
       checker_->SetWorkSite(port_of_arm_[a], samples_W_[work_sample], kWorkSiteRadius);
   }

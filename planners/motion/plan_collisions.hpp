@@ -3,7 +3,7 @@
 /// Collisions and clearance of the robot of a stored plan (plan_file.hpp), by the plan's rules
 /// (docs/plan-format.md, "Ports"): each instrument may touch the skin within its port's
 /// allowance around its pivot (the cannula's track through the wall plus the world's port radius,
-/// port_rules.hpp);
+/// following the instrument as it turns: port_rules.hpp, TrackAllowance);
 /// every other contact is a collision. For whatever shows or replays a plan's poses.
 
 #include <memory>
@@ -13,6 +13,10 @@
 #include "collision/collision_world.hpp"
 #include "patient/patient_model.hpp"
 #include "port_placement/plan_file.hpp"
+
+namespace trocar::collision {
+class TriangleBvh;
+}
 
 namespace trocar::planners {
 
@@ -56,6 +60,11 @@ class PlanCollisions {
   std::unique_ptr<collision::CollisionChecker> checker_;
   std::vector<int> port_of_arm_;
   std::vector<double> allowance_;
+  std::vector<double> depth_;                 ///< per arm: the pivot's depth under the skin
+  std::vector<Eigen::Vector3d> incisions_P_;  ///< per arm
+  std::vector<robot::Frame> tool_frame_;      ///< per arm (link -1: none)
+  std::unique_ptr<collision::TriangleBvh> skin_;  ///< in P
+  Eigen::Isometry3d X_PW_ = Eigen::Isometry3d::Identity();
   std::vector<Eigen::Vector3d> pivots_;
   std::vector<Eigen::Vector3d> samples_W_;
   std::vector<char> instrument_;  ///< per arm

@@ -7,6 +7,10 @@
 #include <Eigen/Core>
 #include <algorithm>
 
+namespace trocar::collision {
+class TriangleBvh;
+}
+
 namespace trocar::planners {
 
 /// A port's incision is at most this far from its site on the candidate curve (m).
@@ -24,6 +28,21 @@ inline double PortTrackLength(double pivot_depth, const Eigen::Vector3d& pivot,
                               const Eigen::Vector3d& incision) {
   return std::max(pivot_depth, (incision - pivot).norm());
 }
+
+/// The cannula's track as the instrument turns (docs/decisions.md, "the cannula's track"): the
+/// remote centre is in the rib layer and the wall above it (fat, muscle, skin) is soft; an
+/// instrument turned about its pivot carries the soft wall with its cannula, so its track runs
+/// from the pivot out along its shaft to where the shaft leaves the skin *now*, not to where the
+/// incision was cut. The skin end of the track may move at most the soft wall's own thickness (the
+/// pivot's depth under the skin) from the incision: a shear of the wall of up to 45 degrees.
+/// Returns the skin allowance of the port in this pose (m): the larger of the cut track's
+/// (PortTrackLength + port_radius) and, when the shaft's skin crossing lies within that shift of
+/// the incision, the pivot-to-crossing length + port_radius. All points in the skin mesh's frame;
+/// `tip` is the instrument's tool tip (its shaft runs from the tip through the pivot); a tip within
+/// 5 mm of the pivot gives no direction and the cut track's allowance.
+double TrackAllowance(const collision::TriangleBvh& skin, double pivot_depth,
+                      const Eigen::Vector3d& pivot, const Eigen::Vector3d& incision,
+                      const Eigen::Vector3d& tip, double port_radius);
 
 /// The contact rule at the target (docs/decisions.md, "contact rules"): an instrument's wrist and
 /// jaws (collision::Body::distal) may touch the patient's structures other than the skin within

@@ -422,14 +422,25 @@ bool PortPlacementProblem::ReachSeed(int a, int attempt, robot::RobotState* stat
   return true;
 }
 
-void PortPlacementProblem::SetPorts(const Placement& placement,
+void PortPlacementProblem::SetPorts(const Placement& placement, const robot::RobotState& state,
                                     collision::CollisionChecker* checker,
                                     const Eigen::Vector3d* work_W) const {
   checker->ClearWorkSites();
+  const Eigen::Isometry3d X_PW = patient_->X_WP.inverse();
   for (std::size_t a = 0; a < arms_.size() && a < placement.sites.size(); ++a) {
     if (world_port_[a] < 0) continue;
-    checker->SetPortPosition(world_port_[a], placement.sites[a].p_rcm_W,
-                             placement.sites[a].skin_allowance);
+    const PortSite& site = placement.sites[a];
+    double allowance = site.skin_allowance;
+    // The cannula's track as the instrument now points (port_rules.hpp, TrackAllowance).
+    if (skin_ && arms_[a].role == ArmRole::kInstrument && !state.X_WL.empty()) {
+      const Eigen::Vector3d tip_W =
+          kinematics::FramePose(state, robot_->GetFrame(arms_[a].tool_frame)).translation();
+      const Eigen::Vector3d pivot_P = X_PW * site.p_rcm_W;
+      allowance = std::max(allowance,
+                           TrackAllowance(*skin_, site.pivot_depth, pivot_P, site.p_P,
+                                          X_PW * tip_W, world_->options().port_radius));
+    }
+    checker->SetPortPosition(world_port_[a], site.p_rcm_W, allowance);
     if (work_W && arms_[a].role == ArmRole::kInstrument)
       checker->SetWorkSite(world_port_[a], *work_W, kWorkSiteRadius);
   }
@@ -495,14 +506,6 @@ bool GapUnder(const collision::TriangleBvh& ribs, const Eigen::Vector3d& skin_P,
     }
   }
   return best < kReach;
-}
-
-// How far from its pivot a shaft may touch the skin: the cannula's track through the wall plus the
-// port radius (port_rules.hpp; docs/plan-format.md, "Ports").
-double PortSkinAllowance(const collision::TriangleBvh& skin_P, const Eigen::Vector3d& pivot_P,
-                         const Eigen::Vector3d& incision_P, double port_radius) {
-  const auto c = skin_P.Closest(pivot_P, pivot_P);
-  return PortTrackLength(c.found() ? c.distance : 0.0, pivot_P, incision_P) + port_radius;
 }
 
 // Where the ray from `from_P` along `out_P` first leaves the skin (bisection on the segment's
@@ -592,10 +595,14 @@ PortSite PortPlacementProblem::Site(int candidate, double s) const {
     }
   }
   site.p_W = patient_->X_WP * site.p_P;
-  site.skin_allowance =
-      skin_ ? PortSkinAllowance(*skin_, patient_->X_WP.inverse() * site.p_rcm_W, site.p_P,
-                                world_->options().port_radius)
-            : world_->options().port_radius;
+  if (skin_) {
+    const Eigen::Vector3d pivot_P = patient_->X_WP.inverse() * site.p_rcm_W;
+    const auto c = skin_->Closest(pivot_P, pivot_P);
+    site.pivot_depth = c.found() ? c.distance : 0.0;
+  }
+  site.skin_allowance = PortTrackLength(site.pivot_depth, patient_->X_WP.inverse() * site.p_rcm_W,
+                                        site.p_P) +
+                        world_->options().port_radius;
   return site;
 }
 
@@ -709,7 +716,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
     }
     kinematics::ForwardKinematics(robot, state.q, &state);
     checker.SetRobotState(state);
-    SetPorts(placement, &checker);
+    SetPorts(placement, state, &checker);
     nominal = checker.Check();
     // One aim for every arm (the centroid of all the targets) can run an arm along the chest
     // wall into the ribs of its own space (a port low on the chest, the LIMA high under the
@@ -783,7 +790,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
   ev.q_nominal = state.q;
   ev.joint_values = state.joint_values;
   checker.SetRobotState(state);
-  SetPorts(placement, &checker);
+  SetPorts(placement, state, &checker);
   ev.collisions = static_cast<int>(nominal.contacts.size());
   if (nominal.collision) {
     ev.status = PlacementStatus::kInCollision;
@@ -892,7 +899,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
         trial.q[roll] = best_roll;
         kinematics::ForwardKinematics(robot, trial.q, &trial);
         checker.SetRobotState(trial);
-        SetPorts(placement, &checker);
+        SetPorts(placement, trial, &checker);
         if (!checker.InCollision()) {
           state = trial;
         } else {
@@ -905,7 +912,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
   ev.q_nominal = state.q;
   ev.joint_values = state.joint_values;
   checker.SetRobotState(state);
-  SetPorts(placement, &checker);
+  SetPorts(placement, state, &checker);
   const robot::RobotState nominal_state = state;
 
   std::vector<std::vector<SampleReach>> reach(arms_.size(), std::vector<SampleReach>(ns));
@@ -982,7 +989,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
           if (attempt == 0) why = ReachFailure(robot, arm, state, p_aim, port, max_reach_[a], ik);
         } else {
           checker.SetRobotState(state);
-          SetPorts(placement, &checker, &samples[s].p_W);  // the jaws may touch the organ there
+          SetPorts(placement, state, &checker, &samples[s].p_W);  // the jaws may touch the organ there
           if (!checker.InCollision(how.sample_mask & collision::kAllMovingPairs)) {
             r.reached = true;
           } else if (attempt == 0 && detailed) {
@@ -1127,7 +1134,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
   }
   // Clearances at the nominal pose.
   checker.SetRobotState(nominal_state);
-  SetPorts(placement, &checker);
+  SetPorts(placement, nominal_state, &checker);
   const auto by_class = checker.ClearanceByClass();
   auto clearance = [&](collision::PairClass cls) {
     const auto i = static_cast<std::size_t>(cls);

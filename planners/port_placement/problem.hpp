@@ -124,6 +124,9 @@ struct PortSite {
   /// cannula; the ribs do not). docs/plan-format.md states the rule; `trocar check --plan`
   /// recomputes it.
   double skin_allowance = 0.0;
+  /// The pivot's depth under the skin (m; 0 without a skin mesh): the soft wall's thickness the
+  /// cannula's track may shear by (TrackAllowance, port_rules.hpp).
+  double pivot_depth = 0.0;
 };
 
 /// A placement: one site per arm (in the problem's arm order) and the cart's pose.
@@ -277,7 +280,10 @@ class PortPlacementProblem {
   /// pivots with their skin allowances; call after every CollisionChecker::SetRobotState. With a
   /// `work_W` (the target point the instruments work on), each instrument's wrist and jaws may
   /// touch the organ there (kWorkSiteRadius, port_rules.hpp); without, nowhere.
-  void SetPorts(const Placement& placement, collision::CollisionChecker* checker,
+  /// An instrument's skin allowance follows its cannula's track in `state` (the pose the
+  /// checker was given; TrackAllowance, port_rules.hpp).
+  void SetPorts(const Placement& placement, const robot::RobotState& state,
+                collision::CollisionChecker* checker,
                 const Eigen::Vector3d* work_W = nullptr) const;
 
  private:

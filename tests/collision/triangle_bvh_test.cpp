@@ -132,6 +132,50 @@ TEST(TriangleBvh, AnswersAsBruteForceOverEveryTriangle) {
   }
 }
 
+// The ray's first crossing (the cannula's track leaving the skin, port_rules.hpp) is the nearest
+// crossing of every triangle, computed here without the hierarchy: rays from inside cross the
+// closed surface exactly once within reach, rays from outside zero or more times.
+TEST(TriangleBvh, FirstHitIsTheNearestCrossingOfAnyTriangle) {
+  std::mt19937 rng(29);
+  const TriangleMesh mesh = Bumpy(rng, 24, 40);
+  const TriangleBvh bvh(mesh);
+  // Any triangle's crossing by a ray, by the triangle's plane and the signs of three volumes.
+  auto crossing = [&](const Vector3d& o, const Vector3d& d, int t) {
+    const Vector3d a = mesh.vertices[mesh.triangles[t][0]], b = mesh.vertices[mesh.triangles[t][1]],
+                   c = mesh.vertices[mesh.triangles[t][2]];
+    const Vector3d n = (b - a).cross(c - a);
+    const double den = n.dot(d);
+    if (std::abs(den) < 1e-18) return std::numeric_limits<double>::infinity();
+    const double h = n.dot(a - o) / den;
+    if (h < 0) return std::numeric_limits<double>::infinity();
+    const Vector3d p = o + h * d;
+    const double s1 = n.dot((b - a).cross(p - a)), s2 = n.dot((c - b).cross(p - b)),
+                 s3 = n.dot((a - c).cross(p - c));
+    const bool inside = (s1 >= 0 && s2 >= 0 && s3 >= 0) || (s1 <= 0 && s2 <= 0 && s3 <= 0);
+    return inside ? h : std::numeric_limits<double>::infinity();
+  };
+  int hits = 0, misses = 0;
+  for (int trial = 0; trial < test::Trials(400, 80); ++trial) {
+    const Vector3d o = RandomPoint(rng, trial % 2 ? 0.05 : 0.3);
+    const Vector3d d = RandomPoint(rng, 1.0).normalized();
+    double slow = std::numeric_limits<double>::infinity();
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+      slow = std::min(slow, crossing(o, d, static_cast<int>(t)));
+    const double fast = bvh.FirstHit(o, 3.0 * d);  // any length of direction
+    if (std::isfinite(slow)) {
+      ++hits;
+      EXPECT_NEAR(fast, slow, 1e-9) << "trial " << trial;
+      // Within a limit short of the crossing: none.
+      EXPECT_FALSE(std::isfinite(bvh.FirstHit(o, d, 0.99 * slow))) << "trial " << trial;
+    } else {
+      ++misses;
+      EXPECT_FALSE(std::isfinite(fast)) << "trial " << trial;
+    }
+  }
+  EXPECT_GT(hits, 10);
+  EXPECT_GT(misses, 3);
+}
+
 TEST(TriangleBvh, TouchesCountsContactsOutsideTheExcludedBallOnly) {
   std::mt19937 rng(14);
   const TriangleMesh mesh = Bumpy(rng, 30, 50);

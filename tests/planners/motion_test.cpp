@@ -79,7 +79,7 @@ struct OwnCheck {
       return false;
     }
     checker.SetRobotState(state);
-    problem.SetPorts(plan.placement, &checker, work_W);
+    problem.SetPorts(plan.placement, state, &checker, work_W);
     const auto report = checker.Check();
     if (report.collision) {
       *why = problem.world()->bodies()[report.contacts[0].a].name + " - " +

@@ -19,6 +19,7 @@
 #include "port_placement/arms.hpp"
 #include "port_placement/optimizer.hpp"
 #include "port_placement/plan_io.hpp"
+#include "port_placement/port_rules.hpp"
 #include "robot/load_robot.hpp"
 #include "planners/bundled.hpp"
 #include "test_util.hpp"
@@ -202,6 +203,63 @@ TEST(PortPlacementProblem, PivotsLieMidGapBetweenTheRibsAndIncisionsOnTheSkinAlo
   }
   EXPECT_GT(sites, 50);
   EXPECT_GT(oblique, 0) << "no site whose incision lies farther than the skin straight above";
+}
+
+// The cannula's track follows the instrument (port_rules.hpp, TrackAllowance): turned about its
+// pivot, an instrument may touch the skin out to where its shaft now leaves the skin, when that
+// crossing lies within the soft wall's thickness (the pivot's depth) of the incision; otherwise
+// only along the track as cut. The crossing is found here by bisection on the segment's contact
+// with the skin, not by the ray query the rule uses.
+TEST(PortPlacementProblem, AnInstrumentTurnedAboutItsPivotCarriesItsTrackByTheWallsThicknessAtMost) {
+  const PortPlacementProblem problem(Phantom(), Cart(), {});
+  const patient::PatientModel& model = *Phantom();
+  const Eigen::Isometry3d X_PW = model.X_WP.inverse();
+  const collision::TriangleBvh skin(model.Find("skin")->mesh);
+  const double r = problem.world()->options().port_radius;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  int carried = 0, kept = 0;
+  for (int trial = 0; trial < test::Trials(120, 30); ++trial) {
+    const int c = static_cast<int>(u01(rng) * model.port_candidates.size());
+    const PortSite site = problem.Site(c, u01(rng));
+    const Eigen::Vector3d pivot = X_PW * site.p_rcm_W, incision = site.p_P;
+    const Eigen::Vector3d in = (pivot - incision).normalized();
+    // The shaft turned up to 75 deg off the way it was inserted, toward a random side.
+    Eigen::Vector3d side = in.unitOrthogonal();
+    side = Eigen::AngleAxisd(2 * M_PI * u01(rng), in) * side;
+    const double tilt = 75.0 * M_PI / 180.0 * u01(rng);
+    const Eigen::Vector3d dir = std::cos(tilt) * in + std::sin(tilt) * side;
+    const Eigen::Vector3d tip = pivot + 0.1 * dir;
+    const double cut = PortTrackLength(site.pivot_depth, pivot, incision) + r;
+    EXPECT_NEAR(site.skin_allowance, cut, 1e-12);
+    const double got = TrackAllowance(skin, site.pivot_depth, pivot, incision, tip, r);
+    // Bisection along the way out for the first length whose segment touches the skin.
+    const Eigen::Vector3d out = -dir;
+    const double reach = 0.2;
+    double want = cut;
+    if (skin.Closest(pivot, pivot + reach * out, 1e-9).found()) {
+      double lo = 0.0, hi = reach;
+      for (int i = 0; i < 40; ++i) {
+        const double mid = 0.5 * (lo + hi);
+        (skin.Closest(pivot, pivot + mid * out, 1e-9).found() ? hi : lo) = mid;
+      }
+      const Eigen::Vector3d crossing = pivot + hi * out;
+      if ((crossing - incision).norm() <= site.pivot_depth && hi + r > cut) {
+        want = hi + r;
+        ++carried;
+      } else {
+        ++kept;
+      }
+    }
+    EXPECT_NEAR(got, want, 1e-6) << "trial " << trial << ", candidate " << c;
+    EXPECT_GE(got, cut);
+    // Pointed straight back along its insertion the track is the one cut.
+    EXPECT_NEAR(TrackAllowance(skin, site.pivot_depth, pivot, incision, pivot + 0.1 * in, r),
+                std::max(cut, (site.p_P - pivot).norm() + r), 2e-3);
+  }
+  // Both branches were taken: tracks carried further out, and turns too far for the wall.
+  EXPECT_GT(carried, 5);
+  EXPECT_GT(kept, 5);
 }
 
 // Robustness moves the organ the targets lie on with them (the heart under the LAD), never the
@@ -525,7 +583,7 @@ TEST(OptimizePorts, ReachedSamplesAreReallyReachedAndCollisionFree) {
       EXPECT_LT((tip - (s.p_W + po.standoff * s.n_W)).norm(), po.ik_tolerance + 1e-6);
       checker.SetRobotState(state);
       // The contact rule at the target: the jaws may touch the organ the sample lies on, there.
-      problem.SetPorts(plan.placement, &checker, &s.p_W);
+      problem.SetPorts(plan.placement, state, &checker, &s.p_W);
       EXPECT_FALSE(checker.InCollision());
       ++checked;
     }
