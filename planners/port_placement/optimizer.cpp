@@ -15,6 +15,7 @@
 #include "collision/collision_world.hpp"
 #include "common/error.hpp"
 #include "patient/patient_model.hpp"
+#include "port_placement/port_rules.hpp"
 
 namespace trocar::planners {
 
@@ -118,38 +119,72 @@ void RunNlopt(const PortPlacementProblem& problem, nlopt::algorithm algorithm,
   }
 }
 
+}  // namespace
+
+SiteAccess SiteLines(const PortPlacementProblem& problem, const PortSite& site) {
+  const auto& samples = problem.samples();
+  const ProblemOptions& o = problem.options();
+  const collision::CollisionWorld& world = *problem.world();
+  SiteAccess out;
+  out.shaft.resize(samples.size());
+  out.sight.resize(samples.size());
+  const Eigen::Vector3d axis = (problem.aim_W() - site.p_W).normalized();
+  const Eigen::Vector3d tip = problem.aim_W() - o.scope_working_distance * axis;
+  for (std::size_t s = 0; s < samples.size(); ++s) {
+    const Eigen::Vector3d aim = samples[s].p_W + o.standoff * samples[s].n_W;
+    out.shaft[s] = world.FirstAcross(site.p_rcm_W, aim, kWorkSiteRadius).body < 0;
+    out.sight[s] = world.FirstAcross(tip, samples[s].p_W, kSightMargin).body < 0;
+  }
+  return out;
+}
+
 // The geometric part of the score (no robot): what Cannon et al. 2003 scored exhaustively —
-// approach and triangulation angles, the endoscope's view, spacing, and reach by distance.
-double GeometricScore(const PortPlacementProblem& problem, const std::vector<PortSite>& sites) {
+// approach and triangulation angles, the endoscope's view, spacing, and reach by distance — and
+// the served share, along clear lines when `access` is given.
+double GeometricScore(const PortPlacementProblem& problem, const std::vector<PortSite>& sites,
+                      const std::vector<const SiteAccess*>& access) {
   const auto& arms = problem.arms();
   const auto& samples = problem.samples();
   const ProblemOptions& o = problem.options();
-  double approach = 0, reach = 0, view = 0, tri = 0;
+  TROCAR_CHECK(access.empty() || access.size() == sites.size(),
+               "geometric score: " << access.size() << " access tables for " << sites.size()
+                                   << " sites");
+  double approach = 0, reach = 0, view = 0, tri = 0, served = 0;
   int instruments = 0, scopes = 0;
   std::vector<int> inst;
+  std::vector<char> all(samples.size(), 1);  // every instrument reaches it, a scope sees it
+  std::vector<char> seen(samples.size(), 0);
   for (std::size_t a = 0; a < arms.size(); ++a) {
     const Eigen::Vector3d port = sites[a].p_W;
+    const SiteAccess* lines = access.empty() ? nullptr : access[a];
     if (arms[a].role == ArmRole::kEndoscope) {
       ++scopes;
       const Eigen::Vector3d axis = (problem.aim_W() - port).normalized();
       const Eigen::Vector3d tip = problem.aim_W() - o.scope_working_distance * axis;
-      for (const auto& s : samples) {
-        const Eigen::Vector3d d = s.p_W - tip;
+      for (std::size_t s = 0; s < samples.size(); ++s) {
+        const Eigen::Vector3d d = samples[s].p_W - tip;
         const double angle = std::acos(std::clamp(axis.dot(d.normalized()), -1.0, 1.0));
-        view += angle <= o.scope_half_fov && d.norm() <= o.scope_max_distance ? 1.0 : 0.0;
+        const bool in = angle <= o.scope_half_fov && d.norm() <= o.scope_max_distance &&
+                        (!lines || lines->sight[s]);
+        view += in ? 1.0 : 0.0;
+        seen[s] = seen[s] || in;
       }
       continue;
     }
     ++instruments;
     inst.push_back(static_cast<int>(a));
-    for (const auto& s : samples) {
-      const Eigen::Vector3d d = s.p_W - port;
-      reach += d.norm() <= problem.MaxReach(static_cast<int>(a)) ? 1.0 : 0.0;
+    for (std::size_t s = 0; s < samples.size(); ++s) {
+      const Eigen::Vector3d d = samples[s].p_W - port;
+      const bool in = d.norm() <= problem.MaxReach(static_cast<int>(a)) && (!lines || lines->shaft[s]);
+      reach += in ? 1.0 : 0.0;
+      all[s] = all[s] && in;
       const double angle =
-          std::acos(std::clamp(d.normalized().dot(-s.n_W), -1.0, 1.0)) * 180.0 / M_PI;
+          std::acos(std::clamp(d.normalized().dot(-samples[s].n_W), -1.0, 1.0)) * 180.0 / M_PI;
       approach += std::clamp((90.0 - angle) / 60.0, 0.0, 1.0);
     }
   }
+  for (std::size_t s = 0; s < samples.size(); ++s)
+    served += all[s] && (scopes == 0 || seen[s]) ? 1.0 : 0.0;
   const double ns = std::max<double>(1, samples.size());
   if (inst.size() >= 2) {
     for (const auto& s : samples) {
@@ -169,10 +204,12 @@ double GeometricScore(const PortPlacementProblem& problem, const std::vector<Por
       std::isfinite(spacing)
           ? std::clamp((spacing - o.spacing_min) / (o.spacing_ideal - o.spacing_min), 0.0, 1.0)
           : 1.0;
-  return w.coverage * reach / std::max(1.0, instruments * ns) +
+  return w.coverage * reach / std::max(1.0, instruments * ns) + w.served * served / ns +
          w.approach * approach / std::max(1.0, instruments * ns) + w.triangulation * tri / ns +
          w.endoscope * (scopes ? view / (scopes * ns) : 1.0) + w.spacing * spacing_score;
 }
+
+namespace {
 
 // The final plans' detailed evaluations and robustness: in the operation's world, over the range
 // of the heart's displacement; in the CT's state, the options' shift along each axis. Sets each
@@ -438,6 +475,11 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       if (problem.patient().port_candidates[c].skin.size() < 2) continue;
       for (double s : along) grid.push_back(problem.Site(c, s));
     }
+    // Which samples each site reaches along a clear line (a shaft through the heart or a rib
+    // reaches nothing): the triads are ranked by what their ports allow, not by distance alone.
+    std::vector<SiteAccess> lines(grid.size());
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+    for (int i = 0; i < static_cast<int>(grid.size()); ++i) lines[i] = SiteLines(problem, grid[i]);
     const int arms = static_cast<int>(problem.arms().size());
     std::vector<std::pair<double, std::vector<int>>> assignments;
     std::vector<int> pick(arms, 0);
@@ -445,8 +487,12 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     std::function<void(int)> enumerate = [&](int a) {
       if (a == arms) {
         std::vector<PortSite> sites;
-        for (int i : pick) sites.push_back(grid[i]);
-        assignments.push_back({GeometricScore(problem, sites), pick});
+        std::vector<const SiteAccess*> access;
+        for (int i : pick) {
+          sites.push_back(grid[i]);
+          access.push_back(&lines[i]);
+        }
+        assignments.push_back({GeometricScore(problem, sites, access), pick});
         return;
       }
       for (int i = 0; i < g; ++i) {
@@ -478,7 +524,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     grid_text << along.size() << " sites on each of " << curves
               << " candidate curves (at 10, 30, 50, 70, 90 % of "
               << "its length): " << assignments.size() << " assignments of sites to " << arms
-              << " arms scored by the port-only terms; the best " << keep << " with "
+              << " arms scored by the port-only terms along clear lines; the best " << keep << " with "
               << directions.size() << " cart directions x " << distances.size()
               << " distances (0.6, 0.9, 1.2 m), facing the ports: " << xs.size()
               << " full evaluations";

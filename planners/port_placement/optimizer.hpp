@@ -160,6 +160,24 @@ FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
                               const std::vector<FixedPorts>& variants,
                               const PortPlacementOptions& options);
 
+/// Which target samples a straight line reaches from a port site, clear of the patient's
+/// structures (CollisionWorld::FirstAcross): `shaft[s]`, the line from the site's pivot to
+/// sample s's aim point, its last kWorkSiteRadius left out (the jaws may touch the organ there);
+/// `sight[s]`, the line of sight from where an endoscope through the site would be (at the
+/// working distance from the targets' centroid, as GeometricScore places it) to the sample, its
+/// last kSightMargin left out. No robot: what the port alone allows.
+struct SiteAccess {
+  std::vector<char> shaft, sight;
+};
+SiteAccess SiteLines(const PortPlacementProblem& problem, const PortSite& site);
+
+/// The port-only part of the score (no robot), Cannon et al. 2003's grid measure: reach by
+/// distance, approach and triangulation angles, the endoscope's view, spacing, and the share of
+/// samples every instrument reaches and the endoscope sees (`served`). With `access` (one per arm,
+/// SiteLines of its site), a sample counts as reached or seen only along a clear line.
+double GeometricScore(const PortPlacementProblem& problem, const std::vector<PortSite>& sites,
+                      const std::vector<const SiteAccess*>& access = {});
+
 /// Checks options before any work (same errors as OptimizePorts).
 void ValidateOptions(const PortPlacementOptions& options);
 

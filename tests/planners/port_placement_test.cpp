@@ -262,6 +262,79 @@ TEST(PortPlacementProblem, AnInstrumentTurnedAboutItsPivotCarriesItsTrackByTheWa
   EXPECT_GT(kept, 5);
 }
 
+// The grid's port-only ranking (Cannon et al. 2003's measure) counts a sample reached or seen only
+// along a clear line (SiteLines): checked against every triangle of every structure without the
+// hierarchy, on the bundled phantom. A shaft line through the heart or a rib reaches nothing, so
+// a triad whose lines are blocked ranks below its distance-only score, never above it.
+TEST(GridRanking, APortReachesOnlyAlongAClearLineAndTheRankingCountsOnlyThose) {
+  const PortPlacementProblem problem(Phantom(), Cart(), {});
+  ASSERT_EQ(problem.arms().size(), 3u);  // psm1, psm2 (instruments), ecm
+  ASSERT_EQ(problem.arms()[0].role, ArmRole::kInstrument);
+  ASSERT_EQ(problem.arms()[1].role, ArmRole::kInstrument);
+  ASSERT_EQ(problem.arms()[2].role, ArmRole::kEndoscope);
+  const patient::PatientModel& model = *Phantom();
+  const Eigen::Isometry3d X_PW = model.X_WP.inverse();
+  std::vector<collision::TriangleBvh> meshes;
+  for (const auto& st : model.structures)
+    if (!st.mesh.triangles.empty()) meshes.emplace_back(st.mesh);
+  // Whether the segment [a, b] (world) touches any structure, by brute force.
+  auto blocked = [&](const Eigen::Vector3d& a_W, const Eigen::Vector3d& b_W) {
+    for (const auto& m : meshes)
+      if (m.ClosestBruteForce(X_PW * a_W, X_PW * b_W).distance < 1e-9) return true;
+    return false;
+  };
+  const auto& samples = problem.samples();
+  const ProblemOptions& o = problem.options();
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  std::vector<PortSite> sites;
+  std::vector<SiteAccess> lines;
+  int clear = 0, shut = 0;
+  for (int k = 0; k < test::Trials(8, 3); ++k) {
+    const int c = static_cast<int>(u01(rng) * model.port_candidates.size());
+    sites.push_back(problem.Site(c, u01(rng)));
+    lines.push_back(SiteLines(problem, sites.back()));
+    const PortSite& site = sites.back();
+    const Eigen::Vector3d axis = (problem.aim_W() - site.p_W).normalized();
+    const Eigen::Vector3d tip = problem.aim_W() - o.scope_working_distance * axis;
+    for (std::size_t s = 0; s < samples.size(); ++s) {
+      const Eigen::Vector3d aim = samples[s].p_W + o.standoff * samples[s].n_W;
+      const Eigen::Vector3d end = aim - kWorkSiteRadius * (aim - site.p_rcm_W).normalized();
+      EXPECT_EQ(lines.back().shaft[s] != 0, !blocked(site.p_rcm_W, end)) << "site " << k << ", sample " << s;
+      const Eigen::Vector3d seen_end =
+          samples[s].p_W - kSightMargin * (samples[s].p_W - tip).normalized();
+      EXPECT_EQ(lines.back().sight[s] != 0, !blocked(tip, seen_end)) << "site " << k << ", sample " << s;
+      (lines.back().shaft[s] ? clear : shut) += 1;
+    }
+  }
+  EXPECT_GT(clear, 0);
+  EXPECT_GT(shut, 0) << "no shaft line crossed a structure: the test shows nothing";
+  // Triads of those sites: with the lines, never above the distance-only score; below it
+  // whenever an instrument's line within reach is shut.
+  int lower = 0;
+  for (std::size_t i = 0; i < sites.size(); ++i) {
+    for (std::size_t j = 0; j < sites.size(); ++j) {
+      const std::size_t k = (i + j + 1) % sites.size();
+      if (i == j || j == k || i == k) continue;
+      const std::vector<PortSite> triad = {sites[i], sites[j], sites[k]};
+      const double plain = GeometricScore(problem, triad);
+      const double along = GeometricScore(problem, triad, {&lines[i], &lines[j], &lines[k]});
+      EXPECT_LE(along, plain + 1e-12);
+      bool shut_in_reach = false;
+      for (int a : {0, 1}) {  // psm1, psm2: the instruments
+        const SiteAccess& l = a == 0 ? lines[i] : lines[j];
+        for (std::size_t s = 0; s < samples.size(); ++s)
+          shut_in_reach |= !l.shaft[s] && (samples[s].p_W - triad[a].p_W).norm() <= problem.MaxReach(a);
+      }
+      if (shut_in_reach) {
+        EXPECT_LT(along, plain);
+        ++lower;
+      }
+    }
+  }
+  EXPECT_GT(lower, 0);
+}
+
 // Robustness moves the organ the targets lie on with them (the heart under the LAD), never the
 // skin or bones (the LIMA lies in the chest wall); without such an organ the world is unchanged.
 TEST(PortPlacementProblem, TheOrganUnderTheTargetsMovesWithThemInTheRobustnessCheck) {
