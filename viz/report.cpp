@@ -64,7 +64,7 @@ td { border: 1px solid #bbb; padding: 2px 8px; }
 
 std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportOptions& options) {
   TROCAR_THROW_UNLESS(!inputs.plan.empty(), "report: no plan file given");
-  TROCAR_THROW_UNLESS(options.max_plans >= 1, "report: --plans " << options.max_plans << ": at least 1");
+  TROCAR_OPTION_UNLESS(options.max_plans >= 1, "max_plans", options.max_plans << ", expected at least 1");
   if (inputs.case_dir.empty()) inputs.case_dir = planners::ReadPlanFile(inputs.plan).case_dir;
   inputs.plan_index = 1;
   LoadedView view = LoadView(inputs);

@@ -84,10 +84,11 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
                               KeyboardInput* keyboard) {
   const char* display = std::getenv("DISPLAY");
   TROCAR_THROW_UNLESS(display && *display,
-                      "teleop --view needs an X display (DISPLAY is not set): run under xvfb-run, "
-                      "or without --view");
-  TROCAR_THROW_UNLESS(options.fps >= 1 && options.fps <= 240, "--fps " << options.fps << ": expected 1..240");
-  TROCAR_THROW_UNLESS(scene->robot(), "teleop --view: the scene has no robot");
+                      "the teleoperation view needs an X display (DISPLAY is not set): run under "
+                      "xvfb-run, or without the view");
+  TROCAR_OPTION_UNLESS(options.fps >= 1 && options.fps <= 240, "fps",
+                       options.fps << ", expected 1..240");
+  TROCAR_THROW_UNLESS(scene->robot(), "the teleoperation view: the scene has no robot");
   // Mesa's software rasteriser (Xvfb, no GPU) draws on as many threads as there are cores, and
   // then takes the control thread's core: measured on 2 cores, the control loop kept 94 % of its
   // headless rate with it, 99 % with one render thread. Leave the control thread a core.

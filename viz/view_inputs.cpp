@@ -33,26 +33,28 @@ const planners::StoredMotion& FindMotion(const planners::StoredPlan& plan, const
     } catch (const std::exception&) {
       used = 0;
     }
-    TROCAR_THROW_UNLESS(used == s.size() && v >= 0,
-                        "--motion '" << text << "': '" << s << "' is not a whole number");
+    TROCAR_OPTION_UNLESS(used == s.size() && v >= 0, "motion",
+                         "'" << text << "': '" << s << "' is not a whole number");
     return v;
   };
-  TROCAR_THROW_UNLESS(parts.size() == 2 || parts.size() == 3,
-                      "--motion '" << text << "': expected ARM:SAMPLE[:WAYPOINT]");
+  TROCAR_OPTION_UNLESS(parts.size() == 2 || parts.size() == 3, "motion",
+                       "'" << text << "': expected ARM:SAMPLE[:WAYPOINT]");
   const long sample = integer(parts[1]);
   for (const planners::StoredMotion& m : plan.motions) {
     if (m.arm != parts[0] || m.sample != sample) continue;
-    TROCAR_THROW_UNLESS(!m.waypoints.empty(), "--motion '" << text << "': that motion was not solved ("
-                                                           << m.outcome << ": " << m.reason << ")");
+    TROCAR_OPTION_UNLESS(!m.waypoints.empty(), "motion",
+                         "'" << text << "': that motion was not solved (" << m.outcome << ": "
+                             << m.reason << ")");
     const long k = parts.size() == 3 ? integer(parts[2]) : static_cast<long>(m.waypoints.size()) - 1;
-    TROCAR_THROW_UNLESS(k < static_cast<long>(m.waypoints.size()),
-                        "--motion '" << text << "': the motion has " << m.waypoints.size()
-                                     << " waypoints (0.." << m.waypoints.size() - 1 << ")");
+    TROCAR_OPTION_UNLESS(k < static_cast<long>(m.waypoints.size()), "motion",
+                         "'" << text << "': the motion has " << m.waypoints.size()
+                             << " waypoints (0.." << m.waypoints.size() - 1 << ")");
     *waypoint = static_cast<std::size_t>(k);
     return m;
   }
-  TROCAR_THROW("--motion '" << text << "': the plan has no verified motion of arm '" << parts[0]
-                            << "' to sample " << sample);
+  TROCAR_OPTION_UNLESS(false, "motion",
+                       "'" << text << "': the plan has no verified motion of arm '" << parts[0]
+                           << "' to sample " << sample);
 }
 
 LoadedView LoadView(const ViewInputs& in) {
@@ -62,9 +64,11 @@ LoadedView LoadView(const ViewInputs& in) {
   if (!in.plan.empty()) {
     out.plan = std::make_unique<planners::PlanFile>(planners::ReadPlanFile(in.plan));
     TROCAR_THROW_UNLESS(!out.plan->plans.empty(), in.plan << ": holds no plans");
-    TROCAR_THROW_UNLESS(in.plan_index >= 1 && in.plan_index <= static_cast<int>(out.plan->plans.size()),
-                        in.plan << ": --plan " << in.plan_index << ": the file holds "
-                                << out.plan->plans.size() << " plans (1.." << out.plan->plans.size() << ")");
+    TROCAR_OPTION_UNLESS(
+        in.plan_index >= 1 && in.plan_index <= static_cast<int>(out.plan->plans.size()),
+        "plan_index",
+        in.plan_index << ": " << in.plan << " holds " << out.plan->plans.size() << " plans (1.."
+                      << out.plan->plans.size() << ")");
     TROCAR_THROW_UNLESS(IsRegularFile(out.plan->robot_file),
                         in.plan << ": its robot " << out.plan->robot_file << " does not exist");
     TROCAR_THROW_UNLESS(planners::HashFile(out.plan->robot_file) == out.plan->robot_hash,
@@ -80,7 +84,7 @@ LoadedView LoadView(const ViewInputs& in) {
   } else if (!in.robot.empty()) {
     out.robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(in.robot));
   }
-  TROCAR_THROW_UNLESS(in.motion.empty() || out.plan, "--motion needs a plan file");
+  TROCAR_OPTION_UNLESS(in.motion.empty() || out.plan, "motion", "needs a plan file");
   out.scene = std::make_unique<Scene>(out.patient, out.robot, style);
   if (out.plan) {
     const std::size_t k = static_cast<std::size_t>(in.plan_index - 1);

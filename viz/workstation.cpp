@@ -492,7 +492,7 @@ class Workstation {
       std::error_code ec;
       TROCAR_THROW_UNLESS(fs::equivalent(file.inputs.case_dir, options_.inputs.case_dir, ec),
                           path << ": is a scene of " << file.inputs.case_dir
-                               << ", not of the case shown: open it with trocar view --scene " << path);
+                               << ", not of the case shown: open it as a scene of its own case");
       if (!file.inputs.plan.empty() && (!plan_ || !fs::equivalent(file.inputs.plan, plan_->path, ec))) {
         OpenPlan(file.inputs.plan);
       }

@@ -3,9 +3,11 @@
 /// Subcommands of the `trocar` executable; each registers itself on the top-level app.
 
 #include <CLI/CLI.hpp>
+#include <map>
 #include <ostream>
 #include <string>
 
+#include "common/error.hpp"
 #include "motion/verify.hpp"
 
 namespace trocar::apps {
@@ -53,6 +55,28 @@ int CheckPlanFile(const std::string& path, std::ostream& out);
 /// The motion options of `plan` and `verify` (--planner, --motion-time, --motion-seed,
 /// --motion-threads).
 void AddMotionOptions(CLI::App* cmd, planners::MotionOptions* options, int* threads);
+/// Runs `check` (a library's option check); a trocar::OptionError it throws is said with the
+/// command line's flag for the option: `flags` maps the library's field name to the flag, any
+/// other field reads as "--" and its name with '-' for '_' (issue #45 item 3: the libraries name
+/// their fields, the CLI its flags). The message's problem part is the library's.
+template <typename Check>
+void WithFlags(const std::map<std::string, std::string>& flags, Check&& check) {
+  try {
+    check();
+  } catch (const OptionError& e) {
+    std::string flag;
+    if (const auto it = flags.find(e.option()); it != flags.end()) {
+      flag = it->second;
+    } else {
+      flag = "--" + e.option();
+      for (char& c : flag) c = c == '_' ? '-' : c;
+    }
+    throw Error(flag + ": " + e.problem());
+  }
+}
+/// The flags of the motion options' fields (AddMotionOptions).
+const std::map<std::string, std::string>& MotionFlags();
+
 /// A plan's verification in a few lines: motions verified, served share, main failures.
 void PrintVerification(const planners::PlanVerification& verification, std::ostream& out);
 

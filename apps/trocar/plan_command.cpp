@@ -58,8 +58,8 @@ int RunPlan(PlanOptions o) {
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   // Everything the command line says is checked before any work.
-  planners::ValidateOptions(o.optimizer);
-  if (!o.no_verify) planners::ValidateMotionOptions(o.motion);
+  WithFlags({{"top_k", "--top"}}, [&] { planners::ValidateOptions(o.optimizer); });
+  if (!o.no_verify) WithFlags(MotionFlags(), [&] { planners::ValidateMotionOptions(o.motion); });
   TROCAR_THROW_UNLESS(!o.out.empty(), "--out: an output folder is required");
   TROCAR_THROW_UNLESS(std::filesystem::is_directory(o.case_dir),
                       o.case_dir << ": not a case folder (expected a folder with patient.yaml)");

@@ -43,7 +43,8 @@ void AddSignOffCommand(CLI::App* app) {
     planners::SignOff s = o->signoff;
     s.decision = o->approve ? "approved" : "rejected";
     const auto index = static_cast<std::size_t>(o->plan - 1);
-    s = planners::SignOffPlan(o->plan_file, index, s);
+    WithFlags({{"override_reason", "--override"}},
+              [&] { s = planners::SignOffPlan(o->plan_file, index, s); });
     std::cout << o->plan_file << ": plan " << o->plan << " " << s.decision << " by " << s.surgeon
               << " at " << s.time << (s.session.empty() ? "" : ", session " + s.session) << "\n";
     if (!s.override_reason.empty()) {

@@ -313,7 +313,8 @@ int RunTeleop(const TeleopCommandOptions& o) {
     in.plan = o.plan;
     in.plan_index = o.plan_index;
     in.case_dir = planners::ReadPlanFile(o.plan).case_dir;
-    plan_view = std::make_unique<viz::LoadedView>(viz::LoadView(in));
+    WithFlags({{"plan_index", "--plan-index"}},
+              [&] { plan_view = std::make_unique<viz::LoadedView>(viz::LoadView(in)); });
     const planners::PlanFile& file = *plan_view->plan;
     std::string names;
     for (const auto& a : file.arms) {
@@ -684,7 +685,10 @@ int RunTeleop(const TeleopCommandOptions& o) {
     DeviceOverlay overlay(server.get(), channel_devices, network);
     if (server) vo.overlay = [&] { return overlay.Text(); };
     try {
-      view_stats = viz::RunTeleopView(scene, &snapshots, [&] { return done.load(); }, vo, keyboard);
+      WithFlags({}, [&] {
+        view_stats =
+            viz::RunTeleopView(scene, &snapshots, [&] { return done.load(); }, vo, keyboard);
+      });
       view_stats.frames_in_collision = frames_in_collision;
     } catch (...) {
       control_thread.join();

@@ -37,6 +37,12 @@ void AddMotionOptions(CLI::App* cmd, planners::MotionOptions* o, int* threads) {
       ->capture_default_str();
 }
 
+const std::map<std::string, std::string>& MotionFlags() {
+  static const std::map<std::string, std::string> flags = {
+      {"planner", "--planner"}, {"time_limit", "--motion-time"}, {"seed", "--motion-seed"}};
+  return flags;
+}
+
 void PrintVerification(const planners::PlanVerification& v, std::ostream& out) {
   int solved = 0;
   std::vector<double> times;
@@ -87,7 +93,7 @@ Eigen::Vector3d Vec3(const json& j) {
 }
 
 int RunVerify(const VerifyOptions& o) {
-  planners::ValidateMotionOptions(o.motion);
+  WithFlags(MotionFlags(), [&] { planners::ValidateMotionOptions(o.motion); });
   // The typed reader first (every field checked, the cart's one pose), before anything is
   // rebuilt or rewritten.
   (void)planners::ReadPlanFile(o.plan);

@@ -52,7 +52,7 @@ int RunView(const ViewOptions& o) {
     }
   } else {
     TROCAR_THROW_UNLESS(!o.inputs.case_dir.empty(), "view: give a CASE folder (or --scene FILE)");
-    loaded = viz::LoadView(o.inputs);
+    WithFlags({{"plan_index", "--plan"}}, [&] { loaded = viz::LoadView(o.inputs); });
   }
   if (o.screenshot.empty()) {
     viz::WorkstationOptions wo;
@@ -138,7 +138,10 @@ void AddReportCommand(CLI::App* app) {
   cmd->add_option("--hide", in->hidden, "a group not to draw");
   cmd->add_flag("--flat", in->flat, "unlit exact colours");
   cmd->callback([in, dir, options]() {
-    std::cout << "wrote " << viz::WriteReport(*in, *dir, *options) << "\n";
+    std::string written;
+    WithFlags({{"plan_index", "--plan"}, {"max_plans", "--plans"}},
+              [&] { written = viz::WriteReport(*in, *dir, *options); });
+    std::cout << "wrote " << written << "\n";
   });
 }
 

@@ -1,5 +1,14 @@
 #include "common/error.hpp"
 
+#include <utility>
+
+namespace trocar {
+
+OptionError::OptionError(std::string option, std::string problem)
+    : Error(option + ": " + problem), option_(std::move(option)), problem_(std::move(problem)) {}
+
+}  // namespace trocar
+
 namespace trocar::internal {
 
 void ThrowError(const std::string& message) { throw Error(message); }

@@ -19,6 +19,21 @@ class Error : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// A bad value of a library's option (a field of its options struct, issue #45 item 3): the
+/// library names the field as it spells it ("time_limit"), not a command-line flag or a YAML key;
+/// `what()` is "time_limit: 0 s, expected a positive number of seconds". A front end says it in
+/// its own words from option() and problem(): the CLI names its flag (apps/trocar, WithFlags), a
+/// bench spec its key.
+class OptionError : public Error {
+ public:
+  OptionError(std::string option, std::string problem);
+  const std::string& option() const { return option_; }
+  const std::string& problem() const { return problem_; }
+
+ private:
+  std::string option_, problem_;
+};
+
 /// Thrown when the program's own invariant fails: a bug, not the user's input (e.g. a plan file
 /// trocar has just written does not parse back). Not a trocar::Error, so no handler of bad input
 /// takes it for one.
@@ -44,6 +59,17 @@ namespace internal {
       trocar_message_stream_ << message;             \
       ::trocar::internal::ThrowError(trocar_message_stream_.str()); \
     }                                                \
+  } while (false)
+
+/// Throws trocar::OptionError for option `option` (the field's name, a string) when `condition` is
+/// false. Usage: TROCAR_OPTION_UNLESS(o.starts >= 1, "starts", o.starts << ", expected >= 1");
+#define TROCAR_OPTION_UNLESS(condition, option, message)                              \
+  do {                                                                                \
+    if (!(condition)) {                                                               \
+      std::ostringstream trocar_message_stream_;                                      \
+      trocar_message_stream_ << message;                                              \
+      throw ::trocar::OptionError(option, trocar_message_stream_.str());             \
+    }                                                                                 \
   } while (false)
 
 /// Throws trocar::InternalError naming this source line when the program's own invariant

@@ -507,7 +507,7 @@ IgtlDeviceServer::IgtlDeviceServer(const IgtlServerOptions& options) : impl_(std
     const int e = errno;
     ::close(fd);
     TROCAR_THROW(where << ": cannot listen: "
-                       << (e == EADDRINUSE ? "the port is already in use (another trocar, or give another --listen port)"
+                       << (e == EADDRINUSE ? "the port is already in use (another trocar is listening, or listen on another port)"
                                            : std::strerror(e)));
   }
   ::fcntl(fd, F_SETFL, ::fcntl(fd, F_GETFL) | O_NONBLOCK);

@@ -176,7 +176,8 @@ std::vector<std::string> StartWarnings(const robot::RobotModel& model, const Eig
   if (quality.dexterity < kSingularWarning) {
     std::ostringstream w;
     w << "the start configuration is near a singularity (inverse condition number "
-      << quality.dexterity << "): the tool cannot move in some directions; give a home or --q0";
+      << quality.dexterity << "): the tool cannot move in some directions; give the robot a home configuration or a start "
+         "configuration of its own (q0)";
     warnings.push_back(w.str());
   }
   for (int i = 0; i < model.num_positions(); ++i) {
@@ -295,7 +296,8 @@ StartConfiguration ChooseStart(const robot::RobotModel& model, unsigned seed, in
     std::ostringstream w;
     w << "from the best start found the tool follows only " << 100.0 * best_probe
       << " % of a ±5.5 cm hand sweep and ±0.3 rad turns: joint limits will stop larger motions "
-         "(a tight workspace; give a home or --q0 if you know a better start)";
+         "(a tight workspace; give the robot a home configuration, or a start configuration of its own "
+         "(q0), if you know a better start)";
     out.warnings.push_back(w.str());
   }
   out.probe = best_probe;

@@ -188,7 +188,7 @@ BenchDatabase::BenchDatabase(const std::string& path, const std::string& spec) :
   if (::flock(lock_.fd, LOCK_EX | LOCK_NB) != 0) {
     TROCAR_THROW_UNLESS(errno != EWOULDBLOCK,
                         path << ": in use by another trocar bench (it holds " << lock_path
-                             << "); wait for it to finish, or choose another --out");
+                             << "); wait for it to finish, or write to another database");
     TROCAR_THROW(lock_path << ": cannot lock (" << std::strerror(errno) << ")");
   }
   const bool exists = std::filesystem::exists(path);
@@ -219,10 +219,10 @@ BenchDatabase::BenchDatabase(const std::string& path, const std::string& spec) :
                         path << ": not an OMPL benchmark database; refusing to overwrite it");
     TROCAR_THROW_UNLESS(tables.count("trocar_bench") && tables.count("trocar_runs"),
                         path << ": an OMPL benchmark database that trocar bench did not make; "
-                                "refusing to add to it (choose another --out)");
+                                "refusing to add to it (write to another database)");
     TROCAR_THROW_UNLESS(stored == spec,
                         path << ": made by trocar bench for another spec; a bench resumes only "
-                                "its own spec (choose another --out, or restore the spec)");
+                                "its own spec (write to another database, or restore the spec)");
   }
   if (sqlite3_open_v2(path.c_str(), &db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE, nullptr) !=
       SQLITE_OK) {

@@ -235,20 +235,21 @@ std::string OmplPlannerName(const std::string& planner) {
 }
 
 void ValidateMotionOptions(const MotionOptions& o) {
-  OmplPlannerName(o.planner);
-  TROCAR_THROW_UNLESS(std::isfinite(o.time_limit) && o.time_limit > 0,
-                      "motion time limit " << o.time_limit << " s: expected a positive number");
-  TROCAR_THROW_UNLESS(std::isfinite(o.check_step) && o.check_step > 0 && o.check_step < 1,
-                      "motion check step " << o.check_step << ": expected (0, 1) rad");
-  TROCAR_THROW_UNLESS(std::isfinite(o.recheck_step) && o.recheck_step > 0 &&
-                          o.recheck_step <= o.check_step,
-                      "motion re-check step " << o.recheck_step
-                                              << ": expected positive and at most the check step "
-                                              << o.check_step);
-  TROCAR_THROW_UNLESS(o.ik_restarts >= 1 && o.ik_restarts <= 1000,
-                      "inverse-kinematics restarts " << o.ik_restarts << ": expected 1..1000");
-  TROCAR_THROW_UNLESS(o.goal_states >= 1 && o.goal_states <= 100,
-                      "goal states " << o.goal_states << ": expected 1..100");
+  TROCAR_OPTION_UNLESS(Registry().count(o.planner) > 0, "planner",
+                       "unknown motion planner '" << o.planner << "' (valid: " << ValidNames()
+                                                  << ")");
+  TROCAR_OPTION_UNLESS(std::isfinite(o.time_limit) && o.time_limit > 0, "time_limit",
+                       o.time_limit << " s, expected a positive number of seconds");
+  TROCAR_OPTION_UNLESS(std::isfinite(o.check_step) && o.check_step > 0 && o.check_step < 1,
+                       "check_step", o.check_step << ", expected (0, 1) rad");
+  TROCAR_OPTION_UNLESS(
+      std::isfinite(o.recheck_step) && o.recheck_step > 0 && o.recheck_step <= o.check_step,
+      "recheck_step",
+      o.recheck_step << ", expected positive and at most the check step " << o.check_step);
+  TROCAR_OPTION_UNLESS(o.ik_restarts >= 1 && o.ik_restarts <= 1000, "ik_restarts",
+                       o.ik_restarts << ", expected 1..1000");
+  TROCAR_OPTION_UNLESS(o.goal_states >= 1 && o.goal_states <= 100, "goal_states",
+                       o.goal_states << ", expected 1..100");
 }
 
 std::string ToString(MotionStatus status) {

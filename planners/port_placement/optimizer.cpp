@@ -395,22 +395,20 @@ std::vector<std::string> LocalAlgorithms() { return {"bobyqa", "subplex", "cobyl
 
 void ValidateOptions(const PortPlacementOptions& o) {
   const auto global = GlobalAlgorithms(), local = LocalAlgorithms();
-  TROCAR_THROW_UNLESS(
-      std::find(global.begin(), global.end(), o.algorithm) != global.end(),
-      "--algorithm: unknown '" << o.algorithm << "' (valid: " << JoinNames(global) << ")");
-  TROCAR_THROW_UNLESS(std::find(local.begin(), local.end(), o.local) != local.end(),
-                      "--local: unknown '" << o.local << "' (valid: " << JoinNames(local) << ")");
-  TROCAR_THROW_UNLESS(
-      std::isfinite(o.time_limit) && o.time_limit > 0,
-      "--time-limit: " << o.time_limit << " s, expected a positive number of seconds");
-  TROCAR_THROW_UNLESS(o.evaluations >= 1, "--evaluations: " << o.evaluations << ", expected >= 1");
-  TROCAR_THROW_UNLESS(o.starts >= 1 && o.starts <= 64,
-                      "--starts: " << o.starts << ", expected 1 to 64");
-  TROCAR_THROW_UNLESS(o.polish_evaluations >= 0,
-                      "--polish-evaluations: " << o.polish_evaluations << ", expected >= 0");
-  TROCAR_THROW_UNLESS(o.threads >= 0,
-                      "--threads: " << o.threads << ", expected >= 0 (0: all cores)");
-  TROCAR_THROW_UNLESS(o.top_k >= 1 && o.top_k <= 20, "--top: " << o.top_k << ", expected 1 to 20");
+  TROCAR_OPTION_UNLESS(std::find(global.begin(), global.end(), o.algorithm) != global.end(),
+                       "algorithm",
+                       "unknown '" << o.algorithm << "' (valid: " << JoinNames(global) << ")");
+  TROCAR_OPTION_UNLESS(std::find(local.begin(), local.end(), o.local) != local.end(), "local",
+                       "unknown '" << o.local << "' (valid: " << JoinNames(local) << ")");
+  TROCAR_OPTION_UNLESS(std::isfinite(o.time_limit) && o.time_limit > 0, "time_limit",
+                       o.time_limit << " s, expected a positive number of seconds");
+  TROCAR_OPTION_UNLESS(o.evaluations >= 1, "evaluations", o.evaluations << ", expected >= 1");
+  TROCAR_OPTION_UNLESS(o.starts >= 1 && o.starts <= 64, "starts",
+                       o.starts << ", expected 1 to 64");
+  TROCAR_OPTION_UNLESS(o.polish_evaluations >= 0, "polish_evaluations",
+                       o.polish_evaluations << ", expected >= 0");
+  TROCAR_OPTION_UNLESS(o.threads >= 0, "threads", o.threads << ", expected >= 0 (0: all cores)");
+  TROCAR_OPTION_UNLESS(o.top_k >= 1 && o.top_k <= 20, "top_k", o.top_k << ", expected 1 to 20");
   TROCAR_THROW_UNLESS(
       std::isfinite(o.robustness_shift) && o.robustness_shift >= 0 && o.robustness_shift <= 0.1,
       "robustness shift: " << o.robustness_shift << " m, expected 0 to 0.1");

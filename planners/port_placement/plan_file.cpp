@@ -336,7 +336,7 @@ std::vector<std::string> ApprovalBlockers(const PlanFile& file, std::size_t inde
                   (plan.status == "in collision" ? " (the arms cannot stand there)" : ""));
   }
   if (!plan.verified) {
-    out.push_back("it was not verified by motions (planned with --no-verify: run trocar verify)");
+    out.push_back("it was not verified by motions (planned without verification: verify the plan file first)");
   } else if (!plan.verified_suitable) {
     std::ostringstream why;
     why << "not suitable by its verified motions: " << std::lround(100 * plan.verified_coverage)
@@ -389,9 +389,9 @@ SignOff SignOffPlan(const std::string& path, std::size_t index, SignOff signoff)
       std::ostringstream m;
       m << path << ": plan " << index + 1 << " cannot be approved: ";
       for (std::size_t k = 0; k < blockers.size(); ++k) m << (k ? "; and " : "") << blockers[k];
-      m << ". Approve it anyway only with an override and its reason (trocar signoff --override "
-           "REASON), which is recorded with the failures it overrides";
-      TROCAR_THROW(m.str());
+      m << ". Approve it anyway only with an override reason, which is recorded with the failures "
+           "it overrides";
+      throw OptionError("override_reason", m.str());
     }
     signoff.overridden = blockers;
   } else {

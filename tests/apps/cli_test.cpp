@@ -845,7 +845,17 @@ TEST(TrocarPlan, BadOptionsAreRefusedNamingThem) {
   r = Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
              " --time-limit 0");
   EXPECT_EQ(r.exit_code, 1) << r.output;
-  EXPECT_NE(r.output.find("--time-limit"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("--time-limit: 0 s"), std::string::npos) << r.output;
+  // The library's field names are the CLI's flags here, also where they are spelt otherwise
+  // (top_k is --top; the motions' time_limit is --motion-time, not the search's --time-limit).
+  r = Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out + " --top 0");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("--top: 0"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("top_k"), std::string::npos) << r.output;
+  r = Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+             " --motion-time 0");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("--motion-time: 0 s"), std::string::npos) << r.output;
   r = Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
              " --robot " + test::SourcePath("robots/pa10/pa10.yaml"));
   EXPECT_EQ(r.exit_code, 1) << r.output;

@@ -300,7 +300,13 @@ TEST(Motion, EveryPlannerOmplOffersRunsOrIsNamedInTheError) {
   }
   bad.planner = "rrtconnect";
   bad.time_limit = -1;
-  EXPECT_THROW(ValidateMotionOptions(bad), Error);
+  try {
+    ValidateMotionOptions(bad);
+    FAIL();
+  } catch (const OptionError& e) {  // the field as the library spells it (issue #45 item 3)
+    EXPECT_EQ(e.option(), "time_limit");
+    EXPECT_EQ(std::string(e.what()).find("--"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

@@ -104,12 +104,32 @@ TEST(PortPlacementProblem, BadInputIsRefusedBeforeAnyWork) {
     EXPECT_NE(std::string(e.what()).find("direct-l, crs2-lm, isres, mlsl, exhaustive"),
               std::string::npos);
   }
+  // The library names its own fields, never a front end's flag (issue #45 item 3); each bad
+  // field is reported as itself.
+  auto option_of = [](const PortPlacementOptions& o) {
+    try {
+      ValidateOptions(o);
+    } catch (const OptionError& e) {
+      EXPECT_EQ(std::string(e.what()).find("--"), std::string::npos) << e.what();
+      EXPECT_EQ(std::string(e.what()), e.option() + ": " + e.problem());
+      return e.option();
+    }
+    return std::string("(none)");
+  };
+  EXPECT_EQ(option_of(bad), "algorithm");
   bad = {};
   bad.time_limit = 0;
-  EXPECT_THROW(ValidateOptions(bad), Error);
+  EXPECT_EQ(option_of(bad), "time_limit");
   bad = {};
   bad.local = "newton";
-  EXPECT_THROW(ValidateOptions(bad), Error);
+  EXPECT_EQ(option_of(bad), "local");
+  bad = {};
+  bad.top_k = 0;
+  EXPECT_EQ(option_of(bad), "top_k");
+  bad = {};
+  bad.polish_evaluations = -1;
+  EXPECT_EQ(option_of(bad), "polish_evaluations");
+  EXPECT_EQ(option_of(PortPlacementOptions{}), "(none)");
 }
 
 TEST(PortPlacementProblem, DecodeAndEncodeAgreeAndSitesLieOnTheirCurves) {

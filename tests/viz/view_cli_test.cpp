@@ -669,7 +669,7 @@ TEST_F(ViewCli, BadInputIsNamedAndNoPictureIsWritten) {
   doc["plans"][0]["q_nominal"]["no_such_joint"] = 0.1;
   WriteFileAtomically(Out("badjoint.json"), doc.dump());
   expect_error("view patients/phantom-default " + Out("badjoint.json"), "no_such_joint");
-  expect_error("view patients/phantom-default " + Plan() + " --plan 99", "--plan 99");
+  expect_error("view patients/phantom-default " + Plan() + " --plan 99", "--plan: 99");
   expect_error("view patients/phantom-default " + Plan() + " --motion psm9:0", "psm9");
   expect_error("view patients/phantom-default " + Plan() + " --colour heart=1,2", "heart=1,2");
   expect_error("view patients/phantom-default " + Plan() + " --view sideways", "sideways");
