@@ -5,6 +5,8 @@
 #include <iomanip>
 #include <limits>
 #include <sstream>
+#include <string>
+#include <utility>
 
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
@@ -158,6 +160,47 @@ std::string DescribePort(const patient::PatientModel& patient, const PortSite& s
     s << Mm(std::abs(d)) << (d > 0 ? " lateral" : " medial") << " of the " << nearest->first;
   s << " (" << Mm(offset) << " from the midline)";
   return s.str();
+}
+
+int SpaceAtLevel(const patient::PatientModel& patient, const Eigen::Vector3d& p_P) {
+  int best = 0;
+  double nearest = std::numeric_limits<double>::infinity();
+  for (const auto& c : patient.port_candidates) {
+    // "ICS-L3" / "ICS-R3": the number after the side letter.
+    if (c.name.size() < 6 || c.name.compare(0, 4, "ICS-") != 0) continue;
+    int number = 0;
+    std::size_t used = 0;
+    try {
+      number = std::stoi(c.name.substr(5), &used);
+    } catch (const std::exception&) {
+      continue;
+    }
+    if (used != c.name.size() - 5 || number < 1) continue;
+    for (const auto& q : c.skin) {
+      const double d = (q - p_P).norm();
+      if (d < nearest) {
+        nearest = d;
+        best = number;
+      }
+    }
+  }
+  return best;
+}
+
+std::string SpacesText(int first, int last) {
+  if (first <= 0 || last <= 0) return "";
+  auto ordinal = [](int n) {
+    const int t = n % 100;
+    const char* suffix = (t >= 11 && t <= 13) ? "th"
+                         : n % 10 == 1        ? "st"
+                         : n % 10 == 2        ? "nd"
+                         : n % 10 == 3        ? "rd"
+                                              : "th";
+    return std::to_string(n) + suffix;
+  };
+  if (first > last) std::swap(first, last);
+  if (first == last) return ordinal(first) + " intercostal space";
+  return ordinal(first) + " to " + ordinal(last) + " intercostal spaces";
 }
 
 PortTemplate TecabTemplate() {

@@ -45,6 +45,14 @@ ChestLines ChestLinesAt(const patient::PatientModel& patient, int side, double z
 /// (102 mm from the midline)". Just the space's name when the lines cannot be read (no skin).
 std::string DescribePort(const patient::PatientModel& patient, const PortSite& site);
 
+/// The intercostal space at the level of a point (patient frame): the number of the named space
+/// (candidate "ICS-L3", "ICS-R3") whose curve passes nearest the point; 0 when no candidate is
+/// named by number (ribs not numbered). For stretches of a target in a surgeon's terms.
+int SpaceAtLevel(const patient::PatientModel& patient, const Eigen::Vector3d& p_P);
+
+/// "3rd intercostal space", "1st to 2nd intercostal spaces"; "" when `first` is 0.
+std::string SpacesText(int first, int last);
+
 /// A port of a template: which arm role, which intercostal space, where along it.
 struct TemplatePort {
   ArmRole role = ArmRole::kInstrument;

@@ -15,6 +15,7 @@
 #include "collision/collision_world.hpp"
 #include "common/error.hpp"
 #include "patient/patient_model.hpp"
+#include "port_placement/fixed_ports.hpp"
 #include "port_placement/port_rules.hpp"
 
 namespace trocar::planners {
@@ -364,9 +365,27 @@ Verdict JudgePlans(const PortPlacementProblem& problem, const std::vector<Ranked
         const std::string why = reason_of(idx[i]);
         std::size_t j = i;
         while (j + 1 < idx.size() && !best.served[idx[j + 1]] && reason_of(idx[j + 1]) == why) ++j;
+        // Where along the target, and at the level of which intercostal spaces (when the ribs
+        // are numbered): "LIMA 22-67 mm from its origin, at the 2nd to 3rd intercostal spaces".
         std::ostringstream line;
-        line << targets[t].name << " " << std::lround(samples[idx[i]].arc_length * 1e3) << "–"
-             << std::lround(samples[idx[j]].arc_length * 1e3) << " mm from its origin: " << why;
+        const long from = std::lround(samples[idx[i]].arc_length * 1e3),
+                   to = std::lround(samples[idx[j]].arc_length * 1e3);
+        line << targets[t].name << " ";
+        if (from == to)
+          line << from << " mm from its origin";
+        else
+          line << from << "–" << to << " mm from its origin";
+        const Eigen::Isometry3d X_PW = problem.patient().X_WP.inverse();
+        int lo = 0, hi = 0;
+        for (std::size_t k = i; k <= j; ++k) {
+          const int n = SpaceAtLevel(problem.patient(), X_PW * samples[idx[k]].p_W);
+          if (n <= 0) continue;
+          lo = lo == 0 ? n : std::min(lo, n);
+          hi = std::max(hi, n);
+        }
+        const std::string level = SpacesText(lo, hi);
+        if (!level.empty()) line << ", at the " << level;
+        line << ": " << why;
         verdict.reasons.push_back(line.str());
         i = j + 1;
       }

@@ -11,6 +11,7 @@
 #include "patient/case_file.hpp"
 #include "patient/markups.hpp"
 #include "patient/patient_model.hpp"
+#include "patient/phantom.hpp"
 #include "port_placement/fixed_ports.hpp"
 #include "port_placement/optimizer.hpp"
 #include "port_placement/selection_criteria.hpp"
@@ -105,6 +106,39 @@ TEST(FixedPorts, TheTecabTemplateLandsOnItsSpacesAndLines) {
       EXPECT_NE(variants[0].sites[k].candidate, variants[1].sites[k].candidate);
     }
   }
+}
+
+// A target's stretch is said at the level of the intercostal spaces it lies behind (issue #43 item
+// 4): on the bundled phantom, points inside the chest under the generator's own space curves read
+// as those spaces by the import's numbering, and the LIMA runs from the 1st space's level to the
+// 6th, where the generator ends it. Spaces not numbered read as none.
+TEST(FixedPorts, AStretchIsSaidAtTheSpacesItLiesBehind) {
+  patient::PhantomParameters parameters;  // the bundled case's
+  const patient::PhantomTruth truth = patient::GeneratePhantom(parameters).truth;
+  const patient::PatientModel& model = *Phantom();
+  int left = 0, checked = 0;
+  for (std::size_t k = 0; k < truth.intercostal_spaces.size(); ++k) {
+    if (truth.intercostal_side[k] < 0) continue;
+    ++left;
+    const auto& curve = truth.intercostal_spaces[k];
+    for (std::size_t i = 0; i < curve.size(); i += std::max<std::size_t>(1, curve.size() / 5)) {
+      // 15 mm toward the body's long axis: under the skin, inside the wall.
+      Eigen::Vector3d inward(-curve[i].x(), -curve[i].y(), 0.0);
+      const Eigen::Vector3d p = curve[i] + 0.015 * inward.normalized();
+      EXPECT_EQ(SpaceAtLevel(model, p), left) << "space " << left << ", point " << i;
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 20);
+  EXPECT_EQ(SpaceAtLevel(model, truth.lima.back()), 6);
+  EXPECT_LE(SpaceAtLevel(model, truth.lima.front()), 1);
+  EXPECT_EQ(SpacesText(3, 3), "3rd intercostal space");
+  EXPECT_EQ(SpacesText(1, 2), "1st to 2nd intercostal spaces");
+  EXPECT_EQ(SpacesText(11, 12), "11th to 12th intercostal spaces");
+  EXPECT_EQ(SpacesText(0, 4), "");
+  patient::PatientModel unnumbered = model;
+  for (auto& c : unnumbered.port_candidates) c.name = "gap-" + c.name.substr(4);
+  EXPECT_EQ(SpaceAtLevel(unnumbered, truth.lima.back()), 0);
 }
 
 // Ribs the import cannot number give spaces "gap-L1", ...: the template is refused, naming the
