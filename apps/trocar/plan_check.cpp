@@ -102,6 +102,17 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
            " differs from the one the plan was made for (hash differs)");
     }
     const json& arms = field(field(doc, "robot"), "arms");
+    // Every arm's tool frame is a frame of the robot (a tampered or foreign plan file is named,
+    // before any pose is checked with it).
+    for (std::size_t i = 0; i < arms.size(); ++i) {
+      const std::string tool = field(arms[i], "tool_frame").get<std::string>();
+      if (tool.empty()) continue;
+      try {
+        (void)robot->GetFrame(tool);
+      } catch (const Error& e) {
+        TROCAR_THROW(path << ": robot.arms[" << i << "].tool_frame: " << e.what());
+      }
+    }
     const json& scoring = field(doc, "scoring");
     const double ik_tolerance = field(scoring, "ik_tolerance_m").get<double>();
     const double half_fov = field(scoring, "scope_half_fov_deg").get<double>() * M_PI / 180;
@@ -155,8 +166,8 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         return cut;
       const Eigen::Vector3d tip_W =
           kinematics::FramePose(state, robot->GetFrame(tool)).translation();
-      return std::max(cut, planners::TrackAllowance(*skin_bvh, d, X_PW * pivot_W,
-                                                    X_PW * incisions_W[a], X_PW * tip_W, r));
+      return planners::TrackAllowance(*skin_bvh, d, X_PW * pivot_W, X_PW * incisions_W[a],
+                                      X_PW * tip_W, r);
     };
     // The contact rule at the target (port_rules.hpp, kWorkSiteRadius): with `work_W` (the
     // sample being worked on), each instrument's wrist and jaws may touch the organ there.

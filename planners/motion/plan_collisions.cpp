@@ -52,7 +52,15 @@ PlanCollisions::PlanCollisions(const patient::PatientModel& patient,
     depth_.push_back(depth);
     incisions_P_.push_back(X_PW * plan.ports[a].p_W);
     const std::string& tool = file.arms[a].tool_frame;
-    tool_frame_.push_back(tool.empty() ? robot::Frame{} : robot_->GetFrame(tool));
+    robot::Frame tool_frame;  // link -1: none
+    if (!tool.empty()) {
+      try {
+        tool_frame = robot_->GetFrame(tool);
+      } catch (const Error& e) {
+        TROCAR_THROW(file.path << ": robot.arms[" << a << "].tool_frame: " << e.what());
+      }
+    }
+    tool_frame_.push_back(tool_frame);
   }
   pivots_.reserve(plan.ports.size());
   for (const StoredPort& port : plan.ports) pivots_.push_back(port.rcm_W);

@@ -570,6 +570,16 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   const CommandRun tampered = Trocar("check --plan " + out + "/tampered.json");
   EXPECT_EQ(tampered.exit_code, 3) << tampered.output;
   EXPECT_NE(tampered.output.find("from its pivot"), std::string::npos) << tampered.output;
+
+  // An arm's tool frame the robot does not have (the cannula's track is found from it): a bad
+  // input naming the file and the field, not the robot's bare error.
+  nlohmann::json doc = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
+  doc["robot"]["arms"][0]["tool_frame"] = "no_such_frame";
+  WriteFileAtomically(out + "/foreign_tool.json", doc.dump(1));
+  const CommandRun foreign = Trocar("check --plan " + out + "/foreign_tool.json");
+  EXPECT_EQ(foreign.exit_code, 1) << foreign.output;
+  EXPECT_NE(foreign.output.find("foreign_tool.json: robot.arms[0].tool_frame"), std::string::npos)
+      << foreign.output;
 }
 
 // Whatever the planner writes, `trocar check --plan` (none of the optimiser's code) confirms:
