@@ -22,8 +22,9 @@ class Error : public std::runtime_error {
 /// A bad value of a library's option (a field of its options struct, issue #45 item 3): the
 /// library names the field as it spells it ("time_limit"), not a command-line flag or a YAML key;
 /// `what()` is "time_limit: 0 s, expected a positive number of seconds". A front end says it in
-/// its own words from option() and problem(): the CLI names its flag (apps/trocar, WithFlags), a
-/// bench spec its key.
+/// its own words from option() and problem(): the CLI names its flag (apps/trocar, WithFlags); a
+/// bench spec checks its keys itself, with their place in the YAML, before any options are built
+/// (planners/bench/spec.cpp).
 class OptionError : public Error {
  public:
   OptionError(std::string option, std::string problem);
