@@ -80,6 +80,7 @@ int RunPlan(PlanOptions o) {
   if (o.samples > 0) problem_options.samples_per_target = o.samples;
   problem_options.seed = o.optimizer.seed;
   if (o.no_robustness) o.optimizer.robustness_shift = 0.0;
+  o.optimizer.remedies = true;  // the verdict says what would reach each unserved stretch
   auto robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(o.robot));
   // Arms and roles checked against the robot before the patient is imported.
   {

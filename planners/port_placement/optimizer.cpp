@@ -17,6 +17,7 @@
 #include "patient/patient_model.hpp"
 #include "port_placement/fixed_ports.hpp"
 #include "port_placement/port_rules.hpp"
+#include "port_placement/remedies.hpp"
 
 namespace trocar::planners {
 
@@ -356,6 +357,11 @@ Verdict JudgePlans(const PortPlacementProblem& problem, const std::vector<Ranked
         }
         return std::string("not served");
       };
+      auto arm_of = [&](int s) {
+        for (const auto& r : best.reaches)
+          if (r.sample == s && !r.reached) return r.arm;
+        return -1;
+      };
       std::size_t i = 0;
       while (i < idx.size()) {
         if (best.served[idx[i]]) {
@@ -386,6 +392,16 @@ Verdict JudgePlans(const PortPlacementProblem& problem, const std::vector<Ranked
         const std::string level = SpacesText(lo, hi);
         if (!level.empty()) line << ", at the " << level;
         line << ": " << why;
+        // What would change that, where a neighbouring port or cart pose can be shown to
+        // (issue #43 item 4): tried in full, as a plan is evaluated.
+        if (options.remedies) {
+          std::vector<int> stretch(idx.begin() + i, idx.begin() + j + 1);
+          const Remedy remedy = FindRemedy(problem, plans[0].placement, best, arm_of(idx[i]),
+                                           stretch, options.threads > 0 ? options.threads : omp_get_max_threads());
+          line << "; " << (remedy.reached > 0 ? remedy.text
+                                              : "no port one space up or down or 3 cm along, and no "
+                                                "cart move of 10-20 cm, reaches it");
+        }
         verdict.reasons.push_back(line.str());
         i = j + 1;
       }

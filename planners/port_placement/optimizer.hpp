@@ -56,6 +56,10 @@ struct PortPlacementOptions {
   /// plan` passes the published template's ports with the cart found for them), so the best plan
   /// scores at least as well as they do. Not used by the exhaustive baseline.
   std::vector<Placement> initial;
+  /// The verdict says, for each unserved stretch, the neighbouring port or cart pose that would
+  /// reach it when one does (remedies.hpp; about 10 full evaluations per stretch). Off by
+  /// default (batches and tests do not pay for it); `trocar plan` turns it on.
+  bool remedies = false;
   /// Called with the fraction done (0..1) and a stage name, from the calling thread only.
   std::function<void(double, const std::string&)> progress;
 };
