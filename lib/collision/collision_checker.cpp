@@ -30,10 +30,14 @@ struct QueryData {
   const std::vector<Eigen::Vector3d>* work_W = nullptr;
   const std::vector<double>* work_radius = nullptr;
   unsigned mask = 0;
+  int arm = -1;  ///< >= 0: only pairs with a body of this arm
   bool stop_at_first = false;
   bool want_contacts = false;
   bool done = false;
   CollisionReport report;
+  bool OfArm(int a, int b) const {
+    return arm < 0 || world->bodies[a].arm == arm || world->bodies[b].arm == arm;
+  }
 };
 
 // If one of the bodies is an instrument link and the other the skin: the port the instrument
@@ -82,7 +86,7 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
   if (d.done) return true;
   int a = -1, b = -1;
   PairClass cls{};
-  if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls)) return false;
+  if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls) || !d.OfArm(a, b)) return false;
   const CollisionWorld::Impl& w = *d.world;
   const Convex& A = w.convex[a];
   const Convex& B = w.convex[b];
@@ -330,6 +334,7 @@ CollisionChecker::~CollisionChecker() = default;
 void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
   const CollisionWorld::Impl& w = *world;
   for (int r : w.robot_bodies) {
+    if (d.arm >= 0 && w.bodies[r].arm != d.arm) continue;
     fcl::CollisionObjectd* o_r = objects[r].get();
     for (int f : w.fixed_bodies) {
       if (d.done) return;
@@ -358,7 +363,8 @@ void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
               ? w.mesh[f]->Touches(shape.a_M, shape.b_M, w.convex[r].radius, centre_M, exclude)
               : w.mesh[f]->BoxTouches(shape.X_MG, w.convex[r].half, centre_M, exclude);
       if (!hit.outside) {
-        if (hit.excluded) ++(port >= 0 ? d.report.port_contacts_allowed : d.report.work_contacts_allowed);
+        if (hit.excluded)
+          ++(port >= 0 ? d.report.port_contacts_allowed : d.report.work_contacts_allowed);
         continue;
       }
       Contact contact;
@@ -459,8 +465,7 @@ void CollisionChecker::SetRobotState(const robot::RobotState& state) {
   state_->port_W.resize(w.ports.size());
   for (std::size_t p = 0; p < w.ports.size(); ++p) {
     if (w.port_frame[p]) {
-      state_->port_W[p] =
-          kinematics::FramePose(state, *w.port_frame[p]).translation();
+      state_->port_W[p] = kinematics::FramePose(state, *w.port_frame[p]).translation();
     } else if (p >= known) {
       state_->port_W[p] = state.X_WL[w.port_link[p]].translation();
     }
@@ -497,7 +502,7 @@ const Eigen::Vector3d& CollisionChecker::port_position(int port) const {
   return state_->port_W.at(port);
 }
 
-bool CollisionChecker::InCollision(unsigned mask) {
+bool CollisionChecker::InCollision(unsigned mask, int arm) {
   QueryData d;
   d.world = &world_->impl();
   d.port_W = &state_->port_W;
@@ -505,12 +510,13 @@ bool CollisionChecker::InCollision(unsigned mask) {
   d.work_W = &state_->work_W;
   d.work_radius = &state_->work_radius;
   d.mask = mask;
+  d.arm = arm;
   d.stop_at_first = true;
   state_->Collide(d);
   return d.report.collision;
 }
 
-CollisionReport CollisionChecker::Check(unsigned mask) {
+CollisionReport CollisionChecker::Check(unsigned mask, int arm) {
   QueryData d;
   d.world = &world_->impl();
   d.port_W = &state_->port_W;
@@ -518,6 +524,7 @@ CollisionReport CollisionChecker::Check(unsigned mask) {
   d.work_W = &state_->work_W;
   d.work_radius = &state_->work_radius;
   d.mask = mask;
+  d.arm = arm;
   d.want_contacts = true;
   state_->Collide(d);
   std::sort(

@@ -243,10 +243,12 @@ class CollisionChecker {
   /// Clears every port's work site.
   void ClearWorkSites();
 
-  /// Yes/no, stopping at the first collision among the classes in `mask`.
-  bool InCollision(unsigned mask = kAllMovingPairs);
-  /// Every colliding pair among the classes in `mask`.
-  CollisionReport Check(unsigned mask = kAllMovingPairs);
+  /// Yes/no, stopping at the first collision among the classes in `mask`. With `arm` >= 0 (an
+  /// index into CollisionWorld::arms()), only the pairs with a body of that arm: what a caller
+  /// who moved that arm alone from a pose it knows to be free needs to check.
+  bool InCollision(unsigned mask = kAllMovingPairs, int arm = -1);
+  /// Every colliding pair among the classes in `mask` (with `arm` >= 0, of that arm's bodies).
+  CollisionReport Check(unsigned mask = kAllMovingPairs, int arm = -1);
   /// Minimum distance over the pairs of the classes in `mask`, with witness points (needs an
   /// OBBRSS world). Pairs in contact give 0. With `arm` >= 0 (an index into
   /// CollisionWorld::arms()), only the pairs with a body of that arm.

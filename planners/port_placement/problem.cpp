@@ -291,6 +291,7 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
         index = shaft++;
       }
       world_port_.push_back(index);
+      world_arm_.push_back(index >= 0 ? ports[index].arm : -1);
     }
   }
   std::vector<patient::Structure const*> ribs;
@@ -990,10 +991,14 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
         } else {
           checker.SetRobotState(state);
           SetPorts(placement, state, &checker, &samples[s].p_W);  // the jaws may touch the organ there
-          if (!checker.InCollision(how.sample_mask & collision::kAllMovingPairs)) {
+          // Only this arm moved from the nominal pose: when that pose is free, only its pairs can
+          // collide (the others' allowances and work sites are as they were or wider).
+          const int only_arm = nominal.collision ? -1 : world_arm_[a];
+          if (!checker.InCollision(how.sample_mask & collision::kAllMovingPairs, only_arm)) {
             r.reached = true;
           } else if (attempt == 0 && detailed) {
-            const auto report = checker.Check(how.sample_mask & collision::kAllMovingPairs);
+            const auto report =
+                checker.Check(how.sample_mask & collision::kAllMovingPairs, only_arm);
             const auto& bodies = world_->bodies();
             const auto& c = report.contacts.front();
             why = "collision: " + bodies[c.a].name + " - " + bodies[c.b].name;

@@ -288,6 +288,7 @@ class PortPlacementProblem {
 
  private:
   std::vector<int> world_port_;  // per arm: index of its port in the collision world
+  std::vector<int> world_arm_;   // per arm: its index in the collision world's arms (-1: none)
   std::shared_ptr<const patient::PatientModel> patient_;
   std::shared_ptr<const robot::RobotModel> robot_;
   ProblemOptions options_;

@@ -1,11 +1,10 @@
-#include "collision/collision_world.hpp"
+#include <gtest/gtest.h>
 
 #include <filesystem>
 #include <random>
 #include <thread>
 
-#include <gtest/gtest.h>
-
+#include "collision/collision_world.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
@@ -25,9 +24,11 @@ using collision::PairClass;
 TriangleMesh BoxMesh(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
   TriangleMesh m;
   for (int k = 0; k < 8; ++k) {
-    m.vertices.emplace_back(k & 1 ? hi.x() : lo.x(), k & 2 ? hi.y() : lo.y(), k & 4 ? hi.z() : lo.z());
+    m.vertices.emplace_back(k & 1 ? hi.x() : lo.x(), k & 2 ? hi.y() : lo.y(),
+                            k & 4 ? hi.z() : lo.z());
   }
-  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
+                           {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
   for (const auto& f : faces) {
     m.triangles.emplace_back(f[0], f[1], f[2]);
     m.triangles.emplace_back(f[0], f[2], f[3]);
@@ -36,39 +37,47 @@ TriangleMesh BoxMesh(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
 }
 
 // An ellipsoid surface (UV sphere) with about 2·rings·segments triangles.
-TriangleMesh Ellipsoid(const Eigen::Vector3d& centre, const Eigen::Vector3d& semi, int rings, int segments) {
+TriangleMesh Ellipsoid(const Eigen::Vector3d& centre, const Eigen::Vector3d& semi, int rings,
+                       int segments) {
   return test::UvSphere(rings, segments, [&](int r, int s) {
     const double phi = M_PI * r / rings, th = 2 * M_PI * s / segments;
     return Eigen::Vector3d(centre + Eigen::Vector3d(semi.x() * std::sin(phi) * std::cos(th),
-                                                    semi.y() * std::sin(phi) * std::sin(th), semi.z() * std::cos(phi)));
+                                                    semi.y() * std::sin(phi) * std::sin(th),
+                                                    semi.z() * std::cos(phi)));
   });
 }
 
-std::shared_ptr<const robot::RobotModel> RobotFromYaml(const std::string& name, const std::string& yaml) {
+std::shared_ptr<const robot::RobotModel> RobotFromYaml(const std::string& name,
+                                                       const std::string& yaml) {
   const std::string path = ::testing::TempDir() + "/trocar_collision_" + name + ".yaml";
   WriteFileAtomically(path, yaml);
   return std::make_shared<const robot::RobotModel>(robot::LoadRobot(path));
 }
 
 // Two "probes" A and B, each a point moved by three prismatic joints (x, y, z) carrying one shape.
-std::shared_ptr<const robot::RobotModel> Probes(const std::string& shape_a, const std::string& shape_b) {
+std::shared_ptr<const robot::RobotModel> Probes(const std::string& shape_a,
+                                                const std::string& shape_b) {
   std::ostringstream y;
   y << "name: probes\nlinks:\n  - name: base\n";
   for (const char* p : {"a", "b"}) {
-    y << "  - name: " << p << "_x\n  - name: " << p << "_y\n  - name: " << p << "_tip\n    collision: ["
-      << (p[0] == 'a' ? shape_a : shape_b) << "]\n";
+    y << "  - name: " << p << "_x\n  - name: " << p << "_y\n  - name: " << p
+      << "_tip\n    collision: [" << (p[0] == 'a' ? shape_a : shape_b) << "]\n";
   }
   y << "joints:\n";
   for (const char* p : {"a", "b"}) {
     const std::string s(p);
-    y << "  - {name: " << s << "_px, type: prismatic, parent: base, child: " << s << "_x, axis: [1, 0, 0], limits: {lower: -2, upper: 2}}\n"
-      << "  - {name: " << s << "_py, type: prismatic, parent: " << s << "_x, child: " << s << "_y, axis: [0, 1, 0], limits: {lower: -2, upper: 2}}\n"
-      << "  - {name: " << s << "_pz, type: prismatic, parent: " << s << "_y, child: " << s << "_tip, axis: [0, 0, 1], limits: {lower: -2, upper: 2}}\n";
+    y << "  - {name: " << s << "_px, type: prismatic, parent: base, child: " << s
+      << "_x, axis: [1, 0, 0], limits: {lower: -2, upper: 2}}\n"
+      << "  - {name: " << s << "_py, type: prismatic, parent: " << s << "_x, child: " << s
+      << "_y, axis: [0, 1, 0], limits: {lower: -2, upper: 2}}\n"
+      << "  - {name: " << s << "_pz, type: prismatic, parent: " << s << "_y, child: " << s
+      << "_tip, axis: [0, 0, 1], limits: {lower: -2, upper: 2}}\n";
   }
   return RobotFromYaml("probes", y.str());
 }
 
-robot::RobotState PlaceProbes(const robot::RobotModel& model, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+robot::RobotState PlaceProbes(const robot::RobotModel& model, const Eigen::Vector3d& a,
+                              const Eigen::Vector3d& b) {
   robot::RobotState state(model);
   Eigen::VectorXd q(6);
   q << a, b;
@@ -76,7 +85,8 @@ robot::RobotState PlaceProbes(const robot::RobotModel& model, const Eigen::Vecto
   return state;
 }
 
-double PointBoxDistance(const Eigen::Vector3d& p, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+double PointBoxDistance(const Eigen::Vector3d& p, const Eigen::Vector3d& lo,
+                        const Eigen::Vector3d& hi) {
   return (p.cwiseMax(lo).cwiseMin(hi) - p).norm();
 }
 
@@ -84,14 +94,17 @@ TEST(CollisionWorld, PrimitivesAndMeshesAtKnownDistances) {
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> u(-0.3, 0.3);
   const Eigen::Vector3d lo(-0.05, -0.04, -0.03), hi(0.05, 0.04, 0.03);
-  collision::CollisionWorld::FixedMesh box{"block", BoxMesh(lo, hi), Eigen::Isometry3d::Identity(), false, false};
+  collision::CollisionWorld::FixedMesh box{"block", BoxMesh(lo, hi), Eigen::Isometry3d::Identity(),
+                                           false, false};
   struct Case {
     std::string a, b;
   };
   // Capsules along z (the probes only translate), so every answer has a closed form.
   const auto spheres = Probes("{shape: sphere, radius: 0.02}", "{shape: sphere, radius: 0.035}");
-  const auto capsules = Probes("{shape: capsule, radius: 0.01, length: 0.12}", "{shape: capsule, radius: 0.015, length: 0.08}");
-  const auto boxes = Probes("{shape: box, size: [0.04, 0.06, 0.02]}", "{shape: sphere, radius: 0.01}");
+  const auto capsules = Probes("{shape: capsule, radius: 0.01, length: 0.12}",
+                               "{shape: capsule, radius: 0.015, length: 0.08}");
+  const auto boxes =
+      Probes("{shape: box, size: [0.04, 0.06, 0.02]}", "{shape: sphere, radius: 0.01}");
   int checked = 0;
   for (const auto& model : {spheres, capsules, boxes}) {
     const auto world = CollisionWorld::Build({box}, model);
@@ -112,9 +125,12 @@ TEST(CollisionWorld, PrimitivesAndMeshesAtKnownDistances) {
         // Capsule A vs the box: the segment's nearest point is where z is clamped into the box.
         const double z = std::clamp(hi.z(), pa.z() - 0.06, pa.z() + 0.06);
         const double zl = std::clamp(lo.z(), pa.z() - 0.06, pa.z() + 0.06);
-        a_block = std::min(PointBoxDistance({pa.x(), pa.y(), z}, lo, hi), PointBoxDistance({pa.x(), pa.y(), zl}, lo, hi)) - 0.01;
+        a_block = std::min(PointBoxDistance({pa.x(), pa.y(), z}, lo, hi),
+                           PointBoxDistance({pa.x(), pa.y(), zl}, lo, hi)) -
+                  0.01;
         if (pa.z() - 0.06 <= hi.z() && pa.z() + 0.06 >= lo.z()) {
-          a_block = PointBoxDistance({pa.x(), pa.y(), std::clamp(pa.z(), lo.z(), hi.z())}, lo, hi) - 0.01;
+          a_block =
+              PointBoxDistance({pa.x(), pa.y(), std::clamp(pa.z(), lo.z(), hi.z())}, lo, hi) - 0.01;
         }
       } else {
         const Eigen::Vector3d half(0.02, 0.03, 0.01);
@@ -126,7 +142,8 @@ TEST(CollisionWorld, PrimitivesAndMeshesAtKnownDistances) {
       if (arm_arm > 1e-4) {
         ++checked;
         ASSERT_TRUE(aa.valid());
-        EXPECT_NEAR(aa.distance, arm_arm, 1e-6) << "trial " << trial << " " << pa.transpose() << " | " << pb.transpose();
+        EXPECT_NEAR(aa.distance, arm_arm, 1e-6)
+            << "trial " << trial << " " << pa.transpose() << " | " << pb.transpose();
         EXPECT_NEAR((aa.p_W_a - aa.p_W_b).norm(), aa.distance, 1e-6);
         EXPECT_FALSE(checker.InCollision(Bit(PairClass::kArmArm)));
       } else if (arm_arm < -1e-4) {
@@ -169,15 +186,18 @@ rcm: {link: holder}
   collision::WorldOptions options;
   options.port_radius = port_radius;
   std::vector<CollisionWorld::FixedMesh> meshes = {
-      {"skin", BoxMesh({-0.2, -0.2, -0.3}, {0.2, 0.2, 0.0}), Eigen::Isometry3d::Identity(), true, true},
-      {"ribs", BoxMesh({0.02, -0.1, -0.05}, {0.04, 0.1, -0.03}), Eigen::Isometry3d::Identity(), false, true}};
+      {"skin", BoxMesh({-0.2, -0.2, -0.3}, {0.2, 0.2, 0.0}), Eigen::Isometry3d::Identity(), true,
+       true},
+      {"ribs", BoxMesh({0.02, -0.1, -0.05}, {0.04, 0.1, -0.03}), Eigen::Isometry3d::Identity(),
+       false, true}};
   s.world = CollisionWorld::Build(meshes, s.model, options);
   return s;
 }
 
 robot::RobotState Pose(const robot::RobotModel& model, double x, double tilt, double insertion) {
   robot::RobotState state(model);
-  EXPECT_TRUE(kinematics::ForwardKinematics(model, Eigen::Vector3d(x, tilt, insertion), &state).ok());
+  EXPECT_TRUE(
+      kinematics::ForwardKinematics(model, Eigen::Vector3d(x, tilt, insertion), &state).ok());
   return state;
 }
 
@@ -185,7 +205,8 @@ TEST(CollisionWorld, AShaftThroughItsPortIsFreeAndTheSameShaftHittingARibCollide
   const PortScene s = MakePortScene();
   ASSERT_EQ(s.world->ports().size(), 1u);
   EXPECT_EQ(s.world->ports()[0].frame, "rcm");
-  const int shaft = s.world->FindBody("shaft"), ribs = s.world->FindBody("ribs"), skin = s.world->FindBody("skin");
+  const int shaft = s.world->FindBody("shaft"), ribs = s.world->FindBody("ribs"),
+            skin = s.world->FindBody("skin");
   EXPECT_EQ(s.world->bodies()[shaft].port, 0);
   EXPECT_EQ(s.world->bodies()[s.world->FindBody("holder")].port, -1);
   CollisionChecker checker(s.world);
@@ -231,7 +252,8 @@ TEST(CollisionWorld, AShaftThroughItsPortIsFreeAndTheSameShaftHittingARibCollide
   checker.SetRobotState(Pose(*s.model, 0, 1.5, 0.0));
   report = checker.Check();
   bool holder_hit = false;
-  for (const auto& c : report.contacts) holder_hit |= c.a == s.world->FindBody("holder") && c.cls == PairClass::kArmPatient;
+  for (const auto& c : report.contacts)
+    holder_hit |= c.a == s.world->FindBody("holder") && c.cls == PairClass::kArmPatient;
   EXPECT_TRUE(holder_hit);
 }
 
@@ -261,8 +283,10 @@ joints:
 rcm: {link: holder}
 )");
   std::vector<CollisionWorld::FixedMesh> meshes = {
-      {"skin", BoxMesh({-0.2, -0.2, -0.3}, {0.2, 0.2, 0.0}), Eigen::Isometry3d::Identity(), true, true},
-      {"heart", BoxMesh({-0.1, -0.1, -0.25}, {0.1, 0.1, -0.15}), Eigen::Isometry3d::Identity(), false, true}};
+      {"skin", BoxMesh({-0.2, -0.2, -0.3}, {0.2, 0.2, 0.0}), Eigen::Isometry3d::Identity(), true,
+       true},
+      {"heart", BoxMesh({-0.1, -0.1, -0.25}, {0.1, 0.1, -0.15}), Eigen::Isometry3d::Identity(),
+       false, true}};
   const auto world = CollisionWorld::Build(meshes, model);
   const int shaft = world->FindBody("shaft"), wrist = world->FindBody("wrist"),
             jaw = world->FindBody("jaw"), heart = world->FindBody("heart");
@@ -312,19 +336,23 @@ rcm: {link: holder}
 TEST(CollisionWorld, DegenerateMeshesAreRejectedByName) {
   auto message = [](TriangleMesh mesh) {
     try {
-      CollisionWorld::Build({{"heart", std::move(mesh), Eigen::Isometry3d::Identity(), false, true}}, nullptr);
+      CollisionWorld::Build(
+          {{"heart", std::move(mesh), Eigen::Isometry3d::Identity(), false, true}}, nullptr);
     } catch (const Error& e) {
       return std::string(e.what());
     }
     return std::string("(accepted)");
   };
-  EXPECT_NE(message(TriangleMesh{}).find("patient structure 'heart': mesh is empty"), std::string::npos);
+  EXPECT_NE(message(TriangleMesh{}).find("patient structure 'heart': mesh is empty"),
+            std::string::npos);
   TriangleMesh nan = BoxMesh(Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones());
   nan.vertices[3].y() = std::nan("");
-  EXPECT_NE(message(nan).find("'heart': vertex 3 is not finite"), std::string::npos) << message(nan);
+  EXPECT_NE(message(nan).find("'heart': vertex 3 is not finite"), std::string::npos)
+      << message(nan);
   TriangleMesh flat = BoxMesh(Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones());
   flat.triangles[5] = Eigen::Vector3i(1, 1, 2);
-  EXPECT_NE(message(flat).find("'heart': triangle 5 has zero area"), std::string::npos) << message(flat);
+  EXPECT_NE(message(flat).find("'heart': triangle 5 has zero area"), std::string::npos)
+      << message(flat);
   TriangleMesh bad_index = BoxMesh(Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones());
   bad_index.triangles[0] = Eigen::Vector3i(0, 1, 99);
   EXPECT_NE(message(bad_index).find("'heart': triangle 0 indexes a vertex"), std::string::npos);
@@ -333,7 +361,9 @@ TEST(CollisionWorld, DegenerateMeshesAreRejectedByName) {
     Probes("{shape: sphere, radius: 0}", "{shape: sphere, radius: 0.01}");
     ADD_FAILURE();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("collision[0].radius: 0 must be positive"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("collision[0].radius: 0 must be positive"),
+              std::string::npos)
+        << e.what();
   }
 }
 
@@ -346,13 +376,16 @@ struct CartScene {
 
 CartScene MakeCartScene() {
   CartScene s;
-  s.cart = std::make_shared<const robot::RobotModel>(robot::LoadRobot(test::SourcePath("robots/davinci-classic/cart.yaml")));
+  s.cart = std::make_shared<const robot::RobotModel>(
+      robot::LoadRobot(test::SourcePath("robots/davinci-classic/cart.yaml")));
   s.patient.name = "ellipsoid";
   s.patient.structures.push_back({"skin", Ellipsoid({0, 0, 0}, {0.17, 0.12, 0.3}, 60, 120), 0, 0});
-  s.patient.structures.push_back({"heart", Ellipsoid({0.03, -0.02, 0.02}, {0.06, 0.05, 0.07}, 30, 60), 0, 0});
+  s.patient.structures.push_back(
+      {"heart", Ellipsoid({0.03, -0.02, 0.02}, {0.06, 0.05, 0.07}, 30, 60), 0, 0});
   // Patient frame P: LPS; supine on the table, head toward +x_W.
   s.patient.X_WP = Eigen::Isometry3d::Identity();
-  s.patient.X_WP.linear() << 0, 0, 1, 1, 0, 0, 0, -1, 0;  // columns: x_P → y_W, y_P → −z_W, z_P → x_W
+  s.patient.X_WP.linear() << 0, 0, 1, 1, 0, 0, 0, -1,
+      0;  // columns: x_P → y_W, y_P → −z_W, z_P → x_W
   s.patient.X_WP.translation() = Eigen::Vector3d(0, 0, s.patient.table.height + 0.12);
   s.world = CollisionWorld::Build(&s.patient, s.cart);
   return s;
@@ -382,13 +415,16 @@ TEST(CollisionWorld, CartSelfPairsOfTheParallelogramsAreAllowedAndArmsStillColli
   EXPECT_EQ(w.ports().size(), 3u);  // psm1, psm2, ecm
   EXPECT_GT(w.auto_allowed_pairs(), 0);
   // Links joined by a joint never collide.
-  const int bottom = w.FindBody("psm1_pitch_bottom_link"), back = w.FindBody("psm1_pitch_back_link");
+  const int bottom = w.FindBody("psm1_pitch_bottom_link"),
+            back = w.FindBody("psm1_pitch_back_link");
   ASSERT_GE(bottom, 0);
   EXPECT_TRUE(w.Allowed(bottom, back));
   // Links of different arms always count.
   EXPECT_FALSE(w.Allowed(w.FindBody("psm1_yaw_link"), w.FindBody("psm2_yaw_link")));
-  EXPECT_EQ(w.Classify(w.FindBody("psm1_yaw_link"), w.FindBody("psm2_yaw_link")), PairClass::kArmArm);
-  EXPECT_EQ(w.Classify(w.FindBody("psm1_insertion_link#1"), w.FindBody("skin")), PairClass::kInstrumentPatient);
+  EXPECT_EQ(w.Classify(w.FindBody("psm1_yaw_link"), w.FindBody("psm2_yaw_link")),
+            PairClass::kArmArm);
+  EXPECT_EQ(w.Classify(w.FindBody("psm1_insertion_link#1"), w.FindBody("skin")),
+            PairClass::kInstrumentPatient);
   CollisionChecker checker(s.world);
   std::mt19937 rng(5);
   int arm_arm = 0, self = 0;
@@ -401,7 +437,52 @@ TEST(CollisionWorld, CartSelfPairsOfTheParallelogramsAreAllowedAndArmsStillColli
     }
   }
   EXPECT_GT(arm_arm, 0);  // random arms do run into each other
-  EXPECT_EQ(self, 0);     // within an arm, only the setup joints could meet the arm: not at these settings
+  EXPECT_EQ(self,
+            0);  // within an arm, only the setup joints could meet the arm: not at these settings
+}
+
+// Checking one arm (what a planner that moved that arm alone needs) finds exactly the contacts of
+// the whole check that involve a body of that arm, for every pair class, over random poses of the
+// cart's arms through the patient: a filter that dropped the arm's pairs with the patient or with
+// another arm, or kept another arm's, fails.
+TEST(CollisionWorld, CheckingOneArmFindsExactlyThatArmsContacts) {
+  const CartScene s = MakeCartScene();
+  const auto& w = *s.world;
+  CollisionChecker checker(s.world);
+  std::mt19937 rng(17);
+  std::vector<int> with_patient(w.arms().size(), 0), with_arm(w.arms().size(), 0);
+  for (int i = 0; i < 200; ++i) {
+    // Columns lowered and the cart moved in at random so that the arms also reach the patient.
+    robot::RobotState state = RandomCartState(*s.cart, rng);
+    for (const char* column : {"psm1_suj_column", "psm2_suj_column", "ecm_suj_column"}) {
+      kinematics::SetHeldJoint(*s.cart, column,
+                               std::uniform_real_distribution<double>(0.0, 0.45)(rng), &state);
+    }
+    state.X_WB.translation().x() = std::uniform_real_distribution<double>(-1.3, -0.4)(rng);
+    ASSERT_TRUE(kinematics::ForwardKinematics(*s.cart, state.q, &state).ok());
+    checker.SetRobotState(state);
+    const auto all = checker.Check().contacts;
+    for (int arm = 0; arm < static_cast<int>(w.arms().size()); ++arm) {
+      std::vector<std::pair<int, int>> want, got;
+      for (const auto& c : all) {
+        if (w.bodies()[c.a].arm == arm || w.bodies()[c.b].arm == arm) want.emplace_back(c.a, c.b);
+      }
+      for (const auto& c : checker.Check(collision::kAllMovingPairs, arm).contacts) {
+        got.emplace_back(c.a, c.b);
+        const bool robot_a = w.bodies()[c.a].kind == collision::Body::Kind::kRobot;
+        const bool robot_b = w.bodies()[c.b].kind == collision::Body::Kind::kRobot;
+        with_patient[arm] += robot_a != robot_b;
+        with_arm[arm] += c.cls == PairClass::kArmArm;
+      }
+      EXPECT_EQ(got, want) << "pose " << i << ", arm " << w.arms()[arm].name;
+      EXPECT_EQ(checker.InCollision(collision::kAllMovingPairs, arm), !want.empty())
+          << "pose " << i << ", arm " << w.arms()[arm].name;
+    }
+  }
+  for (std::size_t arm = 0; arm < w.arms().size(); ++arm) {
+    EXPECT_GT(with_patient[arm], 0) << w.arms()[arm].name;
+    EXPECT_GT(with_arm[arm], 0) << w.arms()[arm].name;
+  }
 }
 
 // The same seeded queries from two threads (each with its own checker over one world) give
@@ -442,11 +523,14 @@ TEST(CollisionWorld, ExactMeshQueriesAgreeWithFcl) {
   for (int i = 0; i < 60; ++i) {
     std::mt19937 rng(5000 + i);
     robot::RobotState state = RandomCartState(*s.cart, rng);
-    if (i % 2) {  // cart nearer, setup columns anywhere in their range: arms down into the patient too
+    if (i %
+        2) {  // cart nearer, setup columns anywhere in their range: arms down into the patient too
       state.X_WB.translation().x() = std::uniform_real_distribution<double>(-1.3, -0.8)(rng);
       for (const char* column : {"psm1_suj_column", "psm2_suj_column", "ecm_suj_column"}) {
         const auto& lim = s.cart->joint(s.cart->FindJoint(column)).limits;
-        kinematics::SetHeldJoint(*s.cart, column, std::uniform_real_distribution<double>(lim.lower, lim.upper)(rng), &state);
+        kinematics::SetHeldJoint(*s.cart, column,
+                                 std::uniform_real_distribution<double>(lim.lower, lim.upper)(rng),
+                                 &state);
       }
       ASSERT_TRUE(kinematics::ForwardKinematics(*s.cart, state.q, &state).ok());
     }
@@ -473,12 +557,14 @@ TEST(CollisionWorld, ExactMeshQueriesAgreeWithFcl) {
       EXPECT_EQ(std::make_pair(da.a, da.b), std::make_pair(db.a, db.b)) << "state " << i;
       EXPECT_NEAR((da.p_W_a - da.p_W_b).norm(), da.distance, 1e-9);
       EXPECT_NEAR((da.p_W_a - db.p_W_a).norm(), 0.0, 1e-4)
-          << "state " << i << " " << s.world->bodies()[da.a].name << " - " << s.world->bodies()[da.b].name << " "
-          << da.p_W_a.transpose() << " / " << da.p_W_b.transpose() << " fcl " << db.p_W_a.transpose() << " / "
+          << "state " << i << " " << s.world->bodies()[da.a].name << " - "
+          << s.world->bodies()[da.b].name << " " << da.p_W_a.transpose() << " / "
+          << da.p_W_b.transpose() << " fcl " << db.p_W_a.transpose() << " / "
           << db.p_W_b.transpose() << " d " << da.distance;
     }
     // Whole-cart distance too (arm-arm first, then the patient and the table).
-    EXPECT_NEAR(ours.MinimumDistance().distance, theirs.MinimumDistance().distance, 1e-6) << "state " << i;
+    EXPECT_NEAR(ours.MinimumDistance().distance, theirs.MinimumDistance().distance, 1e-6)
+        << "state " << i;
   }
   EXPECT_GT(compared, 10);
   EXPECT_GT(colliding, 5);
@@ -494,7 +580,8 @@ TEST(CollisionWorld, TwoThreadsAnswerExactlyAsOne) {
     double distance;
     int a, b;
     bool operator==(const Answer& o) const {
-      return in_collision == o.in_collision && pairs == o.pairs && distance == o.distance && a == o.a && b == o.b;
+      return in_collision == o.in_collision && pairs == o.pairs && distance == o.distance &&
+             a == o.a && b == o.b;
     }
   };
   auto run = [&](int begin, int end, std::vector<Answer>* out) {
@@ -505,7 +592,8 @@ TEST(CollisionWorld, TwoThreadsAnswerExactlyAsOne) {
       Answer a;
       a.in_collision = checker.InCollision();
       for (const auto& c : checker.Check().contacts) a.pairs.emplace_back(c.a, c.b);
-      const auto d = checker.MinimumDistance(Bit(PairClass::kArmPatient) | Bit(PairClass::kInstrumentPatient));
+      const auto d =
+          checker.MinimumDistance(Bit(PairClass::kArmPatient) | Bit(PairClass::kInstrumentPatient));
       a.distance = d.distance;
       a.a = d.a;
       a.b = d.b;
@@ -527,7 +615,6 @@ TEST(CollisionWorld, TwoThreadsAnswerExactlyAsOne) {
   EXPECT_GT(collisions, kQueries / 50);
   EXPECT_LT(collisions, kQueries - kQueries / 50);
 }
-
 
 // The endoscope's line of sight (issue #41, item 5): a line is hidden exactly when its part
 // outside the margin at its far end crosses a patient structure; a structure that is not the
