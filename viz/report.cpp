@@ -1,12 +1,14 @@
 #include "report.hpp"
 
+#include <vtkBase64Utilities.h>
+
+#include <algorithm>
 #include <cmath>
 #include <ctime>
 #include <filesystem>
+#include <functional>
 #include <iomanip>
 #include <sstream>
-
-#include <vtkBase64Utilities.h>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
@@ -19,11 +21,20 @@ std::string Escape(const std::string& text) {
   std::string out;
   for (char c : text) {
     switch (c) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      default: out += c;
+      case '&':
+        out += "&amp;";
+        break;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      default:
+        out += c;
     }
   }
   return out;
@@ -31,9 +42,9 @@ std::string Escape(const std::string& text) {
 
 std::string Base64(const std::string& bytes) {
   std::string out(bytes.size() * 4 / 3 + 8, '\0');
-  const unsigned long n = vtkBase64Utilities::Encode(reinterpret_cast<const unsigned char*>(bytes.data()),
-                                                     static_cast<unsigned long>(bytes.size()),
-                                                     reinterpret_cast<unsigned char*>(out.data()));
+  const unsigned long n = vtkBase64Utilities::Encode(
+      reinterpret_cast<const unsigned char*>(bytes.data()),
+      static_cast<unsigned long>(bytes.size()), reinterpret_cast<unsigned char*>(out.data()));
   out.resize(n);
   return out;
 }
@@ -60,30 +71,162 @@ td { border: 1px solid #bbb; padding: 2px 8px; }
 .unsuitable { color: #b42318; font-weight: bold; }
 </style>)";
 
+// Percent of a fraction, whole.
+std::string Pct(double fraction) { return Num(100 * fraction, 0) + " %"; }
+
+// Samples of `target` a plan's verified motions serve, "4 of 8".
+std::string ServedOf(const planners::PlanFile& file, const planners::StoredPlan& p,
+                     const std::string& target) {
+  int of = 0, served = 0;
+  for (std::size_t s = 0; s < file.samples.size(); ++s) {
+    if (file.samples[s].target != target) continue;
+    ++of;
+    served += s < p.verified_served.size() && p.verified_served[s] ? 1 : 0;
+  }
+  return std::to_string(served) + " of " + std::to_string(of);
+}
+
+// The ports (in anatomical terms, then the coordinates tools use), the score's terms with their
+// units and weights, and the verified motions of one plan.
+void PlanTables(const planners::PlanFile& file, const planners::StoredPlan& p,
+                std::ostringstream& h) {
+  h << "<table class=\"ports\"><tr><th>arm</th><th>port</th><th>incision (W, m)</th><th>pivot (W, "
+       "m)</th></tr>";
+  for (const auto& port : p.ports) {
+    h << "<tr><td>" << Escape(port.arm) << "</td><td>"
+      << Escape(port.anatomy.empty() ? port.candidate : port.anatomy) << "</td><td>"
+      << Num(port.p_W.x(), 3) << ", " << Num(port.p_W.y(), 3) << ", " << Num(port.p_W.z(), 3)
+      << "</td><td>" << Num(port.rcm_W.x(), 3) << ", " << Num(port.rcm_W.y(), 3) << ", "
+      << Num(port.rcm_W.z(), 3) << "</td></tr>";
+  }
+  h << "</table>\n<table class=\"terms\"><tr><th>term</th><th>value</th><th>unit</th><th>score "
+       "(0-1)</th><th>weight</th></tr>";
+  for (const auto& t : p.terms) {
+    h << "<tr><td>" << Escape(t.name) << "</td><td>" << Num(t.value, 3) << "</td><td>"
+      << Escape(t.unit) << "</td><td>" << Num(t.score, 3) << "</td><td>" << Num(t.weight, 2)
+      << "</td></tr>";
+  }
+  h << "</table>\n";
+  if (p.verified) {
+    h << "<p>verified motions: coverage " << Pct(p.verified_coverage) << " (claimed "
+      << Pct(p.claimed_coverage) << ", " << (p.verified_coverage >= p.claimed_coverage ? "+" : "")
+      << Num(100 * (p.verified_coverage - p.claimed_coverage), 0)
+      << " points by verification), samples served " << Pct(p.served_fraction) << ": <span class=\""
+      << (p.verified_suitable ? "suitable" : "unsuitable") << "\">"
+      << (p.verified_suitable ? "suitable" : "not suitable") << "</span></p><ul>";
+    for (const auto& r : p.verification_reasons) h << "<li>" << Escape(r) << "</li>";
+    h << "</ul>\n<table "
+         "class=\"motions\"><tr><th>arm</th><th>sample</th><th>target</th><th>outcome</"
+         "th><th>clearance (mm)</th><th>reason</th></tr>";
+    for (const auto& m : p.motions) {
+      const std::string target =
+          m.sample < static_cast<int>(file.samples.size()) ? file.samples[m.sample].target : "";
+      h << "<tr><td>" << Escape(m.arm) << "</td><td>" << m.sample << "</td><td>" << Escape(target)
+        << "</td><td>" << Escape(m.outcome) << "</td><td>"
+        << (m.solved && std::isfinite(m.min_clearance) ? Num(1000 * m.min_clearance, 1) : "")
+        << "</td><td>" << Escape(m.reason) << "</td></tr>";
+    }
+    h << "</table>\n";
+  }
+}
+
+// The plans shown and the placed baselines in columns (issue #43 item 6): ports by space, score,
+// verified and claimed coverage, served samples per target, the verified verdict, the sign-off.
+void Comparison(const planners::PlanFile& file, std::size_t shown, std::ostringstream& h) {
+  struct Column {
+    std::string title;
+    const planners::StoredPlan* plan;
+    std::string decision;
+  };
+  std::vector<Column> columns;
+  for (std::size_t k = 0; k < shown; ++k)
+    columns.push_back({"plan " + std::to_string(file.plans[k].rank), &file.plans[k],
+                       planners::PlanDecisionStatus(file, k)});
+  for (const auto& b : file.baselines) {
+    if (b.placed) columns.push_back({b.kind + ": " + b.name, &b.plan, "(baseline)"});
+  }
+  std::vector<std::string> targets;
+  for (const auto& s : file.samples)
+    if (std::find(targets.begin(), targets.end(), s.target) == targets.end())
+      targets.push_back(s.target);
+  h << "<h2>Plans compared</h2>\n<table class=\"compare\"><tr><th></th>";
+  for (const auto& c : columns) h << "<th>" << Escape(c.title) << "</th>";
+  h << "</tr>";
+  auto row = [&](const std::string& name, const std::function<std::string(const Column&)>& cell) {
+    h << "<tr><td><b>" << Escape(name) << "</b></td>";
+    for (const auto& c : columns) h << "<td>" << cell(c) << "</td>";
+    h << "</tr>";
+  };
+  for (std::size_t a = 0; a < file.arms.size(); ++a) {
+    row(file.arms[a].name + " port", [&](const Column& c) {
+      const auto& port = c.plan->ports[a];
+      return Escape(port.anatomy.empty() ? port.candidate : port.anatomy);
+    });
+  }
+  row("at the nominal pose", [](const Column& c) { return Escape(c.plan->status); });
+  row("score (0-1)", [](const Column& c) { return Num(c.plan->score, 3); });
+  row("motions verified (claimed)", [](const Column& c) {
+    return c.plan->verified
+               ? Pct(c.plan->verified_coverage) + " (" + Pct(c.plan->claimed_coverage) + ")"
+               : std::string("not verified");
+  });
+  row("samples served, verified", [](const Column& c) {
+    return c.plan->verified ? Pct(c.plan->served_fraction) : std::string("not verified");
+  });
+  for (const auto& t : targets) {
+    row(t + " samples served", [&](const Column& c) {
+      return c.plan->verified_served.empty() ? std::string("-") : ServedOf(file, *c.plan, t);
+    });
+  }
+  row("verdict (verified motions)", [](const Column& c) {
+    if (!c.plan->verified) return std::string("not verified");
+    return std::string("<span class=\"") +
+           (c.plan->verified_suitable ? "suitable\">suitable" : "unsuitable\">not suitable") +
+           "</span>";
+  });
+  row("sign-off", [](const Column& c) { return Escape(c.decision); });
+  h << "</table>\n";
+}
+
 }  // namespace
 
 std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportOptions& options) {
   TROCAR_THROW_UNLESS(!inputs.plan.empty(), "report: no plan file given");
-  TROCAR_OPTION_UNLESS(options.max_plans >= 1, "max_plans", options.max_plans << ", expected at least 1");
+  TROCAR_OPTION_UNLESS(options.max_plans >= 1, "max_plans",
+                       options.max_plans << ", expected at least 1");
   if (inputs.case_dir.empty()) inputs.case_dir = planners::ReadPlanFile(inputs.plan).case_dir;
   inputs.plan_index = 1;
   LoadedView view = LoadView(inputs);
   const planners::PlanFile& file = *view.plan;
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
-  TROCAR_THROW_UNLESS(std::filesystem::is_directory(dir), dir << ": cannot create the report's folder"
-                                                              << (ec ? ": " + ec.message() : ""));
+  TROCAR_THROW_UNLESS(
+      std::filesystem::is_directory(dir),
+      dir << ": cannot create the report's folder" << (ec ? ": " + ec.message() : ""));
   std::ostringstream h;
   h << "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>trocar report: "
     << Escape(file.patient_name) << "</title>" << kStyle << "</head><body>\n";
   h << "<h1>Port placement report: " << Escape(file.patient_name) << "</h1>\n";
   h << "<p>plan file " << Escape(file.path) << "; case " << Escape(file.case_dir) << "; robot "
     << Escape(file.robot_file) << "</p>\n";
-  h << "<h2>Verdict</h2><p class=\"" << (file.suitable ? "suitable" : "unsuitable") << "\">"
-    << Escape(file.summary) << "</p><ul>";
+  // One verdict that counts (the verified one when the plans were verified), the claimed one
+  // beside it, each labelled (issue #43 item 6).
+  h << "<h2>Verdict</h2>";
+  if (file.has_verified_verdict) {
+    h << "<p>by verified motions (the verdict that counts): <span class=\""
+      << (file.verified_suitable ? "suitable" : "unsuitable") << "\">"
+      << Escape(file.verified_summary) << "</span></p><ul>";
+    for (const auto& r : file.verified_reasons) h << "<li>" << Escape(r) << "</li>";
+    h << "</ul>\n";
+  }
+  h << "<p>" << (file.has_verified_verdict ? "claimed, by the plans' own reach checks: " : "")
+    << "<span class=\"" << (file.suitable ? "suitable" : "unsuitable") << "\">"
+    << Escape(file.summary) << "</span></p><ul>";
   for (const auto& r : file.reasons) h << "<li>" << Escape(r) << "</li>";
   h << "</ul>\n";
-  const std::size_t shown = std::min<std::size_t>(file.plans.size(), static_cast<std::size_t>(options.max_plans));
+  const std::size_t shown =
+      std::min<std::size_t>(file.plans.size(), static_cast<std::size_t>(options.max_plans));
+  Comparison(file, shown, h);
   for (std::size_t k = 0; k < shown; ++k) {
     const planners::StoredPlan& p = file.plans[k];
     view.scene->ShowPlan(file, k);
@@ -92,45 +235,22 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
     view.scene->HighlightLinks(pose.colliding_links, pose.near_links);
     h << "<div class=\"plan\"><h2>Plan " << p.rank << ": " << Escape(p.status) << ", score "
       << Num(p.score, 3) << "</h2>\n<div class=\"pictures\">";
-    Views external = {{ViewSpec{}, view.scene->ExternalCamera(double(options.width) / options.height)}};
+    Views external = {
+        {ViewSpec{}, view.scene->ExternalCamera(double(options.width) / options.height)}};
     h << ImgTag(EncodePng(Render(*view.scene, external, options.width, options.height)),
                 "plan " + std::to_string(p.rank) + ": external view");
     if (!p.views.empty()) {
       ViewSpec scope;
       scope.kind = ViewSpec::Kind::kEndoscope;
       FrameCamera used;
-      const CameraPose camera = ViewCamera(*view.scene, scope, double(options.width) / options.height, &p, &used);
+      const CameraPose camera =
+          ViewCamera(*view.scene, scope, double(options.width) / options.height, &p, &used);
       scope.camera = used;
       h << ImgTag(EncodePng(Render(*view.scene, {{scope, camera}}, options.width, options.height)),
                   "plan " + std::to_string(p.rank) + ": endoscope view");
     }
     h << "</div>\n<p>nominal pose: " << Escape(Describe(pose)) << "</p>\n";
-    h << "<table class=\"terms\"><tr><th>term</th><th>value</th><th>score</th></tr>";
-    for (const auto& t : p.terms)
-      h << "<tr><td>" << Escape(t.name) << "</td><td>" << Num(t.value, 4) << "</td><td>" << Num(t.score, 3) << "</td></tr>";
-    h << "</table>\n<table class=\"ports\"><tr><th>arm</th><th>candidate</th><th>incision (W, m)</th><th>pivot (W, m)</th></tr>";
-    for (const auto& port : p.ports) {
-      h << "<tr><td>" << Escape(port.arm) << "</td><td>" << Escape(port.candidate) << "</td><td>"
-        << Num(port.p_W.x(), 3) << ", " << Num(port.p_W.y(), 3) << ", " << Num(port.p_W.z(), 3) << "</td><td>"
-        << Num(port.rcm_W.x(), 3) << ", " << Num(port.rcm_W.y(), 3) << ", " << Num(port.rcm_W.z(), 3) << "</td></tr>";
-    }
-    h << "</table>\n";
-    if (p.verified) {
-      h << "<p>verified motions: coverage " << Num(100 * p.verified_coverage, 0) << " % (claimed "
-        << Num(100 * p.claimed_coverage, 0) << " %, " << (p.verified_coverage >= p.claimed_coverage ? "+" : "")
-        << Num(100 * (p.verified_coverage - p.claimed_coverage), 0) << " points by verification), samples served "
-        << Num(100 * p.served_fraction, 0) << " %: <span class=\"" << (p.verified_suitable ? "suitable" : "unsuitable")
-        << "\">" << (p.verified_suitable ? "suitable" : "not suitable") << "</span></p><ul>";
-      for (const auto& r : p.verification_reasons) h << "<li>" << Escape(r) << "</li>";
-      h << "</ul>\n<table class=\"motions\"><tr><th>arm</th><th>sample</th><th>target</th><th>outcome</th><th>clearance (mm)</th><th>reason</th></tr>";
-      for (const auto& m : p.motions) {
-        const std::string target = m.sample < static_cast<int>(file.samples.size()) ? file.samples[m.sample].target : "";
-        h << "<tr><td>" << Escape(m.arm) << "</td><td>" << m.sample << "</td><td>" << Escape(target) << "</td><td>"
-          << Escape(m.outcome) << "</td><td>" << (m.solved && std::isfinite(m.min_clearance) ? Num(1000 * m.min_clearance, 1) : "")
-          << "</td><td>" << Escape(m.reason) << "</td></tr>";
-      }
-      h << "</table>\n";
-    }
+    PlanTables(file, p, h);
     h << "<h3>Sign-off</h3>";
     h << "<p>status: <b>" << Escape(planners::PlanDecisionStatus(file, k)) << "</b></p>";
     const std::vector<std::string> blockers = planners::ApprovalBlockers(file, k);
@@ -141,8 +261,8 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
     }
     if (p.signoffs.empty()) h << "<p>not signed off</p>";
     for (const auto& s : p.signoffs) {
-      h << "<p><b>" << Escape(s.decision) << "</b> by " << Escape(s.surgeon) << " at " << Escape(s.time)
-        << (s.note.empty() ? "" : ": " + Escape(s.note)) << "</p>";
+      h << "<p><b>" << Escape(s.decision) << "</b> by " << Escape(s.surgeon) << " at "
+        << Escape(s.time) << (s.note.empty() ? "" : ": " + Escape(s.note)) << "</p>";
       if (!s.override_reason.empty()) {
         h << "<p>override: " << Escape(s.override_reason) << "</p><ul>";
         for (const auto& b : s.overridden) h << "<li>overrode: " << Escape(b) << "</li>";
@@ -153,13 +273,33 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
         const std::filesystem::path folder = std::filesystem::path(s.session).parent_path();
         for (const char* figure : {"tracking.png", "errors.png"}) {
           const std::string f = (folder / figure).string();
-          if (IsRegularFile(f)) h << "<div class=\"pictures\">" << ImgTag(ReadBinaryFile(f), figure) << "</div>";
+          if (IsRegularFile(f))
+            h << "<div class=\"pictures\">" << ImgTag(ReadBinaryFile(f), figure) << "</div>";
         }
       }
     }
     h << "</div>\n";
   }
-  if (shown < file.plans.size()) h << "<p>" << file.plans.size() - shown << " more plans in the plan file.</p>";
+  if (shown < file.plans.size())
+    h << "<p>" << file.plans.size() - shown << " more plans in the plan file.</p>";
+  // What a surgeon would have done, judged the same way (issue #41 item 3).
+  for (const auto& b : file.baselines) {
+    h << "<div class=\"plan\"><h2>Baseline, " << Escape(b.kind) << ": " << Escape(b.name)
+      << "</h2>\n";
+    if (!b.placed) {
+      h << "<p>not placed: " << Escape(b.why_not) << "</p></div>\n";
+      continue;
+    }
+    h << "<p>ports as given:</p><ul>";
+    for (const auto& w : b.where) h << "<li>" << Escape(w) << "</li>";
+    h << "</ul><p>" << Escape(b.plan.status) << ", score " << Num(b.plan.score, 3)
+      << "; its own verdict: <span class=\"" << (b.suitable ? "suitable" : "unsuitable") << "\">"
+      << Escape(b.summary) << "</span></p><ul>";
+    for (const auto& r : b.reasons) h << "<li>" << Escape(r) << "</li>";
+    h << "</ul>\n";
+    PlanTables(file, b.plan, h);
+    h << "</div>\n";
+  }
   h << "</body></html>\n";
   const std::string path = (std::filesystem::path(dir) / "report.html").string();
   WriteFileAtomically(path, h.str());

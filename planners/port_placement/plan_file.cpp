@@ -143,10 +143,10 @@ Eigen::Isometry3d CartPose(const Field& cart) {
   return X_WB;
 }
 
-StoredPlan ReadPlan(const Field& p) {
+StoredPlan ReadPlan(const Field& p, int rank_from = 1) {
   StoredPlan plan;
   plan.rank = p["rank"].Integer();
-  if (plan.rank < 1) p["rank"].Fail("a rank from 1");
+  if (plan.rank < rank_from) p["rank"].Fail("a rank from " + std::to_string(rank_from));
   plan.status = p["status"].String();
   plan.score = p["score"].Number();
   plan.rank_score = p["rank_score"].Number();
@@ -161,6 +161,7 @@ StoredPlan ReadPlan(const Field& p) {
     port.candidate = ports[i]["candidate"].String();
     port.p_W = ports[i]["p_W"].Position();
     port.rcm_W = ports[i]["rcm_W"].Position();
+    if (ports[i].Has("anatomy")) port.anatomy = ports[i]["anatomy"].String();
     plan.ports.push_back(port);
   }
   if (p.Has("views")) {
@@ -176,8 +177,13 @@ StoredPlan ReadPlan(const Field& p) {
   }
   const Field terms = p["terms"];
   for (std::size_t i = 0; i < terms.Size(); ++i) {
-    plan.terms.push_back(
-        {terms[i]["name"].String(), terms[i]["value"].Number(), terms[i]["score"].Number()});
+    StoredTerm t;
+    t.name = terms[i]["name"].String();
+    t.value = terms[i]["value"].Number();
+    t.score = terms[i]["score"].Number();
+    if (terms[i].Has("unit")) t.unit = terms[i]["unit"].String();
+    if (terms[i].Has("weight")) t.weight = terms[i]["weight"].Number();
+    plan.terms.push_back(t);
   }
   if (p.Has("verification")) {
     const Field v = p["verification"];
@@ -187,6 +193,10 @@ StoredPlan ReadPlan(const Field& p) {
     plan.served_fraction = v["served_fraction"].Number();
     plan.verified_suitable = v["suitable"].Bool();
     plan.verification_reasons = v["reasons"].Strings();
+    if (v.Has("served")) {
+      const Field served = v["served"];
+      for (std::size_t i = 0; i < served.Size(); ++i) plan.verified_served.push_back(served[i].Bool());
+    }
     const Field motions = v["motions"];
     for (std::size_t i = 0; i < motions.Size(); ++i) {
       const Field m = motions[i];
@@ -293,6 +303,13 @@ PlanFile ReadPlanFile(const std::string& path) {
   file.suitable = verdict["suitable"].Bool();
   file.summary = verdict["summary"].String();
   file.reasons = verdict["reasons"].Strings();
+  if (verdict.Has("verified")) {
+    const Field v = verdict["verified"];
+    file.has_verified_verdict = true;
+    file.verified_suitable = v["suitable"].Bool();
+    file.verified_summary = v["summary"].String();
+    file.verified_reasons = v["reasons"].Strings();
+  }
   const Field samples = root["target_samples"];
   for (std::size_t i = 0; i < samples.Size(); ++i) {
     StoredSample s;
@@ -321,6 +338,36 @@ PlanFile ReadPlanFile(const std::string& path) {
     TROCAR_THROW_UNLESS(plan.ports.size() == file.arms.size(),
                         path << ": plans[" << i << "].ports: " << plan.ports.size()
                              << " ports for " << file.arms.size() << " arms");
+  }
+  if (root.Has("baselines")) {
+    const Field list = root["baselines"];
+    for (std::size_t i = 0; i < list.Size(); ++i) {
+      const Field b = list[i];
+      StoredBaseline base;
+      base.kind = b["kind"].String();
+      base.name = b["name"].String();
+      base.placed = b["placed"].Bool();
+      if (!base.placed) {
+        base.why_not = b["why_not"].String();
+      } else {
+        base.where = b["where"].Strings();
+        base.plan = ReadPlan(b["plan"], /*rank_from=*/0);
+        TROCAR_THROW_UNLESS(base.plan.ports.size() == file.arms.size(),
+                            path << ": baselines[" << i << "].plan.ports: " << base.plan.ports.size()
+                                 << " ports for " << file.arms.size() << " arms");
+        base.suitable = b["verdict"]["suitable"].Bool();
+        base.summary = b["verdict"]["summary"].String();
+        base.reasons = b["verdict"]["reasons"].Strings();
+      }
+      file.baselines.push_back(std::move(base));
+    }
+  }
+  // Per-sample lists as long as the samples.
+  for (std::size_t i = 0; i < file.plans.size(); ++i) {
+    const auto& served = file.plans[i].verified_served;
+    TROCAR_THROW_UNLESS(served.empty() || served.size() == file.samples.size(),
+                        path << ": plans[" << i << "].verification.served: " << served.size()
+                             << " entries for " << file.samples.size() << " target samples");
   }
   return file;
 }

@@ -20,6 +20,9 @@ namespace trocar::planners {
 
 struct StoredPort {
   std::string arm, candidate;
+  /// Where it is in a surgeon's terms: "ICS-L4, on the anterior axillary line (153 mm from the
+  /// midline)" (empty in files written before it).
+  std::string anatomy;
   Eigen::Vector3d p_W = Eigen::Vector3d::Zero();    ///< the incision on the skin
   Eigen::Vector3d rcm_W = Eigen::Vector3d::Zero();  ///< the pivot
 };
@@ -33,6 +36,8 @@ struct StoredView {
 struct StoredTerm {
   std::string name;
   double value = 0.0, score = 0.0;
+  std::string unit;     ///< of `value` ("fraction", "deg", "m"; empty in older files)
+  double weight = 0.0;  ///< in the plan's score (0 in older files)
 };
 
 /// One verified motion (an instrument arm to a target sample).
@@ -77,6 +82,8 @@ struct StoredPlan {
   double claimed_coverage = 0.0;  ///< the plan's own reach figure, beside the verified one
   bool verified_suitable = false;
   std::vector<std::string> verification_reasons;
+  /// Per target sample: every instrument's motion there verified and an endoscope sees it.
+  std::vector<bool> verified_served;
   std::vector<StoredMotion> motions;
   std::vector<SignOff> signoffs;  ///< oldest first; the last is the plan's current decision
 };
@@ -92,6 +99,20 @@ struct StoredArm {
   std::vector<std::string> joints;
 };
 
+/// A plan to compare the optimised ones with: the surgeons' template placed on this patient, or
+/// a surgeon's own ports (`baselines` in docs/plan-format.md).
+struct StoredBaseline {
+  std::string kind;  ///< "template", "surgeon"
+  std::string name;
+  bool placed = false;
+  std::string why_not;             ///< when not placed
+  std::vector<std::string> where;  ///< per arm, the port as the template or file names it
+  StoredPlan plan;                 ///< when placed (rank 0)
+  bool suitable = false;           ///< its own verdict, as if it were the only plan
+  std::string summary;
+  std::vector<std::string> reasons;
+};
+
 struct PlanFile {
   std::string path;
   /// The inputs as written, and resolved: as given when that path exists (relative to the
@@ -101,11 +122,16 @@ struct PlanFile {
   std::string patient_name;
   Eigen::Isometry3d X_WP = Eigen::Isometry3d::Identity();
   std::vector<StoredArm> arms;
-  bool suitable = false;
+  bool suitable = false;  ///< the claimed verdict: by the plans' own reach checks
   std::string summary;
   std::vector<std::string> reasons;
+  /// The verdict that counts when the plans were verified: by plan 1's verified motions.
+  bool has_verified_verdict = false, verified_suitable = false;
+  std::string verified_summary;
+  std::vector<std::string> verified_reasons;
   std::vector<StoredSample> samples;
   std::vector<StoredPlan> plans;  ///< best first
+  std::vector<StoredBaseline> baselines;
 };
 
 /// Reads and checks a plan file. @throws trocar::Error naming the file and the field (its path

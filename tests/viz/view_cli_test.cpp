@@ -543,6 +543,18 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   const std::string dir = Out("report");
   nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Plan()));
   const std::string plan = Out("report_plan.json");
+  // A baseline beside the plans (the fixture plans without one, to stay quick): plan 2 as if it
+  // were the template's.
+  ASSERT_GE(doc["plans"].size(), 2u);
+  nlohmann::json baseline_plan = doc["plans"][1];
+  baseline_plan["rank"] = 0;
+  doc["baselines"] = nlohmann::json::array();
+  doc["baselines"].push_back({{"kind", "template"},
+                              {"name", "test template"},
+                              {"placed", true},
+                              {"where", {"first port as given", "second port as given"}},
+                              {"verdict", {{"suitable", false}, {"summary", "not suitable: as judged"}, {"reasons", {"a reason of its own"}}}},
+                              {"plan", baseline_plan}});
   WriteFileAtomically(plan, doc.dump());
   CommandRun run = Trocar("signoff " + plan + " --approve --surgeon 'Dr <Ada>' --note 'fine & ready' --override 'for the report'");
   ASSERT_EQ(run.exit_code, 0) << run.output;
@@ -561,6 +573,41 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   EXPECT_NE(html.find("fine &amp; ready"), std::string::npos);
   EXPECT_NE(html.find("status: <b>approved</b>"), std::string::npos);
   EXPECT_NE(html.find("override: for the report"), std::string::npos);
+  // The plans and the baseline in columns (issue #43 item 6): each port in a surgeon's terms, the
+  // served samples per target as the verification counted them, one verified verdict per column.
+  const auto table_at = html.find("<table class=\"compare\">");
+  ASSERT_NE(table_at, std::string::npos);
+  const std::string table = html.substr(table_at, html.find("</table>", table_at) - table_at);
+  EXPECT_NE(table.find("<th>plan 1</th><th>plan 2</th><th>template: test template</th>"), std::string::npos) << table;
+  const std::vector<nlohmann::json> columns = {doc["plans"][0], doc["plans"][1], baseline_plan};
+  for (const auto& column : columns) {
+    for (const auto& port : column["ports"]) {
+      const std::string where = port["anatomy"].get<std::string>();
+      EXPECT_NE(where.find("ICS-L"), std::string::npos) << where;
+      EXPECT_NE(table.find("<td>" + where + "</td>"), std::string::npos) << where;
+    }
+  }
+  for (const std::string target : {"LAD", "LIMA"}) {
+    std::string expected = "<td><b>" + target + " samples served</b></td>";
+    for (const auto& column : columns) {
+      int of = 0, served = 0;
+      for (std::size_t s = 0; s < doc["target_samples"].size(); ++s) {
+        if (doc["target_samples"][s]["target"] != target) continue;
+        ++of;
+        served += column["verification"]["served"][s].get<bool>() ? 1 : 0;
+      }
+      expected += "<td>" + std::to_string(served) + " of " + std::to_string(of) + "</td>";
+    }
+    EXPECT_NE(table.find(expected), std::string::npos) << expected << "\n" << table;
+  }
+  EXPECT_NE(table.find("<td><b>sign-off</b></td><td>approved</td><td>proposed</td><td>(baseline)</td>"), std::string::npos) << table;
+  // One verdict that counts, the claimed one labelled beside it; the terms with their units.
+  EXPECT_NE(html.find("by verified motions (the verdict that counts)"), std::string::npos);
+  EXPECT_NE(html.find("claimed, by the plans' own reach checks"), std::string::npos);
+  EXPECT_NE(html.find("<th>unit</th>"), std::string::npos);
+  EXPECT_NE(html.find("<td>fraction</td>"), std::string::npos);
+  EXPECT_NE(html.find("Baseline, template: test template"), std::string::npos);
+  EXPECT_NE(html.find("a reason of its own"), std::string::npos);
   // A real browser shows the pictures (the robot in its flat blue) and the tables (their headers'
   // colour).
   const std::string shot = Out("report.png");
