@@ -98,16 +98,21 @@ QString PlanHtml(const planners::PlanFile& file, std::size_t index) {
   QString h;
   h += "<h3>Plan " + QString::number(p.rank) + ": " + QString::fromStdString(p.status) + "</h3>";
   h += "<p>score <b>" + Fixed(p.score, 3) + "</b>, rank score " + Fixed(p.rank_score, 3) + "</p>";
-  h += "<table border=1 cellspacing=0 cellpadding=2><tr><th>term</th><th>value</th><th>score</th></tr>";
-  for (const auto& t : p.terms) {
-    h += "<tr><td>" + QString::fromStdString(t.name) + "</td><td>" + Fixed(t.value, 3) +
-         "</td><td>" + Fixed(t.score, 3) + "</td></tr>";
-  }
-  h += "</table><p>ports: ";
+  h += "<p>ports:</p><ul>";
   for (const auto& port : p.ports) {
-    h += QString::fromStdString(port.arm) + " in " + QString::fromStdString(port.candidate) + "; ";
+    h += "<li>" + QString::fromStdString(port.arm) + ": " +
+         QString::fromStdString(port.anatomy.empty() ? port.candidate : port.anatomy).toHtmlEscaped() +
+         "</li>";
   }
-  h += "</p>";
+  h += "</ul>";
+  h += "<table border=1 cellspacing=0 cellpadding=2><tr><th>term</th><th>value</th><th>unit</th>"
+       "<th>score (0-1)</th><th>weight</th></tr>";
+  for (const auto& t : p.terms) {
+    h += "<tr><td>" + QString::fromStdString(t.name) + "</td><td>" + Fixed(t.value, 3) + "</td><td>" +
+         QString::fromStdString(t.unit) + "</td><td>" + Fixed(t.score, 3) + "</td><td>" +
+         Fixed(t.weight, 2) + "</td></tr>";
+  }
+  h += "</table>";
   if (p.verified) {
     h += "<p>verified coverage " + Fixed(100 * p.verified_coverage, 0) + " %, samples served " +
          Fixed(100 * p.served_fraction, 0) + " %: " +
@@ -115,7 +120,15 @@ QString PlanHtml(const planners::PlanFile& file, std::size_t index) {
     for (const auto& r : p.verification_reasons) h += "<li>" + QString::fromStdString(r).toHtmlEscaped() + "</li>";
     h += "</ul>";
   }
-  h += "<h4>Verdict (best plan)</h4><p>" + QString::fromStdString(file.summary).toHtmlEscaped() + "</p><ul>";
+  if (file.has_verified_verdict) {
+    h += "<h4>Verdict, by verified motions (the one that counts)</h4><p>" +
+         QString::fromStdString(file.verified_summary).toHtmlEscaped() + "</p><ul>";
+    for (const auto& r : file.verified_reasons) h += "<li>" + QString::fromStdString(r).toHtmlEscaped() + "</li>";
+    h += "</ul>";
+  }
+  h += QString(file.has_verified_verdict ? "<h4>Verdict claimed by the plans' reach checks</h4><p>"
+                                         : "<h4>Verdict (best plan)</h4><p>") +
+       QString::fromStdString(file.summary).toHtmlEscaped() + "</p><ul>";
   for (const auto& r : file.reasons) h += "<li>" + QString::fromStdString(r).toHtmlEscaped() + "</li>";
   h += "</ul>";
   if (!p.message.empty()) h += "<p><i>" + QString::fromStdString(p.message).toHtmlEscaped() + "</i></p>";
@@ -777,6 +790,12 @@ int RunWorkstation(std::unique_ptr<Scene> scene, std::shared_ptr<const robot::Ro
   QApplication app(argc, argv);
   Workstation station(std::move(scene), std::move(robot), plan, options);
   return station.Run(app);
+}
+
+std::string PlanPageHtml(const planners::PlanFile& file, std::size_t index) {
+  TROCAR_THROW_UNLESS(index < file.plans.size(), file.path << ": plan " << index + 1 << ": the file holds "
+                                                           << file.plans.size() << " plans");
+  return PlanHtml(file, index).toStdString();
 }
 
 }  // namespace trocar::viz

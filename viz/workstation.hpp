@@ -35,6 +35,12 @@ struct WorkstationOptions {
 int RunWorkstation(std::unique_ptr<Scene> scene, std::shared_ptr<const robot::RobotModel> robot,
                    const planners::PlanFile* plan, const WorkstationOptions& options);
 
+/// The sidebar's page for plan `index` (0-based) of `file`, as HTML: its ports in a surgeon's
+/// terms, the score's terms with units and weights, its verification, the verdict that counts
+/// (by verified motions) and the claimed one, each labelled, and its sign-off status.
+/// @throws trocar::Error when the index is out of range.
+std::string PlanPageHtml(const planners::PlanFile& file, std::size_t index);
+
 /// The thesis' mouse mapping (§2.10) over VTK's trackball camera: left button rotates, right
 /// pans, middle or wheel zooms.
 vtkInteractorStyle* NewThesisCameraStyle();

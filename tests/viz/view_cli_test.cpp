@@ -27,6 +27,7 @@
 #include "test_util.hpp"
 #include "scene_file.hpp"
 #include "view_inputs.hpp"
+#include "workstation.hpp"
 
 namespace trocar::viz {
 namespace {
@@ -619,6 +620,25 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   const Image page = ReadPng(shot);
   EXPECT_GT(CountRgb(page, 0, 0, 255), 2000) << "the plans' pictures";
   EXPECT_GT(CountRgb(page, 31, 119, 180), 2000) << "the tables";
+}
+
+// The workstation's plan page says each port in a surgeon's terms (as the plan file holds them),
+// the terms with their units, and the verdict that counts labelled beside the claimed one.
+TEST_F(ViewCli, TheWorkstationsPlanPageSaysThePortsInAnatomicalTermsAndBothVerdicts) {
+  const planners::PlanFile file = planners::ReadPlanFile(Plan());
+  const nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Plan()));
+  for (std::size_t k = 0; k < file.plans.size(); ++k) {
+    const std::string page = PlanPageHtml(file, k);
+    for (const auto& port : doc["plans"][k]["ports"]) {
+      const std::string line = "<li>" + port["arm"].get<std::string>() + ": " + port["anatomy"].get<std::string>() + "</li>";
+      EXPECT_NE(page.find(line), std::string::npos) << line << "\n" << page;
+    }
+    EXPECT_NE(page.find("<td>fraction</td>"), std::string::npos) << page;
+    ASSERT_TRUE(doc["verdict"].contains("verified"));
+    EXPECT_NE(page.find("Verdict, by verified motions (the one that counts)"), std::string::npos) << page;
+    EXPECT_NE(page.find("Verdict claimed by the plans' reach checks"), std::string::npos) << page;
+  }
+  EXPECT_THROW(PlanPageHtml(file, file.plans.size()), Error);
 }
 
 TEST_F(ViewCli, AnArmOfThePlanIsTeleoperatedInItsPatientWithItsCollisionsSaid) {
