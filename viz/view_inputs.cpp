@@ -69,17 +69,15 @@ LoadedView LoadView(const ViewInputs& in) {
         "plan_index",
         in.plan_index << ": " << in.plan << " holds " << out.plan->plans.size() << " plans (1.."
                       << out.plan->plans.size() << ")");
-    TROCAR_THROW_UNLESS(IsRegularFile(out.plan->robot_file),
-                        in.plan << ": its robot " << out.plan->robot_file << " does not exist");
-    TROCAR_THROW_UNLESS(planners::HashFile(out.plan->robot_file) == out.plan->robot_hash,
-                        in.plan << ": robot file " << out.plan->robot_file
-                                << " changed since the plan was made (hash differs): plan again");
+    const std::string robot_mismatch = planners::RobotFileMismatch(*out.plan);
+    TROCAR_THROW_UNLESS(robot_mismatch.empty(), in.plan << ": " << robot_mismatch << ": plan again");
   }
   out.patient = patient::ImportCase(in.case_dir).model;
   if (out.plan) {
-    TROCAR_THROW_UNLESS(planners::HashPatientModel(*out.patient) == out.plan->model_hash,
-                        in.plan << ": was made for another patient model than " << in.case_dir
-                                << "'s (hash differs): view it with its own case, or plan again");
+    const std::string patient_mismatch =
+        planners::PatientModelMismatch(*out.plan, *out.patient, in.case_dir);
+    TROCAR_THROW_UNLESS(patient_mismatch.empty(),
+                        in.plan << ": " << patient_mismatch << ": view it with its own case, or plan again");
     out.robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(out.plan->robot_file));
   } else if (!in.robot.empty()) {
     out.robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(in.robot));

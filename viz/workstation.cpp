@@ -529,11 +529,13 @@ class Workstation {
     try {
       auto file = std::make_unique<planners::PlanFile>(planners::ReadPlanFile(path));
       TROCAR_THROW_UNLESS(!file->plans.empty(), path << ": holds no plans");
-      TROCAR_THROW_UNLESS(scene_->patient() && planners::HashPatientModel(*scene_->patient()) == file->model_hash,
-                          path << ": was made for another patient model than the one shown");
-      TROCAR_THROW_UNLESS(scene_->robot() && planners::HashFile(file->robot_file) == file->robot_hash,
-                          path << ": its robot " << file->robot_file
-                               << " is not the one shown, or changed since the plan was made");
+      TROCAR_THROW_UNLESS(scene_->patient(), path << ": no patient is shown to put the plan on");
+      const std::string patient_mismatch =
+          planners::PatientModelMismatch(*file, *scene_->patient(), scene_->patient()->case_dir);
+      TROCAR_THROW_UNLESS(patient_mismatch.empty(), path << ": " << patient_mismatch);
+      TROCAR_THROW_UNLESS(scene_->robot(), path << ": no robot is shown to put the plan on");
+      const std::string robot_mismatch = planners::RobotFileMismatch(*file);
+      TROCAR_THROW_UNLESS(robot_mismatch.empty(), path << ": " << robot_mismatch);
       plan_ = std::move(file);
       FillPlans();
       SelectPlan(0);

@@ -60,7 +60,7 @@ std::string Mm(double m) {
 int CheckPlanFile(const std::string& path, std::ostream& out) {
   // The typed reader first: every field's type, size and range, the cart's one pose; then the
   // independent re-check of what the plan claims.
-  (void)planners::ReadPlanFile(path);
+  const planners::PlanFile typed = planners::ReadPlanFile(path);
   json doc;
   try {
     doc = ReadJsonFile(path, "a plan");
@@ -82,25 +82,17 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
   TROCAR_THROW_UNLESS(version == planners::kPlanFormatVersion,
                       path << ": plan format version " << version << ", this trocar reads version "
                            << planners::kPlanFormatVersion);
-    const json& inputs = field(doc, "inputs");
-    const std::string plan_dir = ParentDirectory(path);
-    auto resolve = [&](const std::string& p) {
-      return IsRegularFile(p) || std::filesystem::exists(p) ? p : JoinPath(plan_dir, p);
-    };
-    const std::string robot_file = resolve(field(inputs, "robot").get<std::string>());
-    const std::string case_dir = resolve(field(inputs, "case").get<std::string>());
+    // The inputs through the typed reader (resolved against the plan's folder as every reader
+    // does), and whether they still fit by the one shared check.
+    const std::string& robot_file = typed.robot_file;
+    const std::string& case_dir = typed.case_dir;
     std::vector<std::string> failures;
     auto fail = [&](const std::string& what) { failures.push_back(what); };
-    if (planners::HashFile(robot_file) != field(inputs, "robot_hash").get<std::string>()) {
-      fail("robot file " + robot_file + " changed since the plan was made (hash differs)");
-    }
+    if (const std::string m = planners::RobotFileMismatch(typed); !m.empty()) fail(m);
+    TROCAR_THROW_UNLESS(IsRegularFile(robot_file), path << ": its robot " << robot_file << " does not exist");
     auto robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(robot_file));
     const patient::PatientModel patient = patient::ImportPatient(case_dir);
-    if (planners::HashPatientModel(patient) !=
-        field(inputs, "patient_model_hash").get<std::string>()) {
-      fail("patient model of " + case_dir +
-           " differs from the one the plan was made for (hash differs)");
-    }
+    if (const std::string m = planners::PatientModelMismatch(typed, patient, case_dir); !m.empty()) fail(m);
     const json& arms = field(field(doc, "robot"), "arms");
     // Every arm's tool frame is a frame of the robot (a tampered or foreign plan file is named,
     // before any pose is checked with it).

@@ -96,17 +96,13 @@ int RunVerify(const VerifyOptions& o) {
   WithFlags(MotionFlags(), [&] { planners::ValidateMotionOptions(o.motion); });
   // The typed reader first (every field checked, the cart's one pose), before anything is
   // rebuilt or rewritten.
-  (void)planners::ReadPlanFile(o.plan);
+  const planners::PlanFile typed = planners::ReadPlanFile(o.plan);
   json doc;
   try {
     doc = ReadJsonFile(o.plan, "a plan");
   } catch (const json::exception& e) {
     TROCAR_THROW(o.plan << ": not a plan (JSON: " << e.what() << ")");
   }
-  const std::string plan_dir = ParentDirectory(o.plan);
-  auto resolve = [&](const std::string& p) {
-    return std::filesystem::exists(p) ? p : JoinPath(plan_dir, p);
-  };
   std::shared_ptr<const robot::RobotModel> robot;
   std::shared_ptr<const patient::PatientModel> patient;
   std::unique_ptr<planners::PortPlacementProblem> problem;
@@ -118,21 +114,15 @@ int RunVerify(const VerifyOptions& o) {
     TROCAR_THROW_UNLESS(JsonInt(doc.at("version"), o.plan, "version") == planners::kPlanFormatVersion,
                         o.plan << ": plan format version " << doc.at("version")
                                << ", this trocar reads version " << planners::kPlanFormatVersion);
-    const json& inputs = doc.at("inputs");
-    const std::string robot_file = resolve(inputs.at("robot").get<std::string>());
-    const std::string case_dir = resolve(inputs.at("case").get<std::string>());
-    TROCAR_THROW_UNLESS(IsRegularFile(robot_file),
-                        o.plan << ": its robot " << robot_file << " does not exist");
-    TROCAR_THROW_UNLESS(planners::HashFile(robot_file) ==
-                            inputs.at("robot_hash").get<std::string>(),
-                        o.plan << ": robot file " << robot_file
-                               << " changed since the plan was made (hash differs): plan again");
+    // The inputs through the typed reader, and whether they still fit by the one shared check.
+    const std::string robot_file = typed.robot_file;
+    const std::string case_dir = typed.case_dir;
+    const std::string robot_mismatch = planners::RobotFileMismatch(typed);
+    TROCAR_THROW_UNLESS(robot_mismatch.empty(), o.plan << ": " << robot_mismatch << ": plan again");
     robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(robot_file));
     patient = patient::ImportCase(case_dir).model;
-    TROCAR_THROW_UNLESS(
-        planners::HashPatientModel(*patient) == inputs.at("patient_model_hash").get<std::string>(),
-        o.plan << ": the patient model of " << case_dir
-               << " differs from the one the plan was made for (hash differs): plan again");
+    const std::string patient_mismatch = planners::PatientModelMismatch(typed, *patient, case_dir);
+    TROCAR_THROW_UNLESS(patient_mismatch.empty(), o.plan << ": " << patient_mismatch << ": plan again");
     // The problem as the plan was scored: the case's plan settings, then what the file records.
     planners::ProblemOptions po;
     planners::ReadPlanConfig(case_dir, &po);
@@ -291,7 +281,7 @@ int RunVerify(const VerifyOptions& o) {
   }
   doc["plans"] = reordered;
   const std::string text = planners::AddVerificationJson(doc.dump(), *problem, ordered);
-  const std::string markups_path = JoinPath(plan_dir, "ports.mrk.json");
+  const std::string markups_path = JoinPath(ParentDirectory(o.plan), "ports.mrk.json");
   if (IsRegularFile(markups_path)) patient::WriteMarkups(markups, markups_path);
   WriteFileAtomically(o.plan, text);
   const bool suitable = !ordered.empty() && ordered.front().suitable;

@@ -372,6 +372,19 @@ PlanFile ReadPlanFile(const std::string& path) {
   return file;
 }
 
+std::string RobotFileMismatch(const PlanFile& file) {
+  if (!IsRegularFile(file.robot_file)) return "its robot " + file.robot_file + " does not exist";
+  if (HashFile(file.robot_file) != file.robot_hash)
+    return "robot file " + file.robot_file + " changed since the plan was made (hash differs)";
+  return "";
+}
+
+std::string PatientModelMismatch(const PlanFile& file, const patient::PatientModel& patient,
+                                 const std::string& case_dir) {
+  if (HashPatientModel(patient) == file.model_hash) return "";
+  return "was made for another patient model than " + case_dir + "'s (hash differs)";
+}
+
 std::vector<std::string> ApprovalBlockers(const PlanFile& file, std::size_t index) {
   TROCAR_THROW_UNLESS(index < file.plans.size(), file.path << ": plan " << index + 1
                                                            << ": the file holds "

@@ -16,6 +16,10 @@
 #include "robot/robot_model.hpp"
 #include "robot/robot_state.hpp"
 
+namespace trocar::patient {
+struct PatientModel;
+}
+
 namespace trocar::planners {
 
 struct StoredPort {
@@ -138,6 +142,17 @@ struct PlanFile {
 /// in the document) and what was expected: missing, not JSON, another format or version, a field
 /// of the wrong type or size, a non-finite number.
 PlanFile ReadPlanFile(const std::string& path);
+
+/// Whether the plan still fits its robot: "" when the robot file it names exists with the
+/// content it was planned with, else why not ("its robot R does not exist", "robot file R changed
+/// since the plan was made (hash differs)"). The one place this is decided (plan, verify, check,
+/// view, the workstation and the report call it); callers prefix the plan's path and add advice.
+std::string RobotFileMismatch(const PlanFile& file);
+/// Whether `patient` is the model the plan was made for (its content hash, over the geometry in
+/// the state it was planned in): "" or why not ("was made for another patient model than CASE's
+/// (hash differs)", naming `case_dir`).
+std::string PatientModelMismatch(const PlanFile& file, const patient::PatientModel& patient,
+                                 const std::string& case_dir);
 
 /// Why plan `index` (0-based) of `file` may not be approved without an override: at its nominal
 /// pose in collision or not placed; not verified by motions; not suitable by its verified verdict

@@ -559,17 +559,26 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
     EXPECT_NE(plan.output.find("anatomical criteria"), std::string::npos) << plan.output;
   }
 
-  // Move the cart 20 cm in the file: the RCMs leave their pivots.
-  std::string text = ReadTextFile(out + "/plan.json");
-  const std::regex cart_x("(\"cart\": \\{\\s*\"X_WB\"[\\s\\S]*?\"x\": )(-?[0-9.e+-]+)");
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(text, m, cart_x)) << text.substr(0, 2000);
-  const double x = std::stod(m[2].str());
-  text = std::string(m.prefix()) + m[1].str() + std::to_string(x + 0.2) + std::string(m.suffix());
-  WriteFileAtomically(out + "/tampered.json", text);
-  const CommandRun tampered = Trocar("check --plan " + out + "/tampered.json");
-  EXPECT_EQ(tampered.exit_code, 3) << tampered.output;
-  EXPECT_NE(tampered.output.find("from its pivot"), std::string::npos) << tampered.output;
+  // Move plan 1's cart 20 cm in the file (its pose and its x alike): the RCMs leave their pivots.
+  {
+    nlohmann::json moved = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
+    auto& cart = moved["plans"][0]["cart"];
+    cart["x"] = cart["x"].get<double>() + 0.2;
+    cart["X_WB"][0][3] = cart["X_WB"][0][3].get<double>() + 0.2;
+    WriteFileAtomically(out + "/tampered.json", moved.dump(1));
+    const CommandRun tampered = Trocar("check --plan " + out + "/tampered.json");
+    EXPECT_EQ(tampered.exit_code, 3) << tampered.output;
+    EXPECT_NE(tampered.output.find("from its pivot"), std::string::npos) << tampered.output;
+    // The baseline's cart's x alone moved: two poses that disagree, refused by the reader naming
+    // the field.
+    moved = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
+    auto& base = moved["baselines"][0]["plan"]["cart"];
+    base["x"] = base["x"].get<double>() + 0.2;
+    WriteFileAtomically(out + "/tampered_baseline.json", moved.dump(1));
+    const CommandRun refused = Trocar("check --plan " + out + "/tampered_baseline.json");
+    EXPECT_EQ(refused.exit_code, 1) << refused.output;
+    EXPECT_NE(refused.output.find("baselines[0].plan.cart"), std::string::npos) << refused.output;
+  }
 
   // An arm's tool frame the robot does not have (the cannula's track is found from it): a bad
   // input naming the file and the field, not the robot's bare error.
