@@ -307,6 +307,21 @@ CollisionWorld::~CollisionWorld() = default;
 
 const std::vector<Body>& CollisionWorld::bodies() const { return impl_->bodies; }
 const std::vector<Arm>& CollisionWorld::arms() const { return impl_->arms; }
+
+std::string CollisionWorld::DescribeBody(int body) const {
+  const Body& b = impl_->bodies.at(static_cast<std::size_t>(body));
+  if (b.kind != Body::Kind::kRobot) return "the " + b.name;
+  const std::string arm = b.arm >= 0 ? impl_->arms[b.arm].name + "'s " : std::string("the robot's ");
+  const char* part = b.arm < 0 ? "base" : b.distal ? "wrist" : b.port >= 0 ? "shaft" : "arm";
+  return arm + part + " (" + b.name + ")";
+}
+
+std::string CollisionWorld::DescribePair(int a, int b) const {
+  const bool robot_b_first = impl_->bodies.at(static_cast<std::size_t>(b)).kind == Body::Kind::kRobot &&
+                             impl_->bodies.at(static_cast<std::size_t>(a)).kind != Body::Kind::kRobot;
+  if (robot_b_first) std::swap(a, b);
+  return DescribeBody(a) + " against " + DescribeBody(b);
+}
 const std::vector<Port>& CollisionWorld::ports() const { return impl_->ports; }
 const robot::RobotModel* CollisionWorld::robot() const { return impl_->robot.get(); }
 const WorldOptions& CollisionWorld::options() const { return impl_->options; }

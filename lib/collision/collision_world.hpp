@@ -165,6 +165,14 @@ class CollisionWorld {
   /// caller.
   int auto_allowed_pairs() const;
   PairClass Classify(int a, int b) const;
+  /// A body in the words a surgeon reads, with the model's name for an engineer: "psm1's shaft
+  /// (psm1_insertion_link#1)" (an instrument link through its port), "psm1's wrist
+  /// (psm1_wrist_yaw_link)" (Body::distal), "psm2's arm (psm2_pitch_bottom_link)", "the robot's
+  /// base (cart)", "the heart", "the table".
+  std::string DescribeBody(int body) const;
+  /// Two bodies in contact, the robot's first: "psm1's shaft (psm1_insertion_link#1) against the
+  /// heart".
+  std::string DescribePair(int a, int b) const;
   int FindBody(const std::string& name) const;
   long triangle_count() const;
   /// The patient structure (skin, bone, organ: Body::Kind::kPatient) that the straight line from

@@ -327,10 +327,10 @@ bool MotionContext::Valid(const Eigen::VectorXd& q, std::string* why) {
   if (!checker_->InCollision()) return true;
   if (why) {
     const auto report = checker_->Check();
-    const auto& bodies = checker_->world().bodies();
-    *why = report.contacts.empty() ? std::string("collision")
-                                   : "collision: " + bodies[report.contacts.front().a].name +
-                                         " - " + bodies[report.contacts.front().b].name;
+    *why = report.contacts.empty()
+               ? std::string("collision")
+               : "collision: " + checker_->world().DescribePair(report.contacts.front().a,
+                                                                report.contacts.front().b);
   }
   return false;
 }

@@ -147,9 +147,8 @@ CartPlacementResult PlaceCart(const robot::RobotModel& cart, const CartPlacement
     result.collisions = static_cast<int>(report.contacts.size());
     if (report.collision) {
       result.status = PlacementStatus::kInCollision;
-      const auto& bodies = options.checker->world().bodies();
       message << "  in collision: " << report.contacts.size() << " pairs, e.g. "
-              << bodies[report.contacts[0].a].name << " - " << bodies[report.contacts[0].b].name
+              << options.checker->world().DescribePair(report.contacts[0].a, report.contacts[0].b)
               << "\n";
     }
   }

@@ -796,12 +796,10 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
   if (nominal.collision) {
     ev.status = PlacementStatus::kInCollision;
     std::ostringstream m;
-    const auto& bodies = world_->bodies();
     m << ev.message << "  in collision at the nominal pose: " << nominal.contacts.size()
       << " pairs";
     for (std::size_t i = 0; i < std::min<std::size_t>(3, nominal.contacts.size()); ++i) {
-      m << (i == 0 ? " (" : ", ") << bodies[nominal.contacts[i].a].name << " - "
-        << bodies[nominal.contacts[i].b].name;
+      m << (i == 0 ? " (" : ", ") << checker.world().DescribePair(nominal.contacts[i].a, nominal.contacts[i].b);
     }
     m << ")\n";
     ev.message = m.str();
@@ -999,9 +997,8 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
           } else if (attempt == 0 && detailed) {
             const auto report =
                 checker.Check(how.sample_mask & collision::kAllMovingPairs, only_arm);
-            const auto& bodies = world_->bodies();
             const auto& c = report.contacts.front();
-            why = "collision: " + bodies[c.a].name + " - " + bodies[c.b].name;
+            why = "collision: " + checker.world().DescribePair(c.a, c.b);
           } else if (attempt == 0) {
             why = "collision";
           }

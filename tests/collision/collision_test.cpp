@@ -441,6 +441,34 @@ TEST(CollisionWorld, CartSelfPairsOfTheParallelogramsAreAllowedAndArmsStillColli
             0);  // within an arm, only the setup joints could meet the arm: not at these settings
 }
 
+// Bodies in a surgeon's words, by what they are in the world (an instrument link through its
+// port, a wrist, another arm link, a patient structure), not by their names: a shaft called an
+// arm, or a pair with the patient's structure first, fails.
+TEST(CollisionWorld, ABodyIsDescribedByWhatItIs) {
+  const CartScene s = MakeCartScene();
+  const auto& w = *s.world;
+  const int shaft = w.FindBody("psm1_insertion_link#1"), skin = w.FindBody("skin"),
+            arm = w.FindBody("psm2_pitch_bottom_link"), table = w.FindBody("table");
+  ASSERT_GE(shaft, 0);
+  ASSERT_GE(skin, 0);
+  ASSERT_GE(arm, 0);
+  ASSERT_GE(table, 0);
+  ASSERT_GE(w.bodies()[shaft].port, 0);
+  ASSERT_FALSE(w.bodies()[shaft].distal);
+  EXPECT_EQ(w.DescribeBody(shaft), "psm1's shaft (psm1_insertion_link#1)");
+  EXPECT_EQ(w.DescribeBody(arm), "psm2's arm (psm2_pitch_bottom_link)");
+  EXPECT_EQ(w.DescribeBody(skin), "the skin");
+  EXPECT_EQ(w.DescribePair(skin, shaft), "psm1's shaft (psm1_insertion_link#1) against the skin");
+  EXPECT_EQ(w.DescribePair(arm, table), "psm2's arm (psm2_pitch_bottom_link) against the table");
+  int wrists = 0;
+  for (int b = 0; b < static_cast<int>(w.bodies().size()); ++b) {
+    if (!w.bodies()[b].distal) continue;
+    ++wrists;
+    EXPECT_EQ(w.DescribeBody(b), w.arms()[w.bodies()[b].arm].name + "'s wrist (" + w.bodies()[b].name + ")");
+  }
+  EXPECT_GT(wrists, 0);
+}
+
 // Checking one arm (what a planner that moved that arm alone needs) finds exactly the contacts of
 // the whole check that involve a body of that arm, for every pair class, over random poses of the
 // cart's arms through the patient: a filter that dropped the arm's pairs with the patient or with
