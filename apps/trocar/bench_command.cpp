@@ -7,6 +7,7 @@
 #include <memory>
 
 #include "apps/trocar/commands.hpp"
+#include "apps/trocar/progress.hpp"
 #include "bench/runner.hpp"
 #include "bench/spec.hpp"
 #include "common/error.hpp"
@@ -43,8 +44,19 @@ int RunBenchCommand(const BenchCommandOptions& o) {
   planners::BenchOptions options;
   options.threads = o.threads;
   options.max_new_runs = o.max_runs;
-  if (!o.quiet) options.progress = [](const std::string& line) { std::cout << line << "\n" << std::flush; };
+  TerminalProgress bar(o.quiet);
+  if (!o.quiet) {
+    options.progress = [&bar](const std::string& line) {
+      bar.Clear();
+      std::cout << line << "\n" << std::flush;
+    };
+  }
+  options.tick = [&bar](long done, long of, const std::string& phase) {
+    bar.Update(of > 0 ? static_cast<double>(done) / of : -1.0,
+               phase + ": " + std::to_string(done) + " of " + std::to_string(of));
+  };
   const planners::BenchReport r = planners::RunBench(spec, o.out, options);
+  bar.Clear();
   if (r.rank != 0) return 0;  // MPI: rank 0 reports for all
   std::cout << std::fixed << std::setprecision(1) << "runs: " << r.runs << " in the spec, "
             << r.already_done << " already done, " << r.added << " run now in " << r.seconds

@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "apps/trocar/commands.hpp"
+#include "apps/trocar/progress.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "common/image.hpp"
@@ -87,7 +88,10 @@ void RunImport(const ImportCommandOptions& o) {
   patient::ImportOptions options;
   options.use_cache = !o.rebuild && !o.no_cache;
   options.write_cache = !o.no_cache;
+  TerminalProgress bar;
+  options.progress = [&bar](const std::string& stage) { bar.Update(-1.0, "importing: " + stage); };
   const patient::ImportedPatient imported = patient::ImportCase(o.case_dir, options);
+  bar.Clear();
   const patient::PatientModel& m = *imported.model;
   const patient::ImportReport& report = imported.report;
   std::cout << std::fixed << std::setprecision(1);

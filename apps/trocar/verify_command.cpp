@@ -11,6 +11,7 @@
 #include <numeric>
 
 #include "apps/trocar/commands.hpp"
+#include "apps/trocar/progress.hpp"
 #include "common/error.hpp"
 #include "common/json_util.hpp"
 #include "port_placement/plan_file.hpp"
@@ -251,9 +252,16 @@ int RunVerify(const VerifyOptions& o) {
     TROCAR_THROW(o.plan << ": malformed plan (" << e.what() << ")");
   }
   std::vector<planners::PlanVerification> verifications;
+  TerminalProgress bar(o.quiet);
   for (std::size_t k = 0; k < plans.size(); ++k) {
-    verifications.push_back(
-        planners::VerifyPlan(*problem, plans[k], o.motion, suitable_fraction, o.threads));
+    verifications.push_back(planners::VerifyPlan(
+        *problem, plans[k], o.motion, suitable_fraction, o.threads, [&](int done, int of) {
+          bar.Update((k + static_cast<double>(done) / of) / plans.size(),
+                     "verifying motions: plan " + std::to_string(k + 1) + " of " +
+                         std::to_string(plans.size()) + ", " + std::to_string(done) + " of " +
+                         std::to_string(of));
+        }));
+    bar.Clear();
     if (!o.quiet) {
       std::cout << "plan " << k + 1 << ":\n";
       PrintVerification(verifications.back(), std::cout);

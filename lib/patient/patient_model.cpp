@@ -128,6 +128,7 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
   bool warnings_told = false;
   auto stage = [&](const std::string& name, const std::function<void()>& f) {
     const auto t0 = Clock::now();
+    if (options.progress) options.progress(name);
     try {
       f();
     } catch (const Error& e) {

@@ -5,6 +5,7 @@
 /// curves, and the patient's pose on the operating table. Immutable once built; built from a case
 /// folder (`patients/<case>/patient.yaml`) and cached beside it.
 
+#include <functional>
 #include <memory>
 #include <string>
 #include <utility>
@@ -104,6 +105,9 @@ struct ImportOptions {
   bool write_cache = true;
   /// The model in the CT's state: the operative state (patient.yaml `operation:`) not applied.
   bool ct_state = false;
+  /// Called with each stage's name as it starts ("load CT", "segment body and bone", ...), from
+  /// the calling thread (progress on a terminal).
+  std::function<void(const std::string&)> progress;
 };
 
 /// Reads `case_dir/patient.yaml`, builds (or loads from the cache) the model: CT import,

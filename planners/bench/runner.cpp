@@ -6,6 +6,8 @@
 #include <mpi.h>
 #include <omp.h>
 
+#include <atomic>
+
 #include <chrono>
 #include <cstdlib>
 #include <cmath>
@@ -192,6 +194,11 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
   int progress_rank = 0;
   auto progress = [&](const std::string& line) {
     if (options.progress && progress_rank == 0) options.progress(line);
+  };
+  std::atomic<long> finished{0};
+  auto tick = [&](long of, const char* phase) {
+    const long done = finished.fetch_add(1) + 1;
+    if (options.tick && progress_rank == 0 && omp_get_thread_num() == 0) options.tick(done, of, phase);
   };
   const Mpi mpi = StartMpi();
   report.rank = mpi.rank;
@@ -405,6 +412,7 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
       }
 #pragma omp critical(trocar_bench_db)
       deliver(0, todo[t], v, payload.dump());
+      tick(static_cast<long>(todo.size()), "placement runs");
     } catch (const std::exception& e) {
 #pragma omp critical(trocar_bench_db)
       if (error.empty()) error = run.key + ": " + e.what();
@@ -502,6 +510,7 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
                      planner_config[run.planner], MotionProperties(), v, payload);
     ++report.added;
   };
+  finished.store(0);
   progress("motion runs: " + std::to_string(todo.size()) + " to do of " +
            std::to_string(motion_runs.size()));
 #pragma omp parallel num_threads(report.threads)
@@ -559,6 +568,7 @@ BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,
         nlohmann::json payload = {{"outcome", m.outcome}, {"reason", m.reason}};
 #pragma omp critical(trocar_bench_db)
         deliver(1, todo[t], v, payload.dump());
+        tick(static_cast<long>(todo.size()), "motion runs");
       } catch (const std::exception& ex) {
 #pragma omp critical(trocar_bench_db)
         if (error.empty()) error = run.key + ": " + ex.what();

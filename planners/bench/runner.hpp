@@ -33,8 +33,11 @@ struct BenchOptions {
   int threads = -1;  ///< overrides the spec's threads when >= 0
   /// Stops after this many new runs (tests of resumption); < 0: no limit.
   long max_new_runs = -1;
-  /// Progress lines ("placement 3/12", ...), from the calling thread.
+  /// Progress lines ("placement runs: 12 to do of 12", ...), from the calling thread.
   std::function<void(const std::string&)> progress;
+  /// After each run this process finishes: runs done and to do in the phase, and the phase
+  /// ("placement runs", "motion runs"); from the calling thread of rank 0 only.
+  std::function<void(long, long, const std::string&)> tick;
 };
 
 BenchReport RunBench(const BenchSpec& spec, const std::string& db_path,

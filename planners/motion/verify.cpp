@@ -2,6 +2,8 @@
 
 #include <omp.h>
 
+#include <atomic>
+
 #include <algorithm>
 #include <exception>
 #include <chrono>
@@ -18,7 +20,7 @@ namespace trocar::planners {
 
 PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPlan& plan,
                             const MotionOptions& options, double suitable_fraction,
-                            int threads) {
+                            int threads, const std::function<void(int, int)>& progress) {
   ValidateMotionOptions(options);
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
@@ -53,6 +55,7 @@ PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPla
     // fault stays trocar::InternalError), whatever the threads' timing.
     std::exception_ptr error;
     int error_query = queries;
+    std::atomic<int> planned{0};
 #pragma omp parallel num_threads(v.threads)
     {
       MotionContext context(motion_problem);
@@ -60,6 +63,8 @@ PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPla
       for (int k = 0; k < queries; ++k) {
         try {
           v.motions[k] = context.Plan(instruments[k / ns], k % ns, options);
+          const int done = planned.fetch_add(1) + 1;
+          if (progress && omp_get_thread_num() == 0) progress(done, queries);
         } catch (...) {
 #pragma omp critical(trocar_verify_error)
           if (k < error_query) {

@@ -5,6 +5,7 @@
 /// verdict from them; the plan file's "verification" part (docs/plan-format.md) and the ranking
 /// with the verified coverage in place of the claimed one.
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -33,9 +34,12 @@ struct PlanVerification {
 /// Verifies one ranked plan. Queries run on `threads` OpenMP threads (0: all cores), one
 /// MotionContext each; each query has its own seed, so the result does not depend on the
 /// thread count (motion.hpp, "Determinism").
+/// `progress` (optional) is called from the calling thread with the motions planned so far and
+/// the number of motions.
 PlanVerification VerifyPlan(const PortPlacementProblem& problem, const RankedPlan& plan,
                             const MotionOptions& options, double suitable_fraction,
-                            int threads = 0);
+                            int threads = 0,
+                            const std::function<void(int, int)>& progress = nullptr);
 
 /// Plan indices by verified rank score, best first (stable: ties keep their order).
 std::vector<std::size_t> VerifiedOrder(const std::vector<PlanVerification>& verifications);

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <map>
 #include <nlopt.hpp>
@@ -62,7 +63,8 @@ void RunNlopt(const PortPlacementProblem& problem, nlopt::algorithm algorithm,
               const std::vector<double>& lb, const std::vector<double>& ub, std::vector<double> x0,
               int max_evaluations, unsigned seed, Clock::time_point deadline, Workspace* ws,
               std::vector<Sample>* archive, std::atomic<int>* counter,
-              std::atomic<bool>* out_of_time, const std::string& local_name = "bobyqa") {
+              std::atomic<bool>* out_of_time, const std::string& local_name = "bobyqa",
+              const std::function<void(int)>* tick = nullptr) {
   if (max_evaluations <= 0) return;
   nlopt::srand(seed);
   const unsigned n = static_cast<unsigned>(lb.size());
@@ -94,7 +96,8 @@ void RunNlopt(const PortPlacementProblem& problem, nlopt::algorithm algorithm,
     std::atomic<bool>* out_of_time;
     Clock::time_point deadline;
     int budget;
-  } context{&problem, ws, archive, counter, out_of_time, deadline, max_evaluations};
+    const std::function<void(int)>* tick;  // after each evaluation, with the count so far
+  } context{&problem, ws, archive, counter, out_of_time, deadline, max_evaluations, tick};
   auto objective = [](unsigned, const double* x, double*, void* data) -> double {
     auto* c = static_cast<Context*>(data);
     if (static_cast<int>(c->archive->size()) >= c->budget) throw nlopt::forced_stop();
@@ -105,7 +108,8 @@ void RunNlopt(const PortPlacementProblem& problem, nlopt::algorithm algorithm,
     std::vector<double> v(x, x + c->problem->dimension());
     const Evaluation ev = c->problem->Evaluate(c->problem->Decode(v), c->ws);
     c->archive->push_back({v, ev.score});
-    c->counter->fetch_add(1);
+    const int done = c->counter->fetch_add(1) + 1;
+    if (c->tick && *c->tick) (*c->tick)(done);
     return ev.score;
   };
   opt.set_max_objective(objective, &context);
@@ -580,7 +584,9 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
         }
         out[i] = {xs[i], problem.Evaluate(problem.Decode(xs[i]), &ws).score};
         const int done = counter.fetch_add(1) + 1;
-        progress(0.7 * done / std::max(1.0, total), stage);
+        progress(0.7 * done / std::max(1.0, total),
+                 stage + ": " + std::to_string(done) + " of " + std::to_string(std::lround(total)) +
+                     " evaluations");
       }
     }
     out.erase(std::remove_if(out.begin(), out.end(), [](const Sample& s) { return s.x.empty(); }),
@@ -620,6 +626,13 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     const int per_start =
         std::max(1, (options.evaluations - static_cast<int>(seeds.size())) / starts);
     std::atomic<int> done_starts{0};
+    // Progress after every 10th evaluation (the counter holds the seeds' too).
+    const std::function<void(int)> global_tick = [&](int n) {
+      if (n % 10 != 0) return;
+      progress(0.7 * n / std::max(1, options.evaluations),
+               "global " + options.algorithm + ": " + std::to_string(n) + " of " +
+                   std::to_string(options.evaluations) + " evaluations");
+    };
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (int s = 0; s < starts; ++s) {
       Workspace ws(problem);
@@ -631,7 +644,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       for (int i = 0; i < dim; ++i) x0[i] = 0.5 * (slb[i] + sub[i]);
       RunNlopt(problem, GlobalAlgorithm(options.algorithm), slb, sub, x0, per_start,
                options.seed * 7919u + static_cast<unsigned>(s), deadline, &ws, &archives[s],
-               &counter, &out_of_time, options.local);
+               &counter, &out_of_time, options.local, &global_tick);
       done_starts.fetch_add(1);
       progress(0.7 * counter.load() / (per_start * starts), "global " + options.algorithm);
     }

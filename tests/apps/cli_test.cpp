@@ -527,6 +527,41 @@ TEST(TrocarRobotInfo, MissingFileIsNamed) {
 
 // trocar plan writes a plan whose every claim trocar check --plan confirms; a plan whose cart was
 // moved after the fact is caught; bad options are refused before any work.
+// On a terminal (a pseudo-terminal from util-linux's `script`), the long commands show their
+// stage, the share done and the time left on one line redrawn in place, cleared before the
+// results (issue #43 item 11): plan through the import, the search (its evaluations counted) and
+// the verified motions; verify through each plan's motions; import through its stages.
+TEST(TrocarPlan, OnATerminalTheLongCommandsShowTheirProgress) {
+  const std::string out = ::testing::TempDir() + "trocar_plan_progress";
+  std::filesystem::remove_all(out);
+  auto on_terminal = [](const std::string& arguments) {
+    return test::RunShell("script -qec '" + std::string(TROCAR_BINARY) + " " + arguments + "' /dev/null");
+  };
+  CommandRun plan = on_terminal("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+                                " --arms psm1 psm2 --evaluations 80 --starts 2 --polish-evaluations 10"
+                                " --top 1 --motion-time 0.3 --baseline none");
+  ASSERT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
+  EXPECT_NE(plan.output.find("\rimporting: "), std::string::npos) << plan.output;
+  EXPECT_NE(plan.output.find(" % global direct-l: "), std::string::npos) << plan.output;
+  EXPECT_NE(plan.output.find(" of 80 evaluations"), std::string::npos) << plan.output;
+  EXPECT_NE(plan.output.find(" % verifying motions: plan 1, "), std::string::npos) << plan.output;
+  EXPECT_NE(plan.output.find(" left"), std::string::npos) << plan.output;
+  // Cleared before the results: the verdict starts its own line.
+  EXPECT_NE(plan.output.find("\r\x1b[K"), std::string::npos) << plan.output;
+  const auto verdict = plan.output.find("verdict: ");
+  ASSERT_NE(verdict, std::string::npos);
+  EXPECT_EQ(plan.output[verdict - 1], '\n') << plan.output.substr(verdict - 40, 60);
+  CommandRun verify = on_terminal("verify " + out + "/plan.json --motion-time 0.3");
+  ASSERT_TRUE(verify.exit_code == 0 || verify.exit_code == 4) << verify.output;
+  EXPECT_NE(verify.output.find(" % verifying motions: plan 1 of 1, "), std::string::npos) << verify.output;
+  CommandRun import = on_terminal("import " + test::SourcePath("patients/phantom-default"));
+  EXPECT_EQ(import.exit_code, 0) << import.output;
+  EXPECT_NE(import.output.find("\rimporting: "), std::string::npos) << import.output;
+  // --quiet: nothing drawn.
+  CommandRun quiet = on_terminal("verify " + out + "/plan.json --motion-time 0.3 --quiet");
+  EXPECT_EQ(quiet.output.find(" % verifying motions"), std::string::npos) << quiet.output;
+}
+
 TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   const std::string out = ::testing::TempDir() + "trocar_plan_cli";
   std::filesystem::remove_all(out);
@@ -536,6 +571,9 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   ASSERT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
   EXPECT_NE(plan.output.find("verdict: "), std::string::npos) << plan.output;
   EXPECT_NE(plan.output.find("coverage"), std::string::npos) << plan.output;
+  // Not on a terminal (a pipe): no progress line in the output (issue #43 item 11).
+  EXPECT_EQ(plan.output.find('\r'), std::string::npos);
+  EXPECT_EQ(plan.output.find("\x1b[K"), std::string::npos);
   ASSERT_TRUE(IsRegularFile(out + "/plan.json"));
   ASSERT_TRUE(IsRegularFile(out + "/ports.mrk.json"));
   const CommandRun check = Trocar("check --plan " + out + "/plan.json");
