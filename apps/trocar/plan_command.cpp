@@ -32,6 +32,7 @@ struct PlanOptions {
   planners::PortPlacementOptions optimizer;
   int samples = 0;
   bool no_robustness = false;
+  bool no_remedies = false;
   bool no_verify = false;
   planners::MotionOptions motion;
   int motion_threads = 0;
@@ -81,7 +82,8 @@ int RunPlan(PlanOptions o) {
   if (o.samples > 0) problem_options.samples_per_target = o.samples;
   problem_options.seed = o.optimizer.seed;
   if (o.no_robustness) o.optimizer.robustness_shift = 0.0;
-  o.optimizer.remedies = true;  // the verdict says what would reach each unserved stretch
+  // The verdict says what would reach each unserved stretch (about 10 evaluations a stretch).
+  o.optimizer.remedies = !o.no_remedies;
   auto robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(o.robot));
   // Arms and roles checked against the robot before the patient is imported.
   {
@@ -399,6 +401,8 @@ void AddPlanCommand(CLI::App* app) {
                   "verified as the plans are, in the plan file's baselines")
       ->capture_default_str();
   cmd->add_flag("--no-robustness", o->no_robustness, "skip re-scoring with the targets moved");
+  cmd->add_flag("--no-remedies", o->no_remedies,
+                "do not search for the port or cart change that would reach each unserved stretch");
   cmd->add_flag("--no-verify", o->no_verify,
                 "skip the verified motions (OMPL) to every target sample of each plan");
   AddMotionOptions(cmd, &o->motion, &o->motion_threads);

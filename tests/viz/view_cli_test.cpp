@@ -57,7 +57,7 @@ class ViewCli : public ::testing::Test {
         std::filesystem::last_write_time(TROCAR_BINARY).time_since_epoch().count());
     const std::string stamp = std::string(TROCAR_TEST_WORK_DIR) + "/plan.stamp";
     if (!IsRegularFile(Plan()) || !IsRegularFile(stamp) || ReadTextFile(stamp) != stamp_of_binary) {
-      const CommandRun plan = Trocar("plan " + SourcePath("patients/phantom-default") + " --robot " +
+      const CommandRun plan = Trocar("plan --no-remedies " + SourcePath("patients/phantom-default") + " --robot " +
                                      SourcePath("robots/davinci-classic/cart.yaml") +
                                      " --arms psm1 psm2 --evaluations 300 --starts 2 --motion-time 0.5 --baseline none --out " +
                                      std::string(TROCAR_TEST_WORK_DIR) + "/plan");
