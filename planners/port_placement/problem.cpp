@@ -119,10 +119,86 @@ IkOutcome SolveReach(const robot::RobotModel& robot, const PlanArm& arm,
   return out;
 }
 
+// A direction in the patient's frame (LPS: +x left, +y back, +z head) in anatomical words: its
+// largest component, and the next one when it is at least half as large ("toward the feet and the
+// front").
+std::string AnatomicalDirection(const Eigen::Vector3d& v_P) {
+  static const char* const kWords[3][2] = {{"the patient's right", "the patient's left"},
+                                           {"the front", "the back"},
+                                           {"the feet", "the head"}};
+  int order[3] = {0, 1, 2};
+  std::sort(order, order + 3, [&](int i, int j) { return std::abs(v_P[i]) > std::abs(v_P[j]); });
+  std::string words = std::string("toward ") + kWords[order[0]][v_P[order[0]] > 0.0];
+  if (std::abs(v_P[order[1]]) >= 0.5 * std::abs(v_P[order[0]]))
+    words += std::string(" and ") + kWords[order[1]][v_P[order[1]] > 0.0];
+  return words;
+}
+
+}  // namespace
+
+std::string JointLimitWords(const robot::RobotModel& robot, const PlanArm& arm,
+                            const robot::RobotState& state, const Eigen::Vector3d& p_aim_W,
+                            const Eigen::Isometry3d& X_WP, double error) {
+  // Which joint at a limit stops the tip: the one whose motion past its limit would carry the tip
+  // most directly toward the point (the tool Jacobian's column, signed by the limit).
+  kinematics::Matrix6Xd J_WT;
+  kinematics::ComputeFrameJacobian(robot, state, robot.GetFrame(arm.tool_frame), &J_WT);
+  const robot::Frame& tool = robot.GetFrame(arm.tool_frame);
+  const Eigen::Vector3d p_WT = (state.X_WL[tool.link] * tool.X_LF).translation();
+  const Eigen::Vector3d toward = (p_aim_W - p_WT).normalized();
+  int best = -1, best_column = -1;
+  double best_gain = -std::numeric_limits<double>::infinity();
+  Eigen::Vector3d best_v = Eigen::Vector3d::Zero();
+  for (std::size_t c = 0; c < arm.q_indices.size(); ++c) {
+    const int i = arm.q_indices[c];
+    const auto& joint = robot.joint(robot.active_joints()[i]);
+    if (!std::isfinite(joint.limits.upper - joint.limits.lower)) continue;
+    const bool at_lower = state.q[i] <= joint.limits.lower + 1e-6;
+    const bool at_upper = state.q[i] >= joint.limits.upper - 1e-6;
+    if (!at_lower && !at_upper) continue;
+    const Eigen::Vector3d v = (at_upper ? 1.0 : -1.0) * J_WT.block<3, 1>(3, i);
+    const double gain = v.norm() > 1e-9 ? v.normalized().dot(toward) : -1.0;
+    if (gain > best_gain) {
+      best_gain = gain;
+      best = i;
+      best_column = static_cast<int>(c);
+      best_v = v;
+    }
+  }
+  if (best < 0) return "";
+  const auto& joint = robot.joint(robot.active_joints()[best]);
+  const bool upper = state.q[best] >= joint.limits.upper - 1e-6;
+  // Where the joint sits on the arm: the insertion, the instrument below it (roll, wrist), or the
+  // arm above it, which swings the shaft about the port (an RCM arm) or moves the arm (a
+  // software-RCM arm).
+  int insertion_column = -1;
+  for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
+    if (arm.q_indices[c] == arm.insertion_q) insertion_column = static_cast<int>(c);
+  const std::string where =
+      best_v.norm() > 1e-9 ? " " + AnatomicalDirection(X_WP.linear().transpose() * best_v) : "";
+  std::ostringstream why;
+  if (best == arm.insertion_q) {
+    why << arm.name << "'s instrument is "
+        << (upper ? "inserted as far as it goes" : "withdrawn as far as it goes");
+  } else if (insertion_column >= 0 && best_column > insertion_column) {
+    why << arm.name << "'s wrist cannot turn the tip further" << where;
+  } else if (arm.has_rcm()) {
+    why << arm.name << "'s instrument cannot swing further" << where << " about its port";
+  } else {
+    why << arm.name << " cannot move its instrument further" << where;
+  }
+  why << " (joint limit '" << joint.name << "' (" << (upper ? "upper" : "lower") << ")); the point lies "
+      << std::lround(error * 1e3) << " mm beyond";
+  return why.str();
+}
+
+namespace {
+
 // Why an arm does not reach a point: the insertion limit, a joint at its limit, or no solution.
 std::string ReachFailure(const robot::RobotModel& robot, const PlanArm& arm,
                          const robot::RobotState& state, const Eigen::Vector3d& p_aim_W,
-                         const Eigen::Vector3d& port_W, double max_reach, const IkOutcome& ik) {
+                         const Eigen::Vector3d& port_W, double max_reach, const IkOutcome& ik,
+                         const Eigen::Isometry3d& X_WP) {
   std::ostringstream why;
   const double distance = (p_aim_W - port_W).norm();
   if (arm.insertion_q >= 0 && distance > max_reach) {
@@ -132,17 +208,8 @@ std::string ReachFailure(const robot::RobotModel& robot, const PlanArm& arm,
         << " mm from the port, the tool reaches " << std::lround(max_reach * 1e3) << " mm";
     return why.str();
   }
-  for (int i : arm.q_indices) {
-    const auto& joint = robot.joint(robot.active_joints()[i]);
-    const double range = joint.limits.upper - joint.limits.lower;
-    if (!std::isfinite(range)) continue;
-    if (state.q[i] <= joint.limits.lower + 1e-6 || state.q[i] >= joint.limits.upper - 1e-6) {
-      why << "joint limit '" << joint.name << "' ("
-          << (state.q[i] <= joint.limits.lower + 1e-6 ? "lower" : "upper") << "), "
-          << std::lround(ik.error * 1e3) << " mm short";
-      return why.str();
-    }
-  }
+  const std::string limit = JointLimitWords(robot, arm, state, p_aim_W, X_WP, ik.error);
+  if (!limit.empty()) return limit;
   if (ik.rcm_error > 0.001) {
     why << "the shaft cannot pass through the port (" << std::lround(ik.rcm_error * 1e3)
         << " mm off)";
@@ -381,7 +448,7 @@ std::string PortPlacementProblem::SolveReach(int a, const Placement& placement,
   const IkOutcome ik = planners::SolveReach(*robot_, arm, p_aim, port, options_.ik_iterations,
                                             options_.ik_tolerance, state);
   if (ik.converged) return "";
-  return ReachFailure(*robot_, arm, *state, p_aim, port, max_reach_[a], ik);
+  return ReachFailure(*robot_, arm, *state, p_aim, port, max_reach_[a], ik, patient_->X_WP);
 }
 
 namespace {
@@ -985,7 +1052,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
                                                   &state);
         std::string why;
         if (!ik.converged) {
-          if (attempt == 0) why = ReachFailure(robot, arm, state, p_aim, port, max_reach_[a], ik);
+          if (attempt == 0) why = ReachFailure(robot, arm, state, p_aim, port, max_reach_[a], ik, patient_->X_WP);
         } else {
           checker.SetRobotState(state);
           SetPorts(placement, state, &checker, &samples[s].p_W);  // the jaws may touch the organ there

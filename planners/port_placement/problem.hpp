@@ -141,8 +141,9 @@ struct SampleReach {
   int sample = -1;
   int arm = -1;
   bool reached = false;
-  std::string reason;      ///< why not: "insertion limit (240 mm) exceeded", "joint limit 'x'",
-                           ///< "collision: a - b", ...
+  std::string reason;      ///< why not: "insertion limit (240 mm) exceeded", a joint at its limit
+                           ///< in words (JointLimitWords), "collision: psm1's shaft ... against
+                           ///< the heart", ...
   Eigen::VectorXd q_arm;   ///< the arm's joint values (its q_indices) there
   double tip_error = 0.0;  ///< m, tool tip to the aim point
   double dexterity =
@@ -263,7 +264,8 @@ class PortPlacementProblem {
   /// clamped to their limits, a software-RCM arm's shaft kept through its port (as Evaluate
   /// does). Leaves the solution's q and poses in `state`. Not a collision check.
   /// @return empty when it converged within the options' tolerance, else why not ("insertion
-  ///         limit (240 mm) exceeded: ...", "joint limit 'x' (upper), 12 mm short", ...).
+  ///         limit (240 mm) exceeded: ...", "psm1's instrument cannot swing further toward the
+  ///         feet about its port (joint limit 'x' (upper)); the point lies 12 mm beyond", ...).
   std::string SolveReach(int arm, const Placement& placement, const TargetSample& sample,
                          robot::RobotState* state) const;
 
@@ -307,5 +309,16 @@ class PortPlacementProblem {
   Eigen::Vector3d centre_W_ = Eigen::Vector3d::Zero();  // of the candidate curves
   std::vector<double> max_reach_;
 };
+
+/// Why a joint at its limit stops an arm short of `p_aim_W`, in words a surgeon reads: of the
+/// arm's joints at a limit in `state` (where the inverse kinematics stopped), the one whose motion
+/// past its limit would carry the tip most directly toward the point; what it does at the port
+/// (the insertion, the swing of the instrument about its port, the wrist), and the way the tip
+/// would have to go in the patient's axes (X_WP: the patient frame P, LPS, in the world). E.g.
+/// "psm2's instrument cannot swing further toward the feet about its port (joint limit
+/// 'psm2_outer_pitch' (lower)); the point lies 74 mm beyond". Empty when no joint is at a limit.
+std::string JointLimitWords(const robot::RobotModel& robot, const PlanArm& arm,
+                            const robot::RobotState& state, const Eigen::Vector3d& p_aim_W,
+                            const Eigen::Isometry3d& X_WP, double error);
 
 }  // namespace trocar::planners

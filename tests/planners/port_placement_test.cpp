@@ -1,6 +1,7 @@
 // Port placement: arms found from the robot description, the problem's bad input, determinism
 // across thread counts, plans whose claims hold, and a verdict for a patient no plan serves.
 #include <gtest/gtest.h>
+#include <algorithm>
 #include <filesystem>
 
 #include <memory>
@@ -60,6 +61,118 @@ TEST(FindArms, ReadsTheCartsArmsAndRolesFromItsFrames) {
   EXPECT_EQ(scopes, 1);
   EXPECT_EQ(FindArms(*Cart(), {"ecm=instrument"})[2].role, ArmRole::kInstrument);
   EXPECT_THROW(FindArms(*Cart(), {"psm3=endoscope"}), Error);
+}
+
+// A joint at its limit is said in the surgeon's words (issue #43 item 4): which joint stops the
+// tip (of two at their limits, the one whose motion past its limit would carry the tip toward the
+// point, not the first), what it does (insertion, the swing about the port, the wrist), and which
+// way the tip would have to go in the patient's axes. Over seeded random poses of the PSM and
+// random patient poses on the table, against the tip's motion measured by forward kinematics
+// (not by the Jacobian the words use): a direction flipped, the first joint at a limit named, the
+// role or the patient's frame mixed up, each fails here.
+TEST(JointLimitWords, NameTheJointThatStopsTheTipWhatItDoesAndWhichWayTheTipMustGo) {
+  const auto robot = robot::LoadRobot(SourcePath("robots/davinci-classic/psm.yaml"));
+  const auto arms = FindArms(robot);
+  ASSERT_EQ(arms.size(), 1u);
+  const PlanArm& arm = arms[0];
+  ASSERT_TRUE(arm.has_rcm());
+  ASSERT_GE(arm.insertion_q, 0);
+  const robot::Frame& tool = robot.GetFrame(arm.tool_frame);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  auto limits = [&](int i) { return robot.joint(robot.active_joints()[i]).limits; };
+  auto tip = [&](const Eigen::VectorXd& q, Eigen::Vector3d* p_WT) {
+    robot::RobotState state(robot);
+    if (!kinematics::ForwardKinematics(robot, q, &state).ok()) return false;
+    *p_WT = (state.X_WL[tool.link] * tool.X_LF).translation();
+    return true;
+  };
+  // The tip's motion when joint i goes past the limit it is at: extrapolated from a step inside.
+  auto beyond = [&](const Eigen::VectorXd& q, int i, bool upper, Eigen::Vector3d* v) {
+    const double step = 1e-4;
+    Eigen::VectorXd inside = q;
+    inside[i] += upper ? -step : step;
+    Eigen::Vector3d at, in;
+    if (!tip(q, &at) || !tip(inside, &in)) return false;
+    *v = (at - in) / step;
+    return v->norm() > 1e-3;
+  };
+  const char* const kAxes[3][2] = {{"toward the patient's right", "toward the patient's left"},
+                                   {"toward the front", "toward the back"},
+                                   {"toward the feet", "toward the head"}};
+  int checked = 0, with_second = 0, roles[3] = {0, 0, 0};
+  for (int trial = 0; trial < 300 && checked < 60; ++trial) {
+    Eigen::VectorXd q = robot::RobotState(robot).q;
+    for (int i : arm.q_indices) {
+      const auto l = limits(i);
+      if (std::isfinite(l.upper - l.lower)) q[i] = l.lower + (0.2 + 0.6 * unit(rng)) * (l.upper - l.lower);
+    }
+    const int j = arm.q_indices[static_cast<std::size_t>(unit(rng) * arm.q_indices.size()) % arm.q_indices.size()];
+    if (!std::isfinite(limits(j).upper - limits(j).lower)) continue;
+    const bool upper = unit(rng) < 0.5;
+    q[j] = upper ? limits(j).upper : limits(j).lower;
+    Eigen::Vector3d v_j;
+    if (!beyond(q, j, upper, &v_j)) continue;
+    // A second joint at the limit whose motion past it would carry the tip away from the point.
+    const int k = arm.q_indices[static_cast<std::size_t>(unit(rng) * arm.q_indices.size()) % arm.q_indices.size()];
+    bool second = false;
+    if (k != j && std::isfinite(limits(k).upper - limits(k).lower)) {
+      Eigen::VectorXd qk = q;
+      for (bool k_upper : {true, false}) {
+        qk[k] = k_upper ? limits(k).upper : limits(k).lower;
+        Eigen::Vector3d v_k;
+        if (beyond(qk, k, k_upper, &v_k) && v_k.normalized().dot(v_j.normalized()) < -0.2) {
+          q = qk;
+          second = true;
+          break;
+        }
+      }
+    }
+    if (second && !beyond(q, j, upper, &v_j)) continue;
+    Eigen::Vector3d p_WT;
+    ASSERT_TRUE(tip(q, &p_WT));
+    const Eigen::Vector3d p_aim_W = p_WT + 0.03 * v_j.normalized();
+    // The patient on the table: turned about the world's vertical and rolled about its body axis.
+    Eigen::Isometry3d X_WP = Eigen::Isometry3d::Identity();
+    X_WP.linear() = (Eigen::AngleAxisd(2 * M_PI * unit(rng), Eigen::Vector3d::UnitZ()) *
+                     Eigen::AngleAxisd(0.6 * (unit(rng) - 0.5), Eigen::Vector3d::UnitX()))
+                        .toRotationMatrix();
+    const Eigen::Vector3d v_P = X_WP.linear().transpose() * v_j;
+    Eigen::Vector3d mag = v_P.cwiseAbs();
+    int first = 0;
+    mag.maxCoeff(&first);
+    std::sort(mag.data(), mag.data() + 3);
+    if (mag[1] > 0.9 * mag[2]) continue;  // two axes nearly tied: either word is right
+    robot::RobotState state(robot);
+    ASSERT_TRUE(kinematics::ForwardKinematics(robot, q, &state).ok());
+    const std::string words = JointLimitWords(robot, arm, state, p_aim_W, X_WP, 0.03);
+    const std::string& name = robot.joint(robot.active_joints()[j]).name;
+    SCOPED_TRACE(words);
+    EXPECT_NE(words.find("joint limit '" + name + "' (" + (upper ? "upper" : "lower") + ")"),
+              std::string::npos);
+    EXPECT_NE(words.find("the point lies 30 mm beyond"), std::string::npos);
+    EXPECT_EQ(words.rfind(arm.name + "'s ", 0), 0u);
+    if (j == arm.insertion_q) {
+      EXPECT_NE(words.find(upper ? "inserted as far as it goes" : "withdrawn as far as it goes"),
+                std::string::npos);
+      ++roles[0];
+    } else {
+      const auto it = std::find(arm.q_indices.begin(), arm.q_indices.end(), j);
+      const auto ins = std::find(arm.q_indices.begin(), arm.q_indices.end(), arm.insertion_q);
+      const bool wrist = it > ins;
+      EXPECT_NE(words.find(wrist ? "'s wrist cannot turn the tip further " : "'s instrument cannot swing further "),
+                std::string::npos);
+      EXPECT_NE(words.find(std::string("further ") + kAxes[first][v_P[first] > 0.0]), std::string::npos);
+      ++roles[wrist ? 2 : 1];
+    }
+    with_second += second;
+    ++checked;
+  }
+  EXPECT_GE(checked, 40);
+  EXPECT_GE(with_second, 8);
+  EXPECT_GE(roles[0], 2);
+  EXPECT_GE(roles[1], 8);
+  EXPECT_GE(roles[2], 8);
 }
 
 TEST(FindArms, AnArmWithoutAnRcmGetsASoftwareRcmOnItsShaft) {
