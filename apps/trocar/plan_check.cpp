@@ -352,7 +352,25 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
             if ((X_WT.linear() * axis_F).dot(shaft) < 0.99)
               fail(where + "the view axis is not the scope's shaft axis in its tool frame");
           }
-          const Eigen::Isometry3d X_WC = kinematics::FramePose(nominal, *camera);
+          // Where the scope looks from: the pose the plan records for this sample (its docking
+          // pose, or moved to look at the sample), within the limits and free of collisions.
+          state = nominal;
+          const json q_scope = r.value("q", json::object());
+          for (const auto& [name, value] : q_scope.items())
+            state.q[robot->joint(robot->GetJoint(name)).q_index] = value.get<double>();
+          if (const auto limits = kinematics::LimitViolations(*robot, state.q); !limits.empty()) {
+            fail(where + limits.front());
+            continue;
+          }
+          if (const auto f = kinematics::ForwardKinematics(*robot, state.q, &state); !f.ok()) {
+            fail(where + f.message);
+            continue;
+          }
+          if (const auto [n, which] = collisions(state, pivots, nullptr); n > 0) {
+            fail(where + "claimed in view, but " + std::to_string(n) + " pairs collide: " + which);
+            continue;
+          }
+          const Eigen::Isometry3d X_WC = kinematics::FramePose(state, *camera);
           const Eigen::Vector3d tip = X_WC.translation();
           const Eigen::Vector3d axis = X_WC.linear() * axis_F;
           const Eigen::Vector3d d = sample_points[sample] - tip;

@@ -286,6 +286,7 @@ std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementRes
                     {"scope_min_distance_m", po.scope_min_distance},
                     {"scope_max_distance_m", po.scope_max_distance},
                     {"scope_working_distance_m", po.scope_working_distance},
+                    {"scope_moves", po.scope_moves},
                     {"samples_per_target", po.samples_per_target},
                     {"suitable_fraction", options.suitable_fraction}};
   doc["verdict"] = {{"suitable", result.verdict.suitable},

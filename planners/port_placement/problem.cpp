@@ -178,12 +178,13 @@ std::string JointLimitWords(const robot::RobotModel& robot, const PlanArm& arm,
       best_v.norm() > 1e-9 ? " " + AnatomicalDirection(X_WP.linear().transpose() * best_v) : "";
   std::ostringstream why;
   if (best == arm.insertion_q) {
-    why << arm.name << "'s instrument is "
+    why << arm.name << (arm.role == ArmRole::kEndoscope ? "'s scope is " : "'s instrument is ")
         << (upper ? "inserted as far as it goes" : "withdrawn as far as it goes");
   } else if (insertion_column >= 0 && best_column > insertion_column) {
     why << arm.name << "'s wrist cannot turn the tip further" << where;
   } else if (arm.has_rcm()) {
-    why << arm.name << "'s instrument cannot swing further" << where << " about its port";
+    why << arm.name << (arm.role == ArmRole::kEndoscope ? "'s scope" : "'s instrument")
+        << " cannot swing further" << where << " about its port";
   } else {
     why << arm.name << " cannot move its instrument further" << where;
   }
@@ -449,6 +450,103 @@ std::string PortPlacementProblem::SolveReach(int a, const Placement& placement,
                                             options_.ik_tolerance, state);
   if (ik.converged) return "";
   return ReachFailure(*robot_, arm, *state, p_aim, port, max_reach_[a], ik, patient_->X_WP);
+}
+
+bool PortPlacementProblem::LookAt(int a, const Placement& placement, const Evaluation::View& view,
+                                  const Eigen::Vector3d& p_W, robot::RobotState* state,
+                                  collision::CollisionChecker* checker, std::string* why) const {
+  const robot::RobotModel& robot = *robot_;
+  const PlanArm& arm = arms_[a];
+  const robot::Frame& camera = robot.GetFrame(view.frame);
+  const robot::Frame& tool = robot.GetFrame(arm.tool_frame);
+  const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+  // The camera's view axis makes a fixed angle beta with the shaft (0 for a straight scope, 30
+  // degrees for an angled one); measured on the given pose.
+  const Eigen::Isometry3d X_WT0 = kinematics::FramePose(*state, tool);
+  const Eigen::Vector3d w0 = (X_WT0.translation() - port).normalized();
+  const Eigen::Vector3d v0 = kinematics::FramePose(*state, camera).linear() * view.axis_F;
+  const double beta = std::acos(std::clamp(v0.dot(w0), -1.0, 1.0));
+  const Eigen::Vector3d to_point = p_W - port;
+  const double D = to_point.norm();
+  const double d = std::clamp(options_.scope_working_distance, options_.scope_min_distance,
+                              options_.scope_max_distance);
+  if (D <= d + 0.01) {
+    *why = "it lies within the working distance of the port";
+    return false;
+  }
+  // The triangle port - tip - point: the tip L along the shaft, the point d along the view axis,
+  // the angle at the tip 180 deg - beta; the shaft turned from the line to the point by alpha,
+  // toward the docking pose's shaft (the least move).
+  const double L = -d * std::cos(beta) + std::sqrt(D * D - d * d * std::sin(beta) * std::sin(beta));
+  const double alpha = std::asin(std::clamp(d * std::sin(beta) / D, -1.0, 1.0));
+  const Eigen::Vector3d u = to_point / D;
+  Eigen::Vector3d axis = u.cross(w0);
+  if (axis.norm() < 1e-9) axis = u.unitOrthogonal();
+  const Eigen::Vector3d w = Eigen::AngleAxisd(alpha, axis.normalized()) * u;
+  const IkOutcome ik = planners::SolveReach(robot, arm, port + L * w, port, options_.ik_iterations,
+                                            options_.ik_tolerance, state);
+  if (!ik.converged) {
+    *why = ReachFailure(robot, arm, *state, port + L * w, port, max_reach_[a], ik, patient_->X_WP);
+    return false;
+  }
+  // The roll about the shaft that turns the view axis nearest the point (an angled scope).
+  auto off_axis = [&](const robot::RobotState& st) {
+    const Eigen::Isometry3d X_WC = kinematics::FramePose(st, camera);
+    return std::acos(std::clamp(
+        (X_WC.linear() * view.axis_F).dot((p_W - X_WC.translation()).normalized()), -1.0, 1.0));
+  };
+  kinematics::Matrix6Xd J;
+  kinematics::ComputeFrameJacobian(robot, *state, tool, &J);
+  const Eigen::Vector3d shaft = (kinematics::FramePose(*state, tool).translation() - port).normalized();
+  int roll = -1;
+  for (int i : arm.q_indices) {
+    const Eigen::Vector3d omega = J.col(i).head<3>();
+    if (i != arm.insertion_q && omega.norm() > 0.5 && std::abs(omega.normalized().dot(shaft)) > 0.99)
+      roll = i;
+  }
+  if (roll >= 0 && beta > 1e-3) {
+    const double lo = std::isfinite(robot.lower_limits()[roll]) ? robot.lower_limits()[roll] : -M_PI;
+    const double hi = std::isfinite(robot.upper_limits()[roll]) ? robot.upper_limits()[roll] : M_PI;
+    robot::RobotState trial = *state;
+    double best = off_axis(*state), best_q = state->q[roll];
+    for (int k = 0; k <= 24; ++k) {
+      trial.q[roll] = lo + (hi - lo) * k / 24.0;
+      if (!kinematics::ForwardKinematics(robot, trial.q, &trial).ok()) continue;
+      const double off = off_axis(trial);
+      if (off < best) {
+        best = off;
+        best_q = trial.q[roll];
+      }
+    }
+    state->q[roll] = best_q;
+    kinematics::ForwardKinematics(robot, state->q, state);
+  }
+  const Eigen::Isometry3d X_WC = kinematics::FramePose(*state, camera);
+  const double dist = (p_W - X_WC.translation()).norm();
+  const double angle = off_axis(*state);
+  if (angle > options_.scope_half_fov || dist < options_.scope_min_distance ||
+      dist > options_.scope_max_distance) {
+    std::ostringstream m;
+    m << "its view axis comes no nearer than " << std::lround(angle / kDeg) << " deg at "
+      << std::lround(dist * 1e3) << " mm";
+    *why = m.str();
+    return false;
+  }
+  const int hidden = checker->world().FirstAcross(X_WC.translation(), p_W, kSightMargin).body;
+  if (hidden >= 0) {
+    *why = "hidden behind the " + checker->world().bodies()[hidden].name;
+    return false;
+  }
+  checker->SetRobotState(*state);
+  SetPorts(placement, *state, checker);
+  const int only_arm = world_arm_[a];
+  if (checker->InCollision(collision::kAllMovingPairs, only_arm)) {
+    const auto report = checker->Check(collision::kAllMovingPairs, only_arm);
+    *why = "collision: " + checker->world().DescribePair(report.contacts.front().a,
+                                                         report.contacts.front().b);
+    return false;
+  }
+  return true;
 }
 
 namespace {
@@ -1028,7 +1126,27 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
         r.q_arm.resize(arm.q_indices.size());
         for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
           r.q_arm[c] = state.q[arm.q_indices[c]];
+        // Not seen from the docking pose: the camera is moved to look at it, as the surgeon
+        // moves it to each work site (Cannon et al. 2003 score the endoscope per surgical site;
+        // docs/decisions.md, "The endoscope looks at each work site").
+        if (!r.seen && options_.scope_moves && nominal_ok[a] && !nominal.collision) {
+          robot::RobotState moved = nominal_state;
+          std::string why_not;
+          if (LookAt(a, placement, *chosen, samples[s].p_W, &moved, &checker, &why_not)) {
+            r.seen = r.reached = true;
+            r.reason.clear();
+            const Eigen::Isometry3d X_WM = kinematics::FramePose(moved, robot.GetFrame(chosen->frame));
+            const Eigen::Vector3d dm = samples[s].p_W - X_WM.translation();
+            r.approach = std::acos(std::clamp((X_WM.linear() * chosen->axis_F).dot(dm.normalized()), -1.0, 1.0));
+            for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
+              r.q_arm[c] = moved.q[arm.q_indices[c]];
+          } else if (!why_not.empty()) {
+            r.reason += "; moved to look at it: " + why_not;
+          }
+        }
       }
+      checker.SetRobotState(nominal_state);
+      SetPorts(placement, nominal_state, &checker);
       continue;
     }
     for (int s = 0; s < ns; ++s) {

@@ -77,6 +77,13 @@ struct ProblemOptions {
   /// from the targets' centroid.
   double scope_half_fov = 35.0 * M_PI / 180.0;
   double scope_min_distance = 0.02, scope_max_distance = 0.15, scope_working_distance = 0.07;
+  /// A sample the endoscope does not see from its docking (nominal) pose counts as seen when the
+  /// scope can be moved through its port to look at it: the view axis on it from
+  /// `scope_working_distance`, its joints within their limits, its line of sight clear and the
+  /// arm free of collisions (PortPlacementProblem::LookAt). The surgeon moves the camera to each
+  /// work site; Cannon et al. 2003 score the endoscope per surgical site. false: only what the
+  /// docking pose shows (the model before stop 54).
+  bool scope_moves = true;
   /// Spacing: no score at `spacing_min`, full score from `spacing_ideal` (m).
   double spacing_min = 0.04, spacing_ideal = 0.08;
   /// Clearances scoring full at these distances (m).
@@ -287,6 +294,17 @@ class PortPlacementProblem {
   void SetPorts(const Placement& placement, const robot::RobotState& state,
                 collision::CollisionChecker* checker,
                 const Eigen::Vector3d* work_W = nullptr) const;
+
+  /// Moves endoscope arm `a` (from `state`, its docking pose) so that the view `view` looks at
+  /// `p_W` from the working distance: the shaft through the port turned toward the point (for an
+  /// angled scope, by the angle its camera makes with the shaft, then rolled), solved by the
+  /// arm's inverse kinematics. True when the point then lies in the field of view and the working
+  /// distances, the line of sight is clear and the arm is free of collisions (its pairs only:
+  /// the others stay at their docking poses); else `why` says what stops it. `state` holds the
+  /// pose tried; `checker` is left at it.
+  bool LookAt(int a, const Placement& placement, const Evaluation::View& view,
+              const Eigen::Vector3d& p_W, robot::RobotState* state,
+              collision::CollisionChecker* checker, std::string* why) const;
 
  private:
   std::vector<int> world_port_;  // per arm: index of its port in the collision world
