@@ -187,6 +187,18 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       aims.push_back(Vec(field(s, "aim_W"), "target_samples[].aim_W"));
       sample_points.push_back(Vec(field(s, "p_W"), "target_samples[].p_W"));
     }
+    // A sample's recorded joints (plans[].samples[].q): active joints of the robot, numbers.
+    auto set_sample_joints = [&](const json& r, robot::RobotState* st) {
+      const json& q = field(r, "q");
+      TROCAR_THROW_UNLESS(q.is_object(), path << ": plans[].samples[].q: expected an object of joint values");
+      for (const auto& [name, value] : q.items()) {
+        const int j = robot->GetJoint(name);
+        TROCAR_THROW_UNLESS(robot->joint(j).q_index >= 0 && value.is_number(),
+                            path << ": plans[].samples[].q names '" << name
+                                 << "': expected an active joint of the robot with a number");
+        st->q[robot->joint(j).q_index] = value.get<double>();
+      }
+    };
     int claims = 0;
     // The ranked plans, then the baselines beside them (the template, a surgeon's ports): every
     // claim of each is checked the same way.
@@ -355,9 +367,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           // Where the scope looks from: the pose the plan records for this sample (its docking
           // pose, or moved to look at the sample), within the limits and free of collisions.
           state = nominal;
-          const json q_scope = r.value("q", json::object());
-          for (const auto& [name, value] : q_scope.items())
-            state.q[robot->joint(robot->GetJoint(name)).q_index] = value.get<double>();
+          set_sample_joints(r, &state);
           if (const auto limits = kinematics::LimitViolations(*robot, state.q); !limits.empty()) {
             fail(where + limits.front());
             continue;
@@ -387,8 +397,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           continue;
         }
         state = nominal;
-        for (const auto& [name, value] : field(r, "q").items())
-          state.q[robot->joint(robot->GetJoint(name)).q_index] = value.get<double>();
+        set_sample_joints(r, &state);
         const auto limits = kinematics::LimitViolations(*robot, state.q);
         if (!limits.empty()) {
           fail(where + limits.front());

@@ -156,8 +156,13 @@ int RunVerify(const VerifyOptions& o) {
     po.scope_max_distance = scoring.at("scope_max_distance_m").get<double>();
     po.scope_working_distance = scoring.at("scope_working_distance_m").get<double>();
     // Plans written before stop 54 judged the scope from its docking pose only.
-    po.scope_moves = scoring.contains("scope_moves") && scoring.at("scope_moves").is_boolean() &&
-                     scoring.at("scope_moves").get<bool>();
+    po.scope_moves = false;
+    if (scoring.contains("scope_moves")) {
+      TROCAR_THROW_UNLESS(scoring.at("scope_moves").is_boolean(),
+                          o.plan << ": scoring.scope_moves: expected true or false, found "
+                                 << scoring.at("scope_moves").dump());
+      po.scope_moves = scoring.at("scope_moves").get<bool>();
+    }
     po.samples_per_target = JsonInt(scoring.at("samples_per_target"), o.plan, "scoring.samples_per_target", 1, 100000);
     po.seed = static_cast<unsigned>(JsonInt(doc.at("algorithm").at("seed"), o.plan, "algorithm.seed", 0));
     suitable_fraction = scoring.at("suitable_fraction").get<double>();

@@ -6,6 +6,7 @@
 #include <limits>
 #include <random>
 #include <sstream>
+#include <utility>
 
 #include "collision/collision_world.hpp"
 #include "collision/triangle_bvh.hpp"
@@ -117,6 +118,24 @@ IkOutcome SolveReach(const robot::RobotModel& robot, const PlanArm& arm,
     }
   }
   return out;
+}
+
+// The arm's joint that turns the tool about the shaft (a scope's roll), from the tool Jacobian J
+// (world frame) and the shaft's direction; -1 when it has none.
+int RollJoint(const PlanArm& arm, const kinematics::Matrix6Xd& J, const Eigen::Vector3d& shaft) {
+  int roll = -1;
+  for (int i : arm.q_indices) {
+    const Eigen::Vector3d w = J.col(i).head<3>();
+    if (i != arm.insertion_q && w.norm() > 0.5 && std::abs(w.normalized().dot(shaft)) > 0.99)
+      roll = i;
+  }
+  return roll;
+}
+
+// A joint's range, a full turn where it has no limit.
+std::pair<double, double> JointRange(const robot::RobotModel& robot, int i) {
+  return {std::isfinite(robot.lower_limits()[i]) ? robot.lower_limits()[i] : -M_PI,
+          std::isfinite(robot.upper_limits()[i]) ? robot.upper_limits()[i] : M_PI};
 }
 
 // A direction in the patient's frame (LPS: +x left, +y back, +z head) in anatomical words: its
@@ -498,15 +517,9 @@ bool PortPlacementProblem::LookAt(int a, const Placement& placement, const Evalu
   kinematics::Matrix6Xd J;
   kinematics::ComputeFrameJacobian(robot, *state, tool, &J);
   const Eigen::Vector3d shaft = (kinematics::FramePose(*state, tool).translation() - port).normalized();
-  int roll = -1;
-  for (int i : arm.q_indices) {
-    const Eigen::Vector3d omega = J.col(i).head<3>();
-    if (i != arm.insertion_q && omega.norm() > 0.5 && std::abs(omega.normalized().dot(shaft)) > 0.99)
-      roll = i;
-  }
+  const int roll = RollJoint(arm, J, shaft);
   if (roll >= 0 && beta > 1e-3) {
-    const double lo = std::isfinite(robot.lower_limits()[roll]) ? robot.lower_limits()[roll] : -M_PI;
-    const double hi = std::isfinite(robot.upper_limits()[roll]) ? robot.upper_limits()[roll] : M_PI;
+    const auto [lo, hi] = JointRange(robot, roll);
     robot::RobotState trial = *state;
     double best = off_axis(*state), best_q = state->q[roll];
     for (int k = 0; k <= 24; ++k) {
@@ -1025,21 +1038,13 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
     if (!skip_reach && nominal_ok[a]) {
       in_sight.assign(ns, -1);
       sight_from_W = X_WT.translation();
-      int roll = -1;
       kinematics::Matrix6Xd J;
       kinematics::ComputeFrameJacobian(robot, state, robot.GetFrame(arm.tool_frame), &J);
-      for (int i : arm.q_indices) {
-        const Eigen::Vector3d w = J.col(i).head<3>();
-        if (i != arm.insertion_q && w.norm() > 0.5 && std::abs(w.normalized().dot(shaft)) > 0.99)
-          roll = i;
-      }
+      const int roll = RollJoint(arm, J, shaft);
       std::vector<double> rolls = {0.0};  // no roll joint: one pass per frame
       if (roll >= 0) {
         rolls.clear();
-        const double lo = std::isfinite(robot.lower_limits()[roll]) ? robot.lower_limits()[roll]
-                                                                    : -M_PI;
-        const double hi = std::isfinite(robot.upper_limits()[roll]) ? robot.upper_limits()[roll]
-                                                                    : M_PI;
+        const auto [lo, hi] = JointRange(robot, roll);
         for (int r = 0; r <= 12; ++r) rolls.push_back(lo + (hi - lo) * r / 12.0);
       }
       const Eigen::VectorXd q0 = state.q;

@@ -625,6 +625,30 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
     EXPECT_NE(refused.output.find("baselines[0].plan.cart"), std::string::npos) << refused.output;
   }
 
+  // The endoscope's view of a sample is re-checked from the joints the plan records for it (its
+  // docking pose, or the scope moved to look at the sample): a scope turned half a radian away
+  // after the fact no longer sees it; a sample's joints naming a setup joint (not an active one)
+  // are refused naming the field.
+  {
+    nlohmann::json turned = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
+    nlohmann::json* seen = nullptr;
+    for (auto& r : turned["plans"][0]["samples"])
+      if (r["arm"] == "ecm" && r["reached"].get<bool>() && !seen) seen = &r;
+    ASSERT_NE(seen, nullptr) << "plan 1's scope sees no sample";
+    (*seen)["q"]["ecm_outer_yaw"] = (*seen)["q"]["ecm_outer_yaw"].get<double>() + 0.5;
+    WriteFileAtomically(out + "/turned_scope.json", turned.dump(1));
+    const CommandRun check_turned = Trocar("check --plan " + out + "/turned_scope.json");
+    EXPECT_EQ(check_turned.exit_code, 3) << check_turned.output;
+    EXPECT_NE(check_turned.output.find("ecm at sample " + std::to_string((*seen)["sample"].get<int>())),
+              std::string::npos) << check_turned.output;
+    (*seen)["q"]["ecm_suj_column"] = 0.1;
+    WriteFileAtomically(out + "/held_joint.json", turned.dump(1));
+    const CommandRun check_held = Trocar("check --plan " + out + "/held_joint.json");
+    EXPECT_EQ(check_held.exit_code, 1) << check_held.output;
+    EXPECT_NE(check_held.output.find("plans[].samples[].q names 'ecm_suj_column'"), std::string::npos)
+        << check_held.output;
+  }
+
   // An arm's tool frame the robot does not have (the cannula's track is found from it): a bad
   // input naming the file and the field, not the robot's bare error.
   nlohmann::json doc = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
