@@ -55,6 +55,14 @@ inline int FreePort() {
   return ntohs(a.sin_port);
 }
 
+/// A fresh scratch folder's path under the test temporary folder, "trocar_<name>": whatever an
+/// earlier run left there is removed; the folder itself is not created.
+inline std::string ScratchPath(const std::string& name) {
+  const std::string dir = ::testing::TempDir() + "/trocar_" + name;
+  std::filesystem::remove_all(dir);
+  return dir;
+}
+
 /// True in a build under a sanitizer (ASan, TSan; gcc or clang).
 #if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
 inline constexpr bool kSanitized = true;

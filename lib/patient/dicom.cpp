@@ -38,7 +38,6 @@
 namespace trocar::patient {
 namespace {
 
-constexpr double kMillimetre = 1e-3;
 constexpr const char* kImplicitLittle = "1.2.840.10008.1.2";
 constexpr const char* kExplicitLittle = "1.2.840.10008.1.2.1";
 constexpr const char* kCtImageStorage = "1.2.840.10008.5.1.4.1.1.2";

@@ -14,6 +14,9 @@
 
 namespace trocar::patient {
 
+/// Metres in a millimetre: the file formats give spacings and positions in mm, trocar works in m.
+inline constexpr double kMillimetre = 1e-3;
+
 struct Volume {
   Eigen::Vector3i size = Eigen::Vector3i::Zero();  ///< voxels along i, j, k
   /// Patient position of voxel (i, j, k): p_P = origin_P + index_to_P · (i, j, k). Columns are

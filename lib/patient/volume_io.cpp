@@ -17,8 +17,6 @@
 namespace trocar::patient {
 namespace {
 
-constexpr double kMillimetre = 1e-3;
-
 enum class VoxelType { kUint8, kInt8, kInt16, kUint16, kInt32, kUint32, kFloat32, kFloat64 };
 
 int BytesOf(VoxelType t) {

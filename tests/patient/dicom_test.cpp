@@ -26,12 +26,8 @@ namespace fs = std::filesystem;
 using patient::LoadVolume;
 using patient::Volume;
 
-// A fresh, empty scratch folder.
-std::string Scratch(const std::string& name) {
-  const std::string dir = ::testing::TempDir() + "/trocar_dicom_" + name;
-  fs::remove_all(dir);
-  return dir;
-}
+// A fresh, empty scratch folder (not created).
+std::string Scratch(const std::string& name) { return test::ScratchPath("dicom_" + name); }
 
 // A small volume with integer values, rotated in-plane axes and a tilted third axis (a gantry
 // tilt), seeded.

@@ -16,9 +16,8 @@ namespace fs = std::filesystem;
 using patient::ClassifyLabel;
 using patient::LabelKind;
 
-std::string Scratch(const std::string& name) {
-  const std::string dir = ::testing::TempDir() + "/trocar_labels_" + name;
-  fs::remove_all(dir);
+std::string LabelScratch(const std::string& name) {
+  const std::string dir = test::ScratchPath("labels_" + name);
   fs::create_directories(dir);
   return dir;
 }
@@ -121,7 +120,7 @@ TEST(LabelMap, FolderOfMasksAndJsonSidecar) {
   const std::string src = test::SharedDataPath("ct/totalseg-cta-aorta");
   TROCAR_REQUIRE_SHARED_FILE(src + "/aorta.nii.gz");
   const patient::Volume ct = patient::LoadVolume(src + "/ct_cropped.nii.gz");
-  const std::string dir = Scratch("folder");
+  const std::string dir = LabelScratch("folder");
   fs::copy_file(src + "/aorta.nii.gz", dir + "/aorta.nii.gz");
   fs::copy_file(src + "/vertebrae_T12.nii.gz", dir + "/vertebrae_T12.nii.gz");
   fs::copy_file(src + "/DERIVED_heart_on_aorta_crop.nii.gz", dir + "/heart.nii.gz");
@@ -164,7 +163,7 @@ std::string SlicerSeg(const std::string& dir, const std::string& extra_keys) {
 }
 
 TEST(LabelMap, SlicerSegmentationNamesItsSegments) {
-  const std::string dir = Scratch("slicer");
+  const std::string dir = LabelScratch("slicer");
   const patient::LabelMap map = patient::LoadLabelMap(SlicerSeg(dir, ""));
   EXPECT_EQ(map.names.at(3), "Rib left 5");
   EXPECT_EQ(map.names.at(7), "Heart");
@@ -181,7 +180,7 @@ TEST(LabelMap, SlicerSegmentationNamesItsSegments) {
 }
 
 TEST(LabelMap, BadLabelMapsAreClearErrors) {
-  const std::string dir = Scratch("bad");
+  const std::string dir = LabelScratch("bad");
   const std::string seg = SlicerSeg(dir, "");
   // Names that trocar does not use: listed.
   std::string text = ReadTextFile(seg);
@@ -204,7 +203,7 @@ TEST(LabelMap, BadLabelMapsAreClearErrors) {
   const std::string z = ErrorOf([&] { patient::LoadLabelMap(dir + "/empty.seg.nrrd"); });
   EXPECT_NE(z.find("empty.seg.nrrd: the label map labels no voxel"), std::string::npos) << z;
   // The same for a folder of masks whose masks are all empty.
-  const std::string masks = Scratch("empty_masks");
+  const std::string masks = LabelScratch("empty_masks");
   WriteFileAtomically(masks + "/heart.nrrd", zero);
   const std::string f = ErrorOf([&] { patient::LoadLabelMap(masks); });
   EXPECT_NE(f.find("empty_masks: the label map labels no voxel"), std::string::npos) << f;
@@ -231,7 +230,7 @@ TEST(LabelMap, PatientCaseWithALabelMapNamesSpacesByRibNumbers) {
   const std::string ct = test::SharedDataPath("ct/totalseg-abdomen/example_ct.nii.gz");
   const std::string seg = test::SharedDataPath("ct/totalseg-abdomen/example_seg_fast_force_split.nii.gz");
   TROCAR_REQUIRE_SHARED_FILE(seg);
-  const std::string dir = Scratch("case");
+  const std::string dir = LabelScratch("case");
   WriteFileAtomically(dir + "/patient.yaml", "ct: " + ct + "\nlabels: " + seg +
                                                  "\nheart: {contrast: false}\nintercostal: {left: true, right: true}\n");
   const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
