@@ -19,6 +19,7 @@
 #include "control/gain_tuning.hpp"
 #include "control/joint_limits.hpp"
 #include "control/teleop_session.hpp"
+#include "control/teleop_setup.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/start_configuration.hpp"
 #include "robot/load_robot.hpp"
@@ -371,18 +372,15 @@ int RunTeleop(const TeleopCommandOptions& o) {
                                                             "a robot that carries it, like the cart, drives the arm)"
                                                       : ""));
   }
-  // The robot's home, or one chosen away from limits and singularities; --q0 overrides both.
-  kinematics::StartConfiguration start = plan_view ? kinematics::StartConfiguration{} : kinematics::ChooseStart(model);
-  Eigen::VectorXd q0 = start.q;
-  if (!plan_view && !model.defaults().has_home()) {
-    // Several arms: each starts where its own tool moves well, on its own joints.
-    for (std::size_t i = 1; i < arms.size(); ++i) {
-      const kinematics::StartConfiguration own = kinematics::ChooseStart(*arms[i].model);
-      for (int k : arms[i].positions) q0[k] = own.q[k];
-      for (const std::string& w : own.warnings) start.warnings.push_back(arms[i].name + ": " + w);
-    }
-    start.q = q0;
+  // The robot's home, or one chosen away from limits and singularities for each arm; the plan's
+  // nominal pose with a plan; --q0 overrides all.
+  kinematics::StartConfiguration start;
+  if (!plan_view) {
+    std::vector<control::SessionArm> session_arms;
+    for (const auto& arm : arms) session_arms.push_back({arm.name, arm.model, arm.positions});
+    start = control::ChooseSessionStart(session_arms);
   }
+  Eigen::VectorXd q0 = start.q;
   if (plan_view) {
     q0 = plan_view->scene->robot_state()->q;  // the plan's nominal pose (same joints, same order)
     start.q = q0;
@@ -401,31 +399,19 @@ int RunTeleop(const TeleopCommandOptions& o) {
   const auto violations = kinematics::LimitViolations(model, q0);
   TROCAR_THROW_UNLESS(violations.empty(), "start configuration outside the joint limits: "
                                               << violations.front());
-  control::Vector6d fallback = (control::Vector6d() << 20, 20, 20, 40, 40, 40).finished();
-  // Jacobian transpose needs gains fitted to the robot (thesis §6.3.2): a robot that gives none
-  // gets them tuned on first use, saved in the overlay beside it for the next sessions.
+  // Jacobian transpose needs gains fitted to the robot: tuned on first use when it gives none.
+  const control::SessionGains gains = control::GainsForSession(model, q0, o.controller, robot_file);
   std::string tuned_note;
-  if (o.controller == "jt" && model.defaults().controller.gains.count("jt") == 0 &&
-      model.defaults().controller.task_gains.size() == 0) {
-    control::GainTuningOptions tuning;
-    tuning.controller = "jt";
-    const auto tuned = control::TuneGains(model, q0, tuning);
-    fallback = tuned.gains;
-    std::string saved;
-    try {
-      saved = "saved to " + control::SaveControllerGains(robot_file, "jt", tuned.gains);
-    } catch (const Error& e) {
-      saved = std::string("not saved: ") + e.what();
-    }
+  if (gains.tuned) {
     std::ostringstream note;
-    note << "  jt gains tuned on first use (the robot gives none): " << FormatVector(tuned.gains, 5)
-         << ", " << saved << "\n";
+    note << "  jt gains tuned on first use (the robot gives none): " << FormatVector(gains.gains, 5) << ", "
+         << gains.saved << "\n";
     tuned_note = note.str();
   }
   std::vector<std::unique_ptr<control::ControlLoop>> loops;
   for (const auto& arm : arms)
     loops.push_back(std::make_unique<control::ControlLoop>(
-        *arm.model, control::MakeController(o.controller, *arm.model, fallback), q0, X_WB, held));
+        *arm.model, control::MakeController(o.controller, *arm.model, gains.gains), q0, X_WB, held));
 
   std::vector<std::unique_ptr<control::DeviceInput>> inputs;  // one per channel
   std::optional<double> step_time;
@@ -557,21 +543,9 @@ int RunTeleop(const TeleopCommandOptions& o) {
       motion.amplitude = o.amplitude;
       fresh = std::make_unique<control::ScriptedInput>(motion);
     }
-    const auto V_W = control::ToolVelocities(fresh.get(), o.duration, 0.01, channels.front().mapping);
-    const control::ControlLoop& loop = *loops.front();
-    const control::VelocityDemand demand =
-        control::JointVelocityDemand(*arms.front().model, loop.state(), V_W, position_only);
-    if (demand.share > 1.0) {
-      const robot::Joint& joint = arms.front().model->joint(arms.front().model->active_joints()[demand.joint]);
-      const bool prismatic = joint.type == robot::JointType::kPrismatic;
-      std::ostringstream w;
-      w << std::setprecision(3) << "the input moves the tool at up to " << demand.peak_tool_speed
-        << " m/s; from the start, joint '" << joint.name << "' would need " << demand.rate
-        << (prismatic ? " m/s" : " rad/s") << ", over its velocity limit of "
-        << joint.limits.velocity << (prismatic ? " m/s" : " rad/s")
-        << ": the tool will lag (a smaller --amplitude, a larger --scale, or a start where the joints need less speed)";
-      start.warnings.push_back(w.str());
-    }
+    const std::string warning = control::InputSpeedWarning(*arms.front().model, loops.front()->state(), fresh.get(),
+                                                           o.duration, channels.front().mapping);
+    if (!warning.empty()) start.warnings.push_back(warning);
   }
   if (!o.record.empty()) {  // fail before the run, not after it
     std::error_code ec;
