@@ -126,9 +126,14 @@ std::string ValidNames() {
   return names;
 }
 
-// OMPL's seed sequence is process-wide: held while a query makes its OMPL objects.
-std::mutex& OmplMutex() {
-  static std::mutex mutex;
+// OMPL's seed sequence is process-wide: held while a query makes its OMPL objects, and while a
+// sampler is made mid-solve (its RNG draws a seed from the sequence even though SeededSampler
+// then replaces it: unheld, that draw could fall between another thread's restart of the sequence
+// and its simplifier's draw, and the simplified path would depend on the threads' timing; seen as
+// a different path when the collision checks got faster). Recursive: OMPL may make a sampler
+// inside a query's set-up.
+std::recursive_mutex& OmplMutex() {
+  static std::recursive_mutex mutex;
   return mutex;
 }
 
@@ -501,7 +506,7 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
   ob::SpaceInformationPtr si;
   std::unique_ptr<og::PathSimplifier> simplifier;
   {
-    std::lock_guard<std::mutex> lock(OmplMutex());
+    std::lock_guard<std::recursive_mutex> lock(OmplMutex());
     ompl::RNG::setSeed(seed);
     auto ompl_space = std::make_shared<ob::RealVectorStateSpace>(n);
     ob::RealVectorBounds bounds(n);
@@ -512,6 +517,7 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
     ompl_space->setBounds(bounds);
     auto sampler_count = std::make_shared<std::atomic<std::uint32_t>>(0);
     ompl_space->setStateSamplerAllocator([seed, sampler_count](const ob::StateSpace* s) {
+      std::lock_guard<std::recursive_mutex> lock(OmplMutex());
       return std::make_shared<SeededSampler>(s, seed + 7919u * ++*sampler_count);
     });
     si = std::make_shared<ob::SpaceInformation>(ompl_space);
