@@ -225,6 +225,11 @@ void Keep(DistanceData& d, double distance, int a, int b, PairClass cls, const E
   d.best.p_W_b = p_b;
 }
 
+double AabbDistance(const fcl::AABBd& x, const fcl::AABBd& y) {
+  const Eigen::Vector3d gap = (y.min_ - x.max_).cwiseMax(x.min_ - y.max_).cwiseMax(0.0);
+  return gap.norm();
+}
+
 bool DistancePair(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw, double& dist) {
   auto& d = *static_cast<DistanceData*>(raw);
   int a = -1, b = -1;
@@ -232,16 +237,16 @@ bool DistancePair(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* ra
   if (!Screen(*d.world, d.mask, &o1, &o2, &a, &b, &cls) || !d.OfArm(a, b)) return false;
   // Zero at the port, and at the work site, by design.
   if (PortPair(*d.world, a, b) >= 0 || WorkPair(*d.world, *d.work_radius, a, b) >= 0) return false;
+  // Boxes no nearer than the best so far: the pair cannot be nearer (Keep would drop it).
+  if (AabbDistance(o1->getAABB(), o2->getAABB()) >= d.best.distance) {
+    dist = d.best.distance;
+    return false;
+  }
   Eigen::Vector3d p_a, p_b;
   const double distance = FclDistance(o1, o2, &p_a, &p_b);
   Keep(d, distance, a, b, cls, p_a, p_b);
   dist = d.best.distance;
   return dist <= 0.0;
-}
-
-double AabbDistance(const fcl::AABBd& x, const fcl::AABBd& y) {
-  const Eigen::Vector3d gap = (y.min_ - x.max_).cwiseMax(x.min_ - y.max_).cwiseMax(0.0);
-  return gap.norm();
 }
 
 // Whether a robot body against a fixed body goes through our TriangleBvh (and as what).
@@ -533,7 +538,7 @@ CollisionReport CollisionChecker::Check(unsigned mask, int arm) {
   return d.report;
 }
 
-Clearance CollisionChecker::MinimumDistance(unsigned mask, int arm) {
+Clearance CollisionChecker::MinimumDistance(unsigned mask, int arm, double below) {
   const CollisionWorld::Impl& w = world_->impl();
   TROCAR_THROW_UNLESS(w.options.bvh == BvhKind::kObbRss,
                       "collision checker: distance queries need an OBBRSS world (this one uses "
@@ -543,6 +548,8 @@ Clearance CollisionChecker::MinimumDistance(unsigned mask, int arm) {
   d.work_radius = &state_->work_radius;
   d.mask = mask;
   d.arm = arm;
+  if (!(below > 0.0)) return d.best;  // nothing is nearer than 0 (or NaN): nothing sought
+  d.best.distance = below;  // Keep takes only what is nearer
   if (state_->robot_tree.size() == 0) return d.best;
   state_->robot_tree.distance(&d, DistancePair);
   if (d.best.distance > 0.0) state_->DistanceRobotFixed(d);

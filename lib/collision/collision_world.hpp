@@ -259,8 +259,11 @@ class CollisionChecker {
   CollisionReport Check(unsigned mask = kAllMovingPairs, int arm = -1);
   /// Minimum distance over the pairs of the classes in `mask`, with witness points (needs an
   /// OBBRSS world). Pairs in contact give 0. With `arm` >= 0 (an index into
-  /// CollisionWorld::arms()), only the pairs with a body of that arm.
-  Clearance MinimumDistance(unsigned mask = kAllMovingPairs, int arm = -1);
+  /// CollisionWorld::arms()), only the pairs with a body of that arm. With `below` finite, only a
+  /// distance under it is sought: pairs whose bounds lie at or beyond it are skipped, and a state
+  /// with nothing nearer gives an invalid Clearance (the minimum along a path needs no more).
+  Clearance MinimumDistance(unsigned mask = kAllMovingPairs, int arm = -1,
+                            double below = std::numeric_limits<double>::infinity());
   /// The minimum distance of each class present in the world (index: PairClass).
   std::vector<Clearance> ClearanceByClass();
 

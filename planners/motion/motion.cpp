@@ -308,6 +308,16 @@ void MotionContext::SetPorts() {
   problem_.problem().SetPorts(problem_.placement(), state_, checker_.get(), has_work_ ? &work_W_ : nullptr);
 }
 
+int MotionContext::PairsToCheck(const Eigen::VectorXd& q) const {
+  if (only_arm_ < 0) return -1;
+  const Eigen::VectorXd& q_start = problem_.q_start();
+  if (q.size() != q_start.size()) return -1;
+  for (int i = 0; i < q.size(); ++i) {
+    if (!in_query_arm_[static_cast<std::size_t>(i)] && q[i] != q_start[i]) return -1;
+  }
+  return only_arm_;
+}
+
 bool MotionContext::Valid(const Eigen::VectorXd& q, std::string* why) {
   ++checks_;
   const robot::RobotModel& robot = problem_.problem().robot();
@@ -329,9 +339,10 @@ bool MotionContext::Valid(const Eigen::VectorXd& q, std::string* why) {
   }
   checker_->SetRobotState(state_);
   SetPorts();
-  if (!checker_->InCollision()) return true;
+  const int pairs_of = PairsToCheck(q);
+  if (!checker_->InCollision(collision::kAllMovingPairs, pairs_of)) return true;
   if (why) {
-    const auto report = checker_->Check();
+    const auto report = checker_->Check(collision::kAllMovingPairs, pairs_of);
     *why = report.contacts.empty()
                ? std::string("collision")
                : "collision: " + checker_->world().DescribePair(report.contacts.front().a,
@@ -382,8 +393,10 @@ std::string MotionContext::Recheck(int arm_index, const std::vector<Eigen::Vecto
     const Eigen::Vector3d tip = kinematics::FramePose(state_, tool).translation();
     if (checked > 1) tip_length += (tip - previous_tip).norm();
     previous_tip = tip;
-    if (min_clearance) {
-      const collision::Clearance c = checker_->MinimumDistance();
+    if (min_clearance) {  // only a state nearer than the path's minimum so far can lower it
+      // The first state over every pair; then those that can have changed (PairsToCheck).
+      const collision::Clearance c = checker_->MinimumDistance(
+          collision::kAllMovingPairs, checked == 1 ? -1 : PairsToCheck(q), clearance);
       if (c.valid()) clearance = std::min(clearance, c.distance);
     }
     return true;
@@ -437,8 +450,12 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
   work_W_ = problem.samples()[sample_index].p_W;
   struct ClearWork {
     bool* flag;
-    ~ClearWork() { *flag = false; }
-  } clear_work{&has_work_};
+    int* only_arm;
+    ~ClearWork() {
+      *flag = false;
+      *only_arm = -1;
+    }
+  } clear_work{&has_work_, &only_arm_};
 
   // The start: the arm at its nominal pose.
   const Eigen::VectorXd start = arm_q(problem_.q_start());
@@ -451,6 +468,11 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
       return out;
     }
   }
+  // Valid over every pair at the start: from here on, a state that moves this arm alone needs
+  // only its own pairs checked (PairsToCheck).
+  only_arm_ = problem.world_arm(arm_index);
+  in_query_arm_.assign(static_cast<std::size_t>(problem_.q_start().size()), 0);
+  for (const int i : arm.q_indices) in_query_arm_[static_cast<std::size_t>(i)] = 1;
   // Goals: inverse kinematics from the nominal pose and the problem's other wrist poses (the
   // attempts the plan's claimed reach made: PortPlacementProblem::ReachSeed), then from seeded
   // random poses of the arm.

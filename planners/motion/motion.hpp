@@ -161,6 +161,15 @@ class MotionContext {
   /// the organ there: port_rules.hpp, kWorkSiteRadius); none outside one.
   bool has_work_ = false;
   Eigen::Vector3d work_W_ = Eigen::Vector3d::Zero();
+  /// During a Plan whose start was valid over every pair: the collision world's index of the
+  /// query's arm, and which entries of q are its joints. A state that keeps every other joint
+  /// at the start differs from the start only in that arm's bodies, so only the pairs with one
+  /// of them can have changed (the rest were free at the start, under the same ports and work
+  /// site): those alone are checked. -1: every pair.
+  int only_arm_ = -1;
+  std::vector<char> in_query_arm_;
+  /// only_arm_ when q keeps every joint outside the query's arm at the start, else -1.
+  int PairsToCheck(const Eigen::VectorXd& q) const;
   void SetPorts();
 };
 

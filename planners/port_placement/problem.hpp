@@ -219,6 +219,8 @@ class PortPlacementProblem {
   const std::shared_ptr<const collision::CollisionWorld>& world() const { return world_; }
   const ProblemOptions& options() const { return options_; }
   const std::vector<PlanArm>& arms() const { return arms_; }
+  /// Arm `arm`'s index in the collision world's arms (CollisionChecker's `arm`), -1 for none.
+  int world_arm(int arm) const { return world_arm_.at(static_cast<std::size_t>(arm)); }
   const std::vector<TargetSample>& samples() const { return samples_; }
   const Eigen::Vector3d& aim_W() const { return aim_W_; }
 
