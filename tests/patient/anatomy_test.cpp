@@ -410,7 +410,7 @@ TEST(ShapeAnatomy, AWholePhantomRibCageIsNumberedOneToTwelveOverSeedsAndSizes) {
   for (const Size& z :
        test::Cases<Size>({Size{1, 0.34, 0.24, 0.028, 0.003}, Size{2, 0.30, 0.22, 0.025, 0.0025},
                           Size{3, 0.38, 0.26, 0.030, 0.0035}, Size{4, 0.34, 0.24, 0.027, 0.003}},
-                         {1, 2})) {
+                         {1})) {
     SCOPED_TRACE(z.seed);
     patient::PhantomParameters p;
     p.seed = z.seed;
@@ -497,10 +497,11 @@ TEST(ShapeAnatomy, SpacesOfAWholePhantomRibCageAreNamedByTheirRibs) {
     unsigned seed;
     double width, spacing, voxel, depth = 0.24, fat = 0.012;
   };
-  // Under a sanitizer: the small cage and the obese one (test::Cases).
+  // Under a sanitizer: the obese one (test::Cases; the small cage's numbering runs instrumented in
+  // AWholePhantomRibCageIsNumberedOneToTwelveOverSeedsAndSizes).
   for (const Size& z : test::Cases<Size>({Size{6, 0.34, 0.028, 0.003}, Size{7, 0.31, 0.026, 0.0035},
                                           Size{8, 0.44, 0.028, 0.0035, 0.32, 0.06}},
-                                         {1, 2})) {
+                                         {2})) {
     SCOPED_TRACE(z.seed);
     const std::string dir = testing::TempDir() + "/trocar-whole-cage-" + std::to_string(z.seed);
     std::filesystem::remove_all(dir);
