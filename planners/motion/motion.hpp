@@ -15,7 +15,9 @@
 ///
 /// Determinism: OMPL seeds every random generator from one process-wide sequence. Each query
 /// restarts that sequence from its own seed (under a process-wide lock, while its planner,
-/// samplers and simplifier are made) and samples states with its own generator, so a query
+/// samplers and simplifier are made, and again whenever a planner makes a sampler mid-solve:
+/// that draw from the sequence, unlocked, could shift another query's) and samples states with
+/// its own generator, so a query
 /// gives the same path from the same seed, alone or among other threads — for planners that
 /// run in the calling thread and finish before their time limit (PRM and LazyPRM grow their
 /// roadmap in a second thread; any planner stopped by its time limit depends on the machine).
