@@ -547,7 +547,7 @@ TEST(CollisionWorld, ExactMeshQueriesAgreeWithFcl) {
   const auto peer = CollisionWorld::Build(&s.patient, s.cart, fcl_only);
   CollisionChecker ours(s.world), theirs(peer);
   const unsigned robot_patient = Bit(PairClass::kArmPatient) | Bit(PairClass::kInstrumentPatient);
-  int compared = 0, colliding = 0, arm_contacts = 0;
+  int compared = 0, colliding = 0, arm_contacts = 0, bounded = 0;
   for (int i = 0; i < 60; ++i) {
     std::mt19937 rng(5000 + i);
     robot::RobotState state = RandomCartState(*s.cart, rng);
@@ -591,9 +591,24 @@ TEST(CollisionWorld, ExactMeshQueriesAgreeWithFcl) {
           << db.p_W_b.transpose() << " d " << da.distance;
     }
     // Whole-cart distance too (arm-arm first, then the patient and the table).
-    EXPECT_NEAR(ours.MinimumDistance().distance, theirs.MinimumDistance().distance, 1e-6)
-        << "state " << i;
+    const collision::Clearance whole = ours.MinimumDistance();
+    EXPECT_NEAR(whole.distance, theirs.MinimumDistance().distance, 1e-6) << "state " << i;
+    // Asked only for a distance below a bound (a path's minimum so far): the same pair and
+    // distance when the minimum lies below it, nothing (invalid) when it does not.
+    if (whole.valid() && whole.distance > 0.0) {
+      ++bounded;
+      const collision::Clearance above =
+          ours.MinimumDistance(collision::kAllMovingPairs, -1, 1.5 * whole.distance + 1e-6);
+      ASSERT_TRUE(above.valid()) << "state " << i;
+      EXPECT_EQ(above.distance, whole.distance) << "state " << i;
+      EXPECT_EQ(std::make_pair(above.a, above.b), std::make_pair(whole.a, whole.b)) << "state " << i;
+      EXPECT_FALSE(ours.MinimumDistance(collision::kAllMovingPairs, -1, whole.distance).valid())
+          << "state " << i;
+      EXPECT_FALSE(ours.MinimumDistance(collision::kAllMovingPairs, -1, 0.5 * whole.distance).valid())
+          << "state " << i;
+    }
   }
+  EXPECT_GT(bounded, 10);
   EXPECT_GT(compared, 10);
   EXPECT_GT(colliding, 5);
   EXPECT_GT(arm_contacts, 20);
