@@ -285,22 +285,21 @@ inline double AabbGap2(const Vector3d& lo1, const Vector3d& hi1, const Vector3d&
   return (lo1 - hi2).cwiseMax(lo2 - hi1).cwiseMax(0.0).squaredNorm();
 }
 
-// Whether the segment ab meets the closed box [lo, hi] (slabs: the parameters along ab inside
-// each axis's pair of planes overlap within [0, 1]).
-inline bool SegmentCrossesBox(const Vector3d& a, const Vector3d& b, const Vector3d& lo,
-                              const Vector3d& hi) {
-  double t0 = 0.0, t1 = 1.0;
-  for (int i = 0; i < 3; ++i) {
-    const double d = b[i] - a[i];
-    if (d == 0.0) {
-      if (a[i] < lo[i] || a[i] > hi[i]) return false;
+// Whether the ray origin + t d, t in [0, limit], meets the closed box [lo, hi], given d's
+// componentwise inverse (slabs: the parameters inside each axis's pair of planes overlap). Along
+// a direction parallel to a slab the inverse is infinite: the ray is inside that slab or never.
+inline bool RayMeetsBox(const Vector3d& origin, const Vector3d& inv_d, const Vector3d& lo,
+                        const Vector3d& hi, double limit) {
+  double t0 = 0.0, t1 = limit;
+  for (int k = 0; k < 3; ++k) {
+    double a = (lo[k] - origin[k]) * inv_d[k], b = (hi[k] - origin[k]) * inv_d[k];
+    if (std::isnan(a) || std::isnan(b)) {  // parallel to the slab, on its boundary
+      if (origin[k] < lo[k] || origin[k] > hi[k]) return false;
       continue;
     }
-    const double inv = 1.0 / d;
-    double ta = (lo[i] - a[i]) * inv, tb = (hi[i] - a[i]) * inv;
-    if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta);
-    t1 = std::min(t1, tb);
+    if (a > b) std::swap(a, b);
+    t0 = std::max(t0, a);
+    t1 = std::min(t1, b);
     if (t0 > t1) return false;
   }
   return true;
@@ -309,8 +308,10 @@ inline bool SegmentCrossesBox(const Vector3d& a, const Vector3d& b, const Vector
 struct SegmentQuery {
   Vector3d a, b;
   Vector3d lo, hi;  // the segment's bounds
+  Vector3d inv_ab;  // (b - a)'s componentwise inverse, for RayMeetsBox
   SegmentQuery(const Vector3d& a_in, const Vector3d& b_in)
-      : a(a_in), b(b_in), lo(a_in.cwiseMin(b_in)), hi(a_in.cwiseMax(b_in)) {}
+      : a(a_in), b(b_in), lo(a_in.cwiseMin(b_in)), hi(a_in.cwiseMax(b_in)),
+        inv_ab((b_in - a_in).cwiseInverse()) {}
   // A cheaper lower bound of NodeBound2 (a node it puts beyond a radius is beyond it exactly).
   double CheapBound2(const Vector3d& node_lo, const Vector3d& node_hi) const {
     return AabbGap2(lo, hi, node_lo, node_hi);
@@ -326,11 +327,11 @@ struct SegmentQuery {
   // Between the two, one that crosses the box grown by r / √3 (less a rounding) is within r of
   // it (a point of that box is at most √3 of the growth from the box).
   bool Beyond(const Vector3d& lo_n, const Vector3d& hi_n, double r, double r2) const {
-    if (SegmentCrossesBox(a, b, lo_n, hi_n)) return false;
+    if (RayMeetsBox(a, inv_ab, lo_n, hi_n, 1.0)) return false;
     const Vector3d grown = Vector3d::Constant(r * (1.0 + 1e-9) + 1e-12);  // rounding: more
-    if (!SegmentCrossesBox(a, b, lo_n - grown, hi_n + grown)) return true;
+    if (!RayMeetsBox(a, inv_ab, lo_n - grown, hi_n + grown, 1.0)) return true;
     const Vector3d within = Vector3d::Constant(r * (1.0 / std::sqrt(3.0)) * (1.0 - 1e-9));  // less
-    if (SegmentCrossesBox(a, b, lo_n - within, hi_n + within)) return false;
+    if (RayMeetsBox(a, inv_ab, lo_n - within, hi_n + within, 1.0)) return false;
     return NodeBound2(lo_n, hi_n) > r2;
   }
   double Leaf(const Vector3d& v0, const Vector3d& v1, const Vector3d& v2, Vector3d* pq,
@@ -641,21 +642,8 @@ double TriangleBvh::FirstHit(const Vector3d& origin_M, const Vector3d& dir_M, do
   if (!(n > 0.0)) return best;
   const Vector3d d = dir_M / n;
   const Vector3d inv(1.0 / d.x(), 1.0 / d.y(), 1.0 / d.z());
-  // Slab test: the ray's parameter interval inside the box, clipped to [0, limit].
   auto enters = [&](const Node& node, double limit) {
-    double t0 = 0.0, t1 = limit;
-    for (int k = 0; k < 3; ++k) {
-      double a = (node.lo[k] - origin_M[k]) * inv[k], b = (node.hi[k] - origin_M[k]) * inv[k];
-      if (std::isnan(a) || std::isnan(b)) {  // parallel to the slab, on its boundary
-        if (origin_M[k] < node.lo[k] || origin_M[k] > node.hi[k]) return false;
-        continue;
-      }
-      if (a > b) std::swap(a, b);
-      t0 = std::max(t0, a);
-      t1 = std::min(t1, b);
-      if (t0 > t1) return false;
-    }
-    return true;
+    return RayMeetsBox(origin_M, inv, node.lo, node.hi, limit);
   };
   int stack[128];
   int top = 0;
