@@ -107,6 +107,31 @@ inline double DistanceToPolyline(const Eigen::Vector3d& p, const std::vector<Eig
   return best;
 }
 
+/// A polyline with its bounding box, for tests that measure every voxel of a volume against
+/// many polylines (the generated ribs): Distance(p, at_most) is the exact distance when the box
+/// lies within `at_most` of p, and otherwise the box's distance, which is then larger than
+/// `at_most` and no larger than the exact one; so `Distance(p, r) < r` (or `<= r`) is the exact
+/// comparison, and `best = std::min(best, Distance(p, best))` the exact minimum.
+class Polyline {
+ public:
+  explicit Polyline(std::vector<Eigen::Vector3d> points) : points_(std::move(points)) {
+    lo_ = hi_ = points_.empty() ? Eigen::Vector3d::Zero() : points_.front();
+    for (const auto& q : points_) {
+      lo_ = lo_.cwiseMin(q);
+      hi_ = hi_.cwiseMax(q);
+    }
+  }
+  double Distance(const Eigen::Vector3d& p, double at_most = HUGE_VAL) const {
+    const double box = (p - p.cwiseMax(lo_).cwiseMin(hi_)).norm();
+    return box > at_most ? box : DistanceToPolyline(p, points_);
+  }
+  const std::vector<Eigen::Vector3d>& points() const { return points_; }
+
+ private:
+  std::vector<Eigen::Vector3d> points_;
+  Eigen::Vector3d lo_, hi_;
+};
+
 inline std::string SharedDataPath(const std::string& relative) {
   return std::string(TROCAR_SHARED_DATA_DIR) + "/" + relative;
 }

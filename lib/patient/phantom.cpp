@@ -172,6 +172,7 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   const double canal_y = vertebra_y + vertebra_r + 0.008, canal_r = 0.008, arch = 0.0035;
   const double spinous_end = std::min(canal_y + 0.03, b - in.fat_thickness);
   const double disc_z0 = ribs.z_top - 0.5 * spacing;
+  const double heart_sphere2 = semi.maxCoeff() * semi.maxCoeff() * (1.0 + 1e-6);
   for (int k = 0; k < v.size.z(); ++k) {
     for (int j = 0; j < v.size.y(); ++j) {
       for (int i = 0; i < v.size.x(); ++i) {
@@ -199,7 +200,11 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
           // Mediastinum between the lungs, in front of the spine.
           if ((x * x) / (0.05 * 0.05) + ((y - 0.01) * (y - 0.01)) / (b_p * b_p) <= 1.0) hu = PhantomHu::kMuscle;
         }
-        const double r = out.truth.HeartCoordinates(p).norm();
+        // Beyond the sphere round the heart's longest semi-axis the heart coordinates' norm
+        // exceeds 1 (the axes are a rotation): the same answer without the rotation.
+        const double r = (p - heart).squaredNorm() > heart_sphere2
+                             ? 2.0
+                             : out.truth.HeartCoordinates(p).norm();
         if (r <= 1.0) hu = r <= 1.0 - 0.008 / semi.minCoeff() ? PhantomHu::kBlood : PhantomHu::kMyocardium;
         const double rv = std::hypot(x, y - vertebra_y);
         if (rv <= vertebra_r) {

@@ -10,6 +10,7 @@
 #include <vtkFloatArray.h>
 #include <vtkImageData.h>
 #include <vtkImageGaussianSmooth.h>
+#include <vtkObjectFactory.h>
 #include <vtkPointData.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
@@ -24,6 +25,11 @@ namespace trocar::patient {
 TriangleMesh ExtractSurface(const Volume& grid, const Mask& mask, const std::string& name,
                             const SurfaceOptions& options, SurfaceReport* report) {
   const auto start = std::chrono::steady_clock::now();
+  // The import extracts surfaces on two threads, and VTK makes its object-factory registry on
+  // the first New() without a lock: two threads both made one and one was lost (LeakSanitizer
+  // caught it). A function-local static is made once, the other threads waiting for it.
+  static vtkObjectFactoryCollection* const factories = vtkObjectFactory::GetRegisteredFactories();
+  (void)factories;
   TROCAR_THROW_UNLESS(mask.size == grid.size,
                       name << ": mask of " << mask.size.transpose() << " voxels on a grid of "
                            << grid.size.transpose());
