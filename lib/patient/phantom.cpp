@@ -202,9 +202,8 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
         }
         // Beyond the sphere round the heart's longest semi-axis the heart coordinates' norm
         // exceeds 1 (the axes are a rotation): the same answer without the rotation.
-        const double r = (p - heart).squaredNorm() > heart_sphere2
-                             ? 2.0
-                             : out.truth.HeartCoordinates(p).norm();
+        const double r =
+            (p - heart).squaredNorm() > heart_sphere2 ? 2.0 : out.truth.HeartCoordinates(p).norm();
         if (r <= 1.0) hu = r <= 1.0 - 0.008 / semi.minCoeff() ? PhantomHu::kBlood : PhantomHu::kMyocardium;
         const double rv = std::hypot(x, y - vertebra_y);
         if (rv <= vertebra_r) {

@@ -161,7 +161,7 @@ void ExpectEachLabelledRibInOneTrocarRib(const patient::Volume& ct,
     if (seg.bones.labels[v] != 0) ++overlap[ts[v]][seg.bones.labels[v]];
   }
   std::set<int> best_of_rib;  // a trocar rib holding two labelled ribs (a join) fails
-  std::map<int, int> best_of;    // labelled rib -> the trocar rib holding most of it
+  std::map<int, int> best_of;  // labelled rib -> the trocar rib holding most of it
   for (const auto& [id, name] : map.names) {
     const auto label = patient::ClassifyLabel(name);
     if (label.kind != LabelKind::kRib || totals[id] < min_voxels) continue;
@@ -447,7 +447,8 @@ TEST(ShapeAnatomy, AWholePhantomRibCageIsNumberedOneToTwelveOverSeedsAndSizes) {
       for (const auto& c : ribs) number_of_label[c.label] = c.number;
       std::vector<std::pair<int, test::Polyline>> side_truth;  // generated rib: index, line
       for (const auto& truth : ph.truth.ribs)
-        if (truth.side == side) side_truth.emplace_back(truth.index, test::Polyline(truth.centreline));
+        if (truth.side == side)
+          side_truth.emplace_back(truth.index, test::Polyline(truth.centreline));
       // Each voxel of a trocar rib near a generated rib: the same number.
       long right = 0, wrong = 0;
       for (int k = 0; k < ph.ct.size.z(); ++k) {
@@ -1287,9 +1288,9 @@ TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCorte
     // lies on one: geometry of the grid all three sortings share, found once per voxel asked.
     std::vector<test::Polyline> rib_middles;
     for (const auto& rib : ph.truth.ribs) {
-      rib_middles.emplace_back(std::vector<Eigen::Vector3d>(
-          rib.centreline.begin() + rib.centreline.size() / 4,
-          rib.centreline.end() - rib.centreline.size() / 4));
+      rib_middles.emplace_back(
+          std::vector<Eigen::Vector3d>(rib.centreline.begin() + rib.centreline.size() / 4,
+                                       rib.centreline.end() - rib.centreline.size() / 4));
     }
     std::vector<signed char> on_rib_memo(hu.values.size(), -1);
     auto on_a_rib = [&](long v, const Eigen::Vector3d& q) {
@@ -1482,9 +1483,9 @@ TEST(ShapeAnatomy, AShoulderGirdleOutsideTheLayerIsKeptOutOfFragmentaryRibs) {
     std::vector<test::Polyline> rib_lines, rib_middles;  // whole, and their middle stretches
     for (const auto& rib : ph.truth.ribs) {
       rib_lines.emplace_back(rib.centreline);
-      rib_middles.emplace_back(std::vector<Eigen::Vector3d>(
-          rib.centreline.begin() + rib.centreline.size() / 4,
-          rib.centreline.end() - rib.centreline.size() / 4));
+      rib_middles.emplace_back(
+          std::vector<Eigen::Vector3d>(rib.centreline.begin() + rib.centreline.size() / 4,
+                                       rib.centreline.end() - rib.centreline.size() / 4));
     }
     auto count = [&](const patient::Segmentation& s) {
       std::set<int> ribs;
