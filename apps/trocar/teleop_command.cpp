@@ -295,19 +295,9 @@ int RunTeleop(const TeleopCommandOptions& o) {
     config = control::ReadDeviceConfig(o.devices);
   }
   std::string robot_file;
-  // The arms to drive: with a device file, its arms; else the one arm (--arm, or the plan's first
-  // instrument, or the robot's tool).
-  std::vector<std::string> arm_names;
-  std::vector<const control::DeviceBinding*> bindings;
-  if (config) {
-    for (const auto& b : config->devices) {
-      if (b.pointer) continue;
-      arm_names.push_back(b.arm);
-      bindings.push_back(&b);
-    }
-    TROCAR_THROW_UNLESS(!arm_names.empty(), o.devices << ": no device drives an arm (only pointers)");
-  }
-  std::map<std::string, std::string> tool_of_arm;  // arm name -> robot frame
+  // The arms to drive (control::ChooseSessionArms): with a device file, its arms; else the one
+  // arm (--arm, or the plan's first instrument, or the robot's tool).
+  std::vector<control::OfferedArm> plan_arms;
   if (!o.plan.empty()) {
     TROCAR_THROW_UNLESS(o.robot.empty(), "--plan names its robot: give no --robot");
     viz::ViewInputs in;
@@ -317,22 +307,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
     WithFlags({{"plan_index", "--plan-index"}},
               [&] { plan_view = std::make_unique<viz::LoadedView>(viz::LoadView(in)); });
     const planners::PlanFile& file = *plan_view->plan;
-    std::string names;
-    for (const auto& a : file.arms) {
-      names += (names.empty() ? "" : ", ") + a.name;
-      tool_of_arm[a.name] = a.tool_frame;
-    }
-    if (!config) {
-      const planners::StoredArm* arm = nullptr;
-      for (const auto& a : file.arms)
-        if ((o.arm.empty() && a.role == "instrument" && !arm) || a.name == o.arm) arm = &a;
-      TROCAR_THROW_UNLESS(arm, o.plan << ": no arm '" << o.arm << "' (arms: " << names << ")");
-      arm_names.push_back(arm->name);
-    }
-    for (std::size_t i = 0; i < arm_names.size(); ++i)
-      TROCAR_THROW_UNLESS(tool_of_arm.count(arm_names[i]),
-                          (config ? o.devices + ": device '" + bindings[i]->name + "'" : o.plan)
-                              << ": no arm '" << arm_names[i] << "' in " << o.plan << " (arms: " << names << ")");
+    for (const auto& a : file.arms) plan_arms.push_back({a.name, a.tool_frame, a.role});
     robot_file = file.robot_file;
     const planners::StoredPlan& plan = file.plans[o.plan_index - 1];
     held = plan.setup_joints;
@@ -341,22 +316,23 @@ int RunTeleop(const TeleopCommandOptions& o) {
     TROCAR_THROW_UNLESS(!o.robot.empty(), "teleop: give --robot FILE, or --plan PLAN.json");
     TROCAR_THROW_UNLESS(o.arm.empty(), "--arm names an arm of a plan: give --plan, or a device file (--devices)");
     robot_file = o.robot;
-    if (!config) arm_names.push_back("tool");
-    for (const auto& n : arm_names) tool_of_arm[n] = n;  // a frame of the robot
   }
+  const std::vector<control::ChosenArm> chosen = control::ChooseSessionArms(
+      config ? &*config : nullptr, o.plan.empty() ? nullptr : &plan_arms, o.plan, o.arm);
   const robot::RobotModelBuilder builder = robot::LoadRobotDescription(robot_file, load);
   const robot::RobotModel plain = builder.Build();
   std::vector<DrivenArm> arms;
-  for (std::size_t i = 0; i < arm_names.size(); ++i) {
+  for (const control::ChosenArm& c : chosen) {
     DrivenArm arm;
-    arm.name = arm_names[i];
-    arm.binding = config ? bindings[i] : nullptr;
-    const std::string where = config ? o.devices + ": device '" + bindings[i]->name + "', arm '" + arm.name + "'"
-                                     : (o.plan.empty() ? robot_file : o.plan + ": arm " + arm.name);
+    arm.name = c.name;
+    arm.binding = c.binding;
+    const std::string where =
+        c.binding ? o.devices + ": device '" + c.binding->name + "', arm '" + arm.name + "'"
+                  : (o.plan.empty() ? robot_file : o.plan + ": arm " + arm.name);
     // A plan's arm by its tool frame; a robot's by the frame named.
-    arm.model = WithTool(builder, plain, tool_of_arm[arm.name], where);
+    arm.model = WithTool(builder, plain, c.tool_frame, where);
     arm.positions = control::ArmPositions(*arm.model, arm.model->tool_frame().link);
-    if (arm_names.size() == 1) arm.positions.clear();  // one arm moves the whole robot
+    if (chosen.size() == 1) arm.positions.clear();  // one arm moves the whole robot
     arms.push_back(std::move(arm));
   }
   std::shared_ptr<const robot::RobotModel> shared_model = arms.front().model;
@@ -462,7 +438,7 @@ int RunTeleop(const TeleopCommandOptions& o) {
       inputs.push_back(std::move(n));
     };
     if (config) {
-      for (const auto* b : bindings) add(b->name);
+      for (const auto& c : chosen) add(c.binding->name);
       for (const auto& b : config->devices) {
         if (!b.pointer) continue;
         pointer_channel = static_cast<int>(inputs.size());

@@ -9,6 +9,57 @@
 
 namespace trocar::control {
 
+std::vector<ChosenArm> ChooseSessionArms(const DeviceConfig* devices,
+                                         const std::vector<OfferedArm>* plan_arms,
+                                         const std::string& plan_source,
+                                         const std::string& requested) {
+  std::vector<ChosenArm> chosen;
+  TROCAR_THROW_UNLESS(devices == nullptr || requested.empty(),
+                      devices->path << " names the arms its devices drive: arm '" << requested
+                                    << "' cannot be named beside it");
+  if (devices != nullptr) {
+    for (const DeviceBinding& b : devices->devices) {
+      if (!b.pointer) chosen.push_back({b.arm, b.arm, &b});
+    }
+    TROCAR_THROW_UNLESS(!chosen.empty(),
+                        devices->path << ": no device drives an arm (only pointers)");
+  }
+  if (plan_arms == nullptr) {
+    TROCAR_THROW_UNLESS(requested.empty(), "arm '" << requested
+                                                   << "': an arm is named among a plan's arms; "
+                                                      "without a plan the robot's tool is driven");
+    if (chosen.empty()) chosen.push_back({"tool", "tool", nullptr});
+    return chosen;  // a robot's arms are its frames
+  }
+  std::string names;
+  for (const OfferedArm& a : *plan_arms) names += (names.empty() ? "" : ", ") + a.name;
+  if (devices == nullptr) {
+    const OfferedArm* arm = nullptr;
+    for (const OfferedArm& a : *plan_arms) {
+      if ((requested.empty() && a.role == "instrument" && arm == nullptr) || a.name == requested)
+        arm = &a;
+    }
+    TROCAR_THROW_UNLESS(arm != nullptr, plan_source
+                                            << ": no "
+                                            << (requested.empty() ? std::string("instrument arm")
+                                                                  : "arm '" + requested + "'")
+                                            << " (arms: " << names << ")");
+    chosen.push_back({arm->name, arm->tool_frame, nullptr});
+    return chosen;
+  }
+  for (ChosenArm& c : chosen) {
+    const OfferedArm* arm = nullptr;
+    for (const OfferedArm& a : *plan_arms) {
+      if (a.name == c.name) arm = &a;
+    }
+    TROCAR_THROW_UNLESS(arm != nullptr, devices->path << ": device '" << c.binding->name
+                                                      << "': no arm '" << c.name << "' in "
+                                                      << plan_source << " (arms: " << names << ")");
+    c.tool_frame = arm->tool_frame;
+  }
+  return chosen;
+}
+
 kinematics::StartConfiguration ChooseSessionStart(const std::vector<SessionArm>& arms) {
   TROCAR_THROW_UNLESS(!arms.empty() && arms.front().model,
                       "a session's start needs at least one arm");

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "control/device_config.hpp"
 #include "control/device_input.hpp"
 #include "control/task_error.hpp"
 #include "control/teleop.hpp"
@@ -26,6 +27,37 @@ struct SessionArm {
   std::shared_ptr<const robot::RobotModel> model;
   std::vector<int> positions;
 };
+
+/// An arm a front end offers to drive: an arm of a plan (its name, its tool frame, its role:
+/// "instrument", "endoscope").
+struct OfferedArm {
+  std::string name;
+  std::string tool_frame;
+  std::string role;
+};
+
+/// An arm a session drives: its name, the robot frame its tool is at, and the device of a
+/// device file that drives it (nullptr: the session's one input).
+struct ChosenArm {
+  std::string name;
+  std::string tool_frame;
+  const DeviceBinding* binding = nullptr;
+};
+
+/// Which arms a session drives, for any front end:
+/// - with a device file (`devices`), the arm of each device that is not a pointer, in the file's
+///   order;
+/// - without one, the arm named `requested`, or, when none is named, the plan's first instrument
+///   (or, without a plan, the robot's own tool, named "tool").
+/// `plan_arms` are the arms of the plan the session drives (nullptr: a robot without a plan,
+/// whose arms are frames of the robot: a device's arm names the frame, and its tool is there);
+/// `plan_source` names the plan in messages. @throws trocar::Error naming the device file and
+/// device, or the plan, the arm asked for and the arms there are: a file whose devices are all
+/// pointers, an arm the plan does not have, an arm named without a plan.
+std::vector<ChosenArm> ChooseSessionArms(const DeviceConfig* devices,
+                                         const std::vector<OfferedArm>* plan_arms,
+                                         const std::string& plan_source,
+                                         const std::string& requested);
 
 /// Where a session starts when nothing else sets it: the robot's declared home, or a pose chosen
 /// away from limits and singularities for the first arm's tool (kinematics::ChooseStart); with

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <functional>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
@@ -105,6 +106,88 @@ TEST(SessionSpeed, AnInputFasterThanTheJointsCanFollowIsSaidBeforeTheRun) {
   mapping.scale = 3.0;
   control::ScriptedInput scaled(motion);
   EXPECT_EQ(control::InputSpeedWarning(*ecm, loop.state(), &scaled, 10.0, mapping), "");
+}
+
+// The message of the trocar::Error `f` throws ("" when it throws none).
+std::string ChoiceError(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Which arms a session drives (ChooseSessionArms), for any front end: a device file's arms in its
+// order, each at its plan arm's tool frame, its pointer driving nothing; without one, the arm
+// asked for or the plan's first instrument, or the robot's tool without a plan; and every wrong
+// choice refused, naming the file, the device, the arm asked for and the arms there are.
+TEST(SessionArms, AreTheDeviceFilesOrTheOneAskedForOrThePlansFirstInstrument) {
+  const std::vector<control::OfferedArm> plan = {{"ecm", "ecm_camera", "endoscope"},
+                                                 {"psm1", "psm1_tool", "instrument"},
+                                                 {"psm2", "psm2_tool", "instrument"}};
+  // Without a device file.
+  auto one = control::ChooseSessionArms(nullptr, &plan, "plan.json", "");
+  ASSERT_EQ(one.size(), 1u);
+  EXPECT_EQ(one[0].name, "psm1");  // the first instrument, not the first arm
+  EXPECT_EQ(one[0].tool_frame, "psm1_tool");
+  EXPECT_EQ(one[0].binding, nullptr);
+  one = control::ChooseSessionArms(nullptr, &plan, "plan.json", "psm2");
+  ASSERT_EQ(one.size(), 1u);
+  EXPECT_EQ(one[0].tool_frame, "psm2_tool");
+  one = control::ChooseSessionArms(nullptr, &plan, "plan.json", "ecm");  // any arm, asked for
+  EXPECT_EQ(one.at(0).tool_frame, "ecm_camera");
+  const std::string unknown =
+      ChoiceError([&] { control::ChooseSessionArms(nullptr, &plan, "plan.json", "psm3"); });
+  EXPECT_NE(unknown.find("plan.json: no arm 'psm3' (arms: ecm, psm1, psm2)"), std::string::npos)
+      << unknown;
+  const std::vector<control::OfferedArm> scope_only = {{"ecm", "ecm_camera", "endoscope"}};
+  const std::string no_instrument =
+      ChoiceError([&] { control::ChooseSessionArms(nullptr, &scope_only, "scope.json", ""); });
+  EXPECT_NE(no_instrument.find("scope.json: no instrument arm (arms: ecm)"), std::string::npos)
+      << no_instrument;
+  one = control::ChooseSessionArms(nullptr, nullptr, "", "");
+  ASSERT_EQ(one.size(), 1u);
+  EXPECT_EQ(one[0].tool_frame, "tool");  // a robot without a plan: its own tool
+  EXPECT_FALSE(
+      ChoiceError([&] { control::ChooseSessionArms(nullptr, nullptr, "", "psm1"); }).empty());
+
+  // With a device file: its arms in its order, the pointer left out, each at its plan arm's tool.
+  control::DeviceConfig devices;
+  devices.path = "devices.yaml";
+  devices.devices = {{"right", "psm2", false}, {"pen", "", true}, {"left", "psm1", false}};
+  auto two = control::ChooseSessionArms(&devices, &plan, "plan.json", "");
+  ASSERT_EQ(two.size(), 2u);
+  EXPECT_EQ(two[0].name, "psm2");
+  EXPECT_EQ(two[0].tool_frame, "psm2_tool");
+  EXPECT_EQ(two[0].binding, &devices.devices[0]);
+  EXPECT_EQ(two[1].name, "psm1");
+  EXPECT_EQ(two[1].binding, &devices.devices[2]);
+  // Without a plan, a device's arm is a frame of the robot.
+  two = control::ChooseSessionArms(&devices, nullptr, "", "");
+  ASSERT_EQ(two.size(), 2u);
+  EXPECT_EQ(two[1].tool_frame, "psm1");
+  // An arm the plan lacks names the device; an arm beside the file, and a file of pointers only,
+  // are refused.
+  devices.devices[2].arm = "psm9";
+  const std::string lacks =
+      ChoiceError([&] { control::ChooseSessionArms(&devices, &plan, "plan.json", ""); });
+  EXPECT_NE(
+      lacks.find("devices.yaml: device 'left': no arm 'psm9' in plan.json (arms: ecm, psm1, psm2)"),
+      std::string::npos)
+      << lacks;
+  devices.devices[2].arm = "psm1";
+  EXPECT_NE(ChoiceError([&] {
+              control::ChooseSessionArms(&devices, &plan, "plan.json", "psm1");
+            }).find("devices.yaml names the arms"),
+            std::string::npos);
+  control::DeviceConfig pointers;
+  pointers.path = "pointers.yaml";
+  pointers.devices = {{"pen", "", true}};
+  EXPECT_NE(ChoiceError([&] {
+              control::ChooseSessionArms(&pointers, &plan, "plan.json", "");
+            }).find("pointers.yaml: no device drives an arm (only pointers)"),
+            std::string::npos);
 }
 
 }  // namespace
