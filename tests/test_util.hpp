@@ -2,25 +2,25 @@
 // Helpers shared by the tests: paths, seeded random configurations, matrix comparison.
 
 #include <arpa/inet.h>
+#include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <Eigen/Core>
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <random>
 #include <sstream>
-#include <functional>
 #include <string>
 #include <vector>
 
-#include <Eigen/Core>
-#include <gtest/gtest.h>
-
+#include "common/error.hpp"
 #include "common/mesh.hpp"
 #include "robot/robot_model.hpp"
 
@@ -105,6 +105,17 @@ inline double DistanceToPolyline(const Eigen::Vector3d& p, const std::vector<Eig
     best = std::min(best, (c[s] + t * d - p).norm());
   }
   return best;
+}
+
+/// The message of the trocar::Error `f` throws, or `none` when it throws none (any other
+/// exception propagates: the test fails on it).
+inline std::string ErrorMessage(const std::function<void()>& f, const std::string& none = "") {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return none;
 }
 
 /// A polyline with its bounding box, for tests that measure every voxel of a volume against

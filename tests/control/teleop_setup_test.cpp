@@ -108,16 +108,6 @@ TEST(SessionSpeed, AnInputFasterThanTheJointsCanFollowIsSaidBeforeTheRun) {
   EXPECT_EQ(control::InputSpeedWarning(*ecm, loop.state(), &scaled, 10.0, mapping), "");
 }
 
-// The message of the trocar::Error `f` throws ("" when it throws none).
-std::string ChoiceError(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
-
 // Which arms a session drives (ChooseSessionArms), for any front end: a device file's arms in its
 // order, each at its plan arm's tool frame, its pointer driving nothing; without one, the arm
 // asked for or the plan's first instrument, or the robot's tool without a plan; and every wrong
@@ -138,19 +128,20 @@ TEST(SessionArms, AreTheDeviceFilesOrTheOneAskedForOrThePlansFirstInstrument) {
   one = control::ChooseSessionArms(nullptr, &plan, "plan.json", "ecm");  // any arm, asked for
   EXPECT_EQ(one.at(0).tool_frame, "ecm_camera");
   const std::string unknown =
-      ChoiceError([&] { control::ChooseSessionArms(nullptr, &plan, "plan.json", "psm3"); });
+      test::ErrorMessage([&] { control::ChooseSessionArms(nullptr, &plan, "plan.json", "psm3"); });
   EXPECT_NE(unknown.find("plan.json: no arm 'psm3' (arms: ecm, psm1, psm2)"), std::string::npos)
       << unknown;
   const std::vector<control::OfferedArm> scope_only = {{"ecm", "ecm_camera", "endoscope"}};
-  const std::string no_instrument =
-      ChoiceError([&] { control::ChooseSessionArms(nullptr, &scope_only, "scope.json", ""); });
+  const std::string no_instrument = test::ErrorMessage(
+      [&] { control::ChooseSessionArms(nullptr, &scope_only, "scope.json", ""); });
   EXPECT_NE(no_instrument.find("scope.json: no instrument arm (arms: ecm)"), std::string::npos)
       << no_instrument;
   one = control::ChooseSessionArms(nullptr, nullptr, "", "");
   ASSERT_EQ(one.size(), 1u);
   EXPECT_EQ(one[0].tool_frame, "tool");  // a robot without a plan: its own tool
-  EXPECT_FALSE(
-      ChoiceError([&] { control::ChooseSessionArms(nullptr, nullptr, "", "psm1"); }).empty());
+  EXPECT_FALSE(test::ErrorMessage([&] {
+                 control::ChooseSessionArms(nullptr, nullptr, "", "psm1");
+               }).empty());
 
   // With a device file: its arms in its order, the pointer left out, each at its plan arm's tool.
   control::DeviceConfig devices;
@@ -171,20 +162,20 @@ TEST(SessionArms, AreTheDeviceFilesOrTheOneAskedForOrThePlansFirstInstrument) {
   // are refused.
   devices.devices[2].arm = "psm9";
   const std::string lacks =
-      ChoiceError([&] { control::ChooseSessionArms(&devices, &plan, "plan.json", ""); });
+      test::ErrorMessage([&] { control::ChooseSessionArms(&devices, &plan, "plan.json", ""); });
   EXPECT_NE(
       lacks.find("devices.yaml: device 'left': no arm 'psm9' in plan.json (arms: ecm, psm1, psm2)"),
       std::string::npos)
       << lacks;
   devices.devices[2].arm = "psm1";
-  EXPECT_NE(ChoiceError([&] {
+  EXPECT_NE(test::ErrorMessage([&] {
               control::ChooseSessionArms(&devices, &plan, "plan.json", "psm1");
             }).find("devices.yaml names the arms"),
             std::string::npos);
   control::DeviceConfig pointers;
   pointers.path = "pointers.yaml";
   pointers.devices = {{"pen", "", true}};
-  EXPECT_NE(ChoiceError([&] {
+  EXPECT_NE(test::ErrorMessage([&] {
               control::ChooseSessionArms(&pointers, &plan, "plan.json", "");
             }).find("pointers.yaml: no device drives an arm (only pointers)"),
             std::string::npos);

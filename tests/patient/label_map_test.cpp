@@ -22,14 +22,7 @@ std::string LabelScratch(const std::string& name) {
   return dir;
 }
 
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
+std::string ErrorOf(const std::function<void()>& f) { return test::ErrorMessage(f, "(no error)"); }
 
 TEST(LabelMap, NamesOfTotalSegmentatorAndSlicerAreClassified) {
   struct Case {

@@ -32,15 +32,6 @@ double Lateral(const ChestLines& lines, const Eigen::Vector3d& p_P) {
   return (p_P.x() - lines.midline_x) * lines.side;
 }
 
-std::string Message(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
-
 // The chest's lines on the bundled phantom, whose skin is an ellipse across (semi-axes a, b
 // within the generator's 3 % jitter): the mid-axillary line at its side (a), the anterior axillary
 // line where its normal is 45 degrees between front and side (a^2 / sqrt(a^2 + b^2)), the
@@ -65,7 +56,8 @@ TEST(FixedPorts, ChestLinesOnAnEllipticChestLieWhereItsGeometryPutsThem) {
     EXPECT_LT(lines.mcl, lines.aal);
     EXPECT_LT(lines.aal, lines.mal);
   }
-  EXPECT_NE(Message([&] { ChestLinesAt(m, 1, 5.0); }).find("no lateral face"), std::string::npos);
+  EXPECT_NE(test::ErrorMessage([&] { ChestLinesAt(m, 1, 5.0); }).find("no lateral face"),
+            std::string::npos);
 }
 
 // The TECAB template on the bundled phantom (its spaces counted from the 1st in its case file):
@@ -148,7 +140,7 @@ TEST(FixedPorts, ATemplateOnUnnumberedSpacesIsRefusedSayingHowToCountThem) {
   int n = 0;
   for (auto& c : patient->port_candidates) c.name = "gap-L" + std::to_string(++n);
   const PortPlacementProblem problem(patient, Cart(), {});
-  const std::string m = Message([&] { PlaceTemplate(problem, TecabTemplate()); });
+  const std::string m = test::ErrorMessage([&] { PlaceTemplate(problem, TecabTemplate()); });
   EXPECT_NE(m.find("needs ICS-L"), std::string::npos) << m;
   EXPECT_NE(m.find("gap-L1"), std::string::npos) << m;
   EXPECT_NE(m.find("count_from"), std::string::npos) << m;
@@ -157,7 +149,7 @@ TEST(FixedPorts, ATemplateOnUnnumberedSpacesIsRefusedSayingHowToCountThem) {
   ProblemOptions three;
   three.roles = {"ecm=instrument"};
   const PortPlacementProblem wrong(Phantom(), Cart(), three);
-  const std::string r = Message([&] { PlaceTemplate(wrong, TecabTemplate()); });
+  const std::string r = test::ErrorMessage([&] { PlaceTemplate(wrong, TecabTemplate()); });
   EXPECT_NE(r.find("the plan's arms are"), std::string::npos) << r;
 }
 
@@ -169,7 +161,7 @@ TEST(FixedPorts, TheCaseFilesSpaceCountIsAWholeSpaceNumber) {
     std::ofstream(dir + "/patient.yaml")
         << "name: c\nct: ct.nrrd\nphantom: {seed: 1}\nintercostal: {left: true, count_from: "
         << bad << "}\n";
-    const std::string m = Message([&] { patient::ReadCase(dir); });
+    const std::string m = test::ErrorMessage([&] { patient::ReadCase(dir); });
     EXPECT_NE(m.find("intercostal.count_from"), std::string::npos) << bad << ": " << m;
   }
   std::ofstream(dir + "/patient.yaml")
@@ -211,9 +203,9 @@ TEST(FixedPorts, ASurgeonsPortsFileIsPlacedOrRefusedNamingThePoint) {
     EXPECT_NE(given.where[k].find(Phantom()->port_candidates[t[0].sites[k].candidate].name),
               std::string::npos);
   }
-  auto refused = [&](std::vector<std::pair<std::string, Eigen::Vector3d>> p, const std::string& says,
-                     const std::string& names) {
-    const std::string m = Message([&] { ReadPortsFile(problem, write(p)); });
+  auto refused = [&](std::vector<std::pair<std::string, Eigen::Vector3d>> p,
+                     const std::string& says, const std::string& names) {
+    const std::string m = test::ErrorMessage([&] { ReadPortsFile(problem, write(p)); });
     EXPECT_NE(m.find(says), std::string::npos) << m;
     EXPECT_NE(m.find(names), std::string::npos) << m;
     EXPECT_NE(m.find("ports.mrk.json"), std::string::npos) << m;
