@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Verified motions (../shared/design.md, "Verification and batch"): OMPL plans in one arm's active
+/// Verified motions (docs/architecture.md, "Data flow"): OMPL plans in one arm's active
 /// joint space, from the arm's start pose (the plan's nominal pose: the instrument just inside its
 /// port) to a target sample, with every state checked by the collision world — the other arms held
 /// at their nominal configuration, the instrument allowed to touch the skin only at its own port

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The port-placement problem (../shared/design.md, "Port placement"): a decision vector — for each
+/// The port-placement problem (docs/architecture.md, "Data flow"): a decision vector — for each
 /// arm a port on one of the patient's candidate curves, plus the cart's pose on the floor — is
 /// turned into a placement (setup joints solved, instruments aimed), and scored term by term:
 /// target coverage, dexterity, approach angle, triangulation, the endoscope's view, port spacing
