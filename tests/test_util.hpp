@@ -2,13 +2,11 @@
 // Helpers shared by the tests: paths, seeded random configurations, matrix comparison.
 
 #include <arpa/inet.h>
-#include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include <Eigen/Core>
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -19,6 +17,9 @@
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include <Eigen/Core>
+#include <gtest/gtest.h>
 
 #include "common/error.hpp"
 #include "common/mesh.hpp"
