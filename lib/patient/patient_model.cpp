@@ -142,7 +142,11 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
     }
     timings.emplace_back(name, std::chrono::duration<double>(Clock::now() - t0).count());
   };
-  if (c.has_phantom && !std::filesystem::exists(c.ct)) {
+  // A phantom case's CT is generated on first use, and again when an older generator made it
+  // (the anatomy it lays out has changed since).
+  const bool outdated = c.has_phantom && std::filesystem::path(c.ct).filename() == "ct.nrrd" &&
+                        IsRegularFile(c.ct) && !PhantomCaseIsCurrent(case_dir);
+  if (c.has_phantom && (outdated || !std::filesystem::exists(c.ct))) {
     stage("generate phantom", [&] {
       WritePhantomCase(GeneratePhantom(c.phantom), case_dir, CtFormat::kNrrdLps,
                        /*write_patient_yaml=*/false);

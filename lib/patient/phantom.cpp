@@ -117,7 +117,8 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
 
   // Heart: an ellipsoid turned as real hearts lie (docs/phantom.md: the principal axes of the
   // heart masks of two real CTs), its front 8 mm behind the anterior pleura, left of the
-  // midline, at the level of the 4th-6th ribs.
+  // midline, its apex (the LAD's end) in the 5th intercostal space at the front of the chest,
+  // where a surgeon finds it (docs/phantom.md).
   const Eigen::Vector3d e_long = Eigen::Vector3d(0.677, -0.486, -0.548).normalized();
   Eigen::Vector3d e_short = Eigen::Vector3d(0.092, -0.668, 0.724);
   e_short = (e_short - e_short.dot(e_long) * e_long).normalized();
@@ -127,7 +128,15 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   out.truth.heart_semi_axes = semi;
   out.truth.heart_axes = heart_axes;
   const double front_reach = out.truth.HeartReach(Eigen::Vector3d(0, -1, 0));
-  Eigen::Vector3d heart(0.03, -b_p + front_reach + 0.008, ribs.Z(4, ribs.phi0) - 0.02);
+  // The LAD on the heart's surface, base (t = -0.7) to apex (t = 0.9) along the long axis, a
+  // little toward the left ventricle (u), relative to the heart's centre.
+  const auto lad_unit = [](double t) {
+    const double u = 0.15;
+    return Eigen::Vector3d(t, u, std::sqrt(std::max(0.0, 1.0 - t * t - u * u)));
+  };
+  const double lad_apex_z = (heart_axes * lad_unit(0.9).cwiseProduct(semi)).z();
+  const double fifth_space_front = 0.5 * (ribs.Z(4, ribs.phi1) + ribs.Z(5, ribs.phi1));
+  Eigen::Vector3d heart(0.03, -b_p + front_reach + 0.008, fifth_space_front - lad_apex_z);
   heart += in.heart_offset + heart_jitter;
   out.truth.heart_centre = heart;
 
@@ -278,10 +287,7 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   // (behind the sternum's left edge) to the apex (left, forward, low), a little toward the left
   // ventricle's side of the surface, on the epicardium.
   for (int s = 0; s <= 24; ++s) {
-    const double t = -0.7 + 1.6 * s / 24.0;  // along the long axis, base to apex
-    const double u = 0.15;                   // toward the left ventricle
-    const double w = std::sqrt(std::max(0.0, 1.0 - t * t - u * u));
-    const Eigen::Vector3d unit(t, u, w);
+    const Eigen::Vector3d unit = lad_unit(-0.7 + 1.6 * s / 24.0);
     const Eigen::Vector3d surface = heart + heart_axes * unit.cwiseProduct(semi);
     const Eigen::Vector3d normal = (heart_axes * unit.cwiseQuotient(semi)).normalized();
     out.truth.lad.push_back(surface + 0.0015 * normal);
@@ -342,6 +348,19 @@ std::vector<Markup> CurveMarkups(const std::string& name, const std::vector<Curv
 
 }  // namespace
 
+bool PhantomCaseIsCurrent(const std::string& dir) {
+  const std::string path = JoinPath(dir, "truth.json");
+  if (!IsRegularFile(path)) return false;
+  try {
+    const nlohmann::json truth = nlohmann::json::parse(ReadTextFile(path));
+    const auto it = truth.find("generator_version");
+    return it != truth.end() && it->is_number_integer() &&
+           it->get<int>() == kPhantomGeneratorVersion;
+  } catch (const std::exception&) {
+    return false;
+  }
+}
+
 void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat format,
                       bool write_patient_yaml) {
   namespace fs = std::filesystem;
@@ -394,6 +413,7 @@ void WritePhantomCase(const Phantom& phantom, const std::string& dir, CtFormat f
   truth["heart_semi_axes_m"] = {t.heart_semi_axes.x(), t.heart_semi_axes.y(), t.heart_semi_axes.z()};
   for (int c = 0; c < 3; ++c)
     truth["heart_axes"].push_back({t.heart_axes(0, c), t.heart_axes(1, c), t.heart_axes(2, c)});
+  truth["generator_version"] = kPhantomGeneratorVersion;
   WriteFileAtomically(JoinPath(tmp, "truth.json"), truth.dump(1));
   if (write_patient_yaml) {
     const PhantomParameters& p = phantom.parameters;

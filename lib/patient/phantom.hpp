@@ -99,6 +99,15 @@ struct PhantomHu {
 /// @throws trocar::Error for parameters out of their sensible ranges (named).
 Phantom GeneratePhantom(const PhantomParameters& parameters);
 
+/// The phantom generator's anatomy version, written into a case's truth.json. Raised whenever
+/// GeneratePhantom lays out the anatomy differently for the same parameters, so that a case
+/// generated on first use by an older build is generated again (PhantomCaseIsCurrent).
+inline constexpr int kPhantomGeneratorVersion = 2;
+
+/// Whether `dir/truth.json` was written by this generator version (false when it is missing,
+/// unreadable or older).
+bool PhantomCaseIsCurrent(const std::string& dir);
+
 /// How a phantom case stores its CT.
 enum class CtFormat {
   kNrrdLps,  ///< dir/ct.nrrd with an LPS header

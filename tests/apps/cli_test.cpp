@@ -626,8 +626,9 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   }
 
   // The endoscope's view of a sample is re-checked from the joints the plan records for it (its
-  // docking pose, or the scope moved to look at the sample): a scope turned half a radian away
-  // after the fact no longer sees it; a sample's joints naming a setup joint (not an active one)
+  // docking pose, or the scope moved to look at the sample): a scope pitched 1.2 rad (69 deg,
+  // beyond the 35-deg half field of view from any sample it saw) after the fact no longer sees
+  // it; a sample's joints naming a setup joint (not an active one)
   // are refused naming the field.
   {
     nlohmann::json turned = nlohmann::json::parse(ReadTextFile(out + "/plan.json"));
@@ -635,7 +636,9 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
     for (auto& r : turned["plans"][0]["samples"])
       if (r["arm"] == "ecm" && r["reached"].get<bool>() && !seen) seen = &r;
     ASSERT_NE(seen, nullptr) << "plan 1's scope sees no sample";
-    (*seen)["q"]["ecm_outer_yaw"] = (*seen)["q"]["ecm_outer_yaw"].get<double>() + 0.5;
+    // Toward the limit with room for the turn (the ECM's outer pitch: -0.768..1.134 rad).
+    const double pitch = (*seen)["q"]["ecm_outer_pitch"].get<double>();
+    (*seen)["q"]["ecm_outer_pitch"] = pitch > 0.2 ? pitch - 1.2 : pitch + 1.2;
     WriteFileAtomically(out + "/turned_scope.json", turned.dump(1));
     const CommandRun check_turned = Trocar("check --plan " + out + "/turned_scope.json");
     EXPECT_EQ(check_turned.exit_code, 3) << check_turned.output;

@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <fstream>
 
+#include <nlohmann/json.hpp>
+
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
@@ -563,6 +565,21 @@ TEST(PatientModel, BundledDefaultCaseFileIsValid) {
   EXPECT_EQ(m.targets.size(), 2u);
   EXPECT_EQ(m.port_candidates.size(), 8u);
   EXPECT_EQ(m.name, "phantom-default");
+  EXPECT_TRUE(patient::PhantomCaseIsCurrent(dir));
+  // A case an older generator made (its truth.json without this version, its CT different) is
+  // generated again on import; a current one is kept as it is.
+  const std::string ct = ReadBinaryFile(JoinPath(dir, "ct.nrrd"));
+  nlohmann::json truth = nlohmann::json::parse(ReadTextFile(JoinPath(dir, "truth.json")));
+  truth["generator_version"] = patient::kPhantomGeneratorVersion - 1;
+  WriteFileAtomically(JoinPath(dir, "truth.json"), truth.dump());
+  WriteFileAtomically(JoinPath(dir, "ct.nrrd"), ct.substr(0, ct.size() / 2));
+  EXPECT_FALSE(patient::PhantomCaseIsCurrent(dir));
+  patient::ImportPatient(dir, {false, false, true});
+  EXPECT_TRUE(patient::PhantomCaseIsCurrent(dir));
+  EXPECT_TRUE(ReadBinaryFile(JoinPath(dir, "ct.nrrd")) == ct);
+  const auto written = fs::last_write_time(JoinPath(dir, "ct.nrrd"));
+  patient::ImportPatient(dir, {false, false, true});
+  EXPECT_EQ(fs::last_write_time(JoinPath(dir, "ct.nrrd")), written);
 }
 
 TEST(PatientModel, Lidc2CaseHasSkinRibsHeartTargetsOnTheTable) {

@@ -313,14 +313,23 @@ TEST(SelectionCriteria, MeasuredOnTheCtTheyFollowTheAnatomy) {
   EXPECT_GT(lad1, lad0 + 6.0);
   EXPECT_LT(lad1, lad0 + 10.5);
   EXPECT_GT(get(deeper, "heart_to_chest_wall").value, get(base, "heart_to_chest_wall").value);
-  // The LAD against the wall (the heart moved forward a millimetre at a time until the LAD's
-  // median distance to the bones is under the criterion's 15 mm; the nearest bone lies forward
-  // and to the side of an LAD running obliquely, so that takes more than its depth): against the
+  // The LAD against the wall: the heart moved a millimetre at a time toward the rib nearest the
+  // LAD's middle (the phantom has no sternum: straight forward, its LAD's lower half would leave
+  // the chest in front of the ribs' ends without meeting bone) until the LAD's median distance
+  // to the bones is under the criterion's 15 mm; the nearest bone lies to the side of an LAD
+  // running obliquely, so that takes more than its depth, but less than twice: against the
   // criterion, and the comparison says so.
+  const auto& lad_points =
+      ct->targets[0].name == "LAD" ? ct->targets[0].points : ct->targets[1].points;
+  const Eigen::Vector3d lad_middle = lad_points[lad_points.size() / 2];
+  Eigen::Vector3d nearest_rib = Eigen::Vector3d::Constant(1e9);
+  for (const auto& v : ct->Find("ribs")->mesh.vertices)
+    if ((v - lad_middle).norm() < (nearest_rib - lad_middle).norm()) nearest_rib = v;
+  const Eigen::Vector3d toward_wall = (nearest_rib - lad_middle).normalized();
   SelectionCriteria close;
   double forward_mm = 0.0;
   for (; forward_mm < 2.0 * lad0; forward_mm += 1.0) {
-    close = MeasureSelectionCriteria(*heart_moved(Eigen::Vector3d(0.0, -forward_mm * 1e-3, 0.0)), &pivot);
+    close = MeasureSelectionCriteria(*heart_moved(forward_mm * 1e-3 * toward_wall), &pivot);
     if (get(close, "lad_to_chest_wall").value < 15.0) break;
   }
   EXPECT_LT(forward_mm, 2.0 * lad0);

@@ -578,7 +578,7 @@ TEST(PortPlacementProblem, TheEndoscopeMovesToLookAtWhatItsDockingPoseDoesNotSee
   }
   EXPECT_GE(placed, 4);
   EXPECT_GE(kept, 1);
-  EXPECT_GE(moved_only, 3);
+  EXPECT_GE(moved_only, 2);
   std::cout << placed << " placements, " << kept << " samples seen from the docking pose, "
             << moved_only << " only by moving the scope\n";
 }
