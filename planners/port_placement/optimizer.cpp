@@ -6,6 +6,8 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <functional>
 #include <limits>
 #include <map>
@@ -500,6 +502,9 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
 
   // --- Global stage -------------------------------------------------------------------------
   std::vector<Sample> archive;
+  // The exhaustive grid's evaluations within the archive (all of it for "exhaustive"; the seeds
+  // after the given placements otherwise), for the polish (below).
+  std::vector<int> grid_samples;
   auto t_stage = Clock::now();
   // Cannon et al. 2003's grid: every assignment of grid sites to the arms scored by the port-only
   // (geometric) terms; the best triads with a grid of cart poses, for full evaluation. It is the
@@ -596,6 +601,8 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
   if (options.algorithm == "exhaustive") {
     const std::vector<std::vector<double>> xs = cannon_grid(&result.grid);
     archive = evaluate_all(xs, "exhaustive grid", static_cast<double>(xs.size()));
+    grid_samples.resize(archive.size());
+    std::iota(grid_samples.begin(), grid_samples.end(), 0);
     double best = -std::numeric_limits<double>::infinity();
     for (std::size_t i = 0; i < archive.size(); ++i) {
       best = std::max(best, archive[i].score);
@@ -621,6 +628,11 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
                        : ", " + std::to_string(options.initial.size()) + " given placements first") +
                   "): " + result.grid;
     archive = evaluate_all(seeds, "seeds: Cannon's grid", options.evaluations);
+    for (int i = 0; i < static_cast<int>(archive.size()); ++i) {
+      bool given = false;
+      for (const Placement& p : options.initial) given = given || archive[i].x == problem.Encode(p);
+      if (!given) grid_samples.push_back(i);
+    }
     const int starts = options.starts;
     std::vector<std::vector<Sample>> archives(starts);
     const int per_start =
@@ -681,18 +693,46 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
   std::stable_sort(order.begin(), order.end(),
                    [&](int a, int b) { return archive[a].score > archive[b].score; });
   const int pool_size = options.top_k + 2;
-  std::vector<Sample> pool;
-  std::vector<Placement> pool_placements;
-  for (int i : order) {
-    if (static_cast<int>(pool.size()) >= pool_size) break;
-    const Placement p = problem.Decode(archive[i].x);
-    bool distinct = true;
-    for (const auto& q : pool_placements)
-      distinct = distinct && Distinct(p, q, options.distinct_distance);
-    if (!distinct) continue;
-    pool.push_back(archive[i]);
-    pool_placements.push_back(p);
+  // The best distinct placements of `from` (archive indices, best first).
+  auto distinct_best = [&](const std::vector<int>& from) {
+    std::vector<Sample> chosen;
+    std::vector<Placement> placements;
+    for (int i : from) {
+      if (static_cast<int>(chosen.size()) >= pool_size) break;
+      const Placement p = problem.Decode(archive[i].x);
+      bool distinct = true;
+      for (const auto& q : placements)
+        distinct = distinct && Distinct(p, q, options.distinct_distance);
+      if (!distinct) continue;
+      chosen.push_back(archive[i]);
+      placements.push_back(p);
+    }
+    return chosen;
+  };
+  std::vector<Sample> pool = distinct_best(order);
+  // The exhaustive baseline's own pool is polished too, from the same starts with the same seeds
+  // (a polish's seed is a function of its start): the final plans then hold every plan the
+  // baseline would end with, and the search never ends below it. The global search's best
+  // placements can crowd the grid's out of the pool above, and the polish is local: a grid
+  // placement scoring a little lower can polish to more.
+  std::vector<int> grid_order;
+  for (int i : order)
+    if (std::binary_search(grid_samples.begin(), grid_samples.end(), i)) grid_order.push_back(i);
+  for (const Sample& g : distinct_best(grid_order)) {
+    bool in_pool = false;
+    for (const Sample& p : pool) in_pool = in_pool || p.x == g.x;
+    if (!in_pool) pool.push_back(g);
   }
+  // A polish's seed: the run's seed and its start (FNV-1a over the start's bytes).
+  auto polish_seed = [&](const std::vector<double>& x) {
+    std::uint64_t h = 1469598103934665603ull;
+    for (double v : x) {
+      std::uint64_t bits;
+      std::memcpy(&bits, &v, sizeof bits);
+      h = (h ^ bits) * 1099511628211ull;
+    }
+    return options.seed * 104729u + static_cast<unsigned>(h ^ (h >> 32));
+  };
   std::vector<int> polish_counts(pool.size(), 0);
   if (options.local != "none" && options.polish_evaluations > 0) {
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
@@ -718,7 +758,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       for (int a = 0; a < cart; a += 2) x0[a] = std::floor(x0[a]) + 0.5;
       std::vector<Sample> local_archive;
       RunNlopt(problem, LocalAlgorithm(options.local), plb, pub, x0, options.polish_evaluations,
-               options.seed * 104729u + static_cast<unsigned>(i), deadline, &ws, &local_archive,
+               polish_seed(pool[i].x), deadline, &ws, &local_archive,
                &counter, &out_of_time);
       polish_counts[i] = static_cast<int>(local_archive.size());
       for (const auto& s : local_archive) {
