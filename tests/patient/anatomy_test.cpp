@@ -1213,9 +1213,11 @@ TEST(ShapeAnatomy, Lidc2InjectedContrastIsVesselsNotSternum) {
 // and the vein is vessels, not sternum, while the ribs and the sternum stay bone. Sorted once
 // (raw_cortex_core_radius 0), the vein is bone: the test can fail. With solid bones, the ribs
 // hold the ball and the 7 mm core stays (a wide window's ribs are no contrast).
+// Under a sanitizer the first case runs: on seed 8 (2.5 mm voxels) the clang build's single sort
+// calls the vein vessels where the gcc build calls it bone (docs/decisions.md, stop 59).
 TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCortex) {
   for (const auto& cs :
-       test::Cases<std::pair<unsigned, double>>({{3u, 0.002}, {8u, 0.0025}}, {1})) {
+       test::Cases<std::pair<unsigned, double>>({{3u, 0.002}, {8u, 0.0025}}, {0})) {
     const unsigned seed = cs.first;  // plain names: lambdas below capture them (C++17)
     const double voxel = cs.second;
     SCOPED_TRACE(seed);
@@ -1226,10 +1228,11 @@ TEST(ShapeAnatomy, WindowedContrastThinnerThanTheCoreIsFoundWhenBonesReadAsCorte
     p.ribs_reach_spine = p.shoulders = true;
     const patient::Phantom ph = patient::GeneratePhantom(p);
     const patient::Volume& hu = ph.ct;
-    // The vein: the heart's top plus 2 cm, 4.5 cm behind the front skin at the rib cage's
-    // midline, from 4 cm right of it to 3 cm left.
+    // The vein: 4.5 cm above the heart's top (the left brachiocephalic vein crosses behind the
+    // manubrium before it joins the superior vena cava, which runs a few cm down to the heart),
+    // 4.5 cm behind the front skin at the rib cage's midline, from 4 cm right of it to 3 cm left.
     const Eigen::Vector3d c = ph.truth.heart_centre;
-    const double z = c.z() + ph.truth.HeartReach(Eigen::Vector3d::UnitZ()) + 0.02;
+    const double z = c.z() + ph.truth.HeartReach(Eigen::Vector3d::UnitZ()) + 0.045;
     double mid_x = 0.0;
     int points = 0;
     for (const auto& rib : ph.truth.ribs) {
