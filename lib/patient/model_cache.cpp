@@ -34,7 +34,7 @@ std::uint64_t ModelChecksum(const char* data, std::size_t n) { return Checksum(d
 
 namespace {
 
-struct Writer {
+struct CacheWriter {
   std::string out;
   template <typename T>
   void Pod(const T& v) {
@@ -98,7 +98,7 @@ struct Reader {
 }  // namespace
 
 std::string SerializeModel(const PatientModel& m, const ImportReport& report, std::uint64_t key) {
-  Writer w;
+  CacheWriter w;
   w.out.append(kMagic, 8);
   w.Pod(key);
   w.Str(m.name);
