@@ -7,7 +7,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "patient/phantom.hpp"
+#include "patient/curve.hpp"
 #include "patient/segmentation.hpp"
 
 namespace trocar::patient {

@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "patient/phantom.hpp"
+#include "patient/curve.hpp"
 
 namespace trocar::patient {
 

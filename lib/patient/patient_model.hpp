@@ -14,8 +14,8 @@
 #include <Eigen/Geometry>
 
 #include "common/mesh.hpp"
+#include "patient/curve.hpp"
 #include "patient/operative_state.hpp"
-#include "patient/phantom.hpp"
 
 namespace trocar::patient {
 

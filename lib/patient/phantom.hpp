@@ -9,6 +9,7 @@
 
 #include <Eigen/Geometry>
 
+#include "patient/curve.hpp"
 #include "patient/volume.hpp"
 
 namespace trocar::patient {
@@ -46,9 +47,6 @@ struct PhantomParameters {
   /// lies on the table). NaN: no table.
   double table_gap = NAN;
 };
-
-/// A polyline in the patient frame (m).
-using Curve = std::vector<Eigen::Vector3d>;
 
 struct PhantomTruth {
   struct Rib {

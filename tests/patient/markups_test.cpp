@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include "common/error.hpp"
+#include "patient/phantom.hpp"
 #include "test_util.hpp"
 
 namespace trocar {
