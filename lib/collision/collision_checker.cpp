@@ -305,7 +305,7 @@ CollisionChecker::CollisionChecker(std::shared_ptr<const CollisionWorld> world)
   TROCAR_THROW_UNLESS(world_, "collision checker: no world");
   const CollisionWorld::Impl& w = world_->impl();
   {
-    std::lock_guard<std::mutex> lock(w.object_construction);
+    std::lock_guard<std::mutex> lock(*w.object_construction);
     for (std::size_t i = 0; i < w.n(); ++i) {
       auto object = std::make_unique<fcl::CollisionObjectd>(w.geometry[i]);
       object->setUserData(reinterpret_cast<void*>(static_cast<std::intptr_t>(i)));

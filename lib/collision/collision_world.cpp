@@ -303,6 +303,42 @@ const char* ToString(PairClass cls) {
 }
 
 CollisionWorld::CollisionWorld(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+
+std::shared_ptr<const CollisionWorld> CollisionWorld::WithBodiesMoved(
+    const std::vector<std::string>& names, const Eigen::Vector3d& d_W) const {
+  TROCAR_THROW_UNLESS(d_W.allFinite(), "collision world: a body moved by a non-finite vector");
+  auto impl = std::make_unique<Impl>();
+  const Impl& w = *impl_;
+  impl->options = w.options;
+  impl->robot = w.robot;
+  impl->bodies = w.bodies;
+  impl->geometry = w.geometry;
+  impl->X_pose = w.X_pose;
+  impl->convex = w.convex;
+  impl->mesh = w.mesh;
+  impl->arms = w.arms;
+  impl->ports = w.ports;
+  impl->port_frame = w.port_frame;
+  impl->port_link = w.port_link;
+  impl->robot_bodies = w.robot_bodies;
+  impl->fixed_bodies = w.fixed_bodies;
+  impl->allowed = w.allowed;
+  impl->classes = w.classes;
+  impl->auto_allowed = w.auto_allowed;
+  impl->triangles = w.triangles;
+  impl->object_construction = w.object_construction;  // the geometry is shared
+  for (const std::string& name : names) {
+    bool found = false;
+    for (int b : w.fixed_bodies) {
+      if (w.bodies[b].name != name) continue;
+      impl->X_pose[b].pretranslate(d_W);
+      found = true;
+    }
+    TROCAR_THROW_UNLESS(found, "collision world: no fixed body '" << name << "' to move");
+  }
+  return std::shared_ptr<const CollisionWorld>(new CollisionWorld(std::move(impl)));
+}
+
 CollisionWorld::~CollisionWorld() = default;
 
 const std::vector<Body>& CollisionWorld::bodies() const { return impl_->bodies; }

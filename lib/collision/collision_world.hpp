@@ -150,6 +150,13 @@ class CollisionWorld {
                                                      const WorldOptions& options = {},
                                                      const std::vector<AllowedPair>& allowed = {});
 
+  /// This world with the named fixed bodies (patient structures) translated by d_W (m, world
+  /// frame); every body's geometry and hierarchy, the allowed pairs and the robot shared with
+  /// this world (nothing is rebuilt: the robustness check moves the heart with its targets).
+  /// @throws trocar::Error naming a body that is not a fixed body of this world.
+  std::shared_ptr<const CollisionWorld> WithBodiesMoved(const std::vector<std::string>& names,
+                                                        const Eigen::Vector3d& d_W) const;
+
   ~CollisionWorld();
   CollisionWorld(const CollisionWorld&) = delete;
   CollisionWorld& operator=(const CollisionWorld&) = delete;

@@ -47,7 +47,8 @@ struct CollisionWorld::Impl {
   /// FCL's CollisionObject constructor writes the geometry's local AABB (the same values every
   /// time): checkers build their objects under this lock so that the shared geometry is never
   /// written concurrently.
-  mutable std::mutex object_construction;
+  /// Shared by the worlds that share this geometry (CollisionWorld::WithBodiesMoved).
+  std::shared_ptr<std::mutex> object_construction = std::make_shared<std::mutex>();
 
   std::size_t n() const { return bodies.size(); }
   bool Allowed(int a, int b) const { return allowed[static_cast<std::size_t>(a) * n() + b] != 0; }

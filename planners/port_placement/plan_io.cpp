@@ -381,7 +381,19 @@ void WritePlanFolder(const std::string& dir, const PortPlacementProblem& problem
   TROCAR_THROW_UNLESS(!ec && std::filesystem::is_directory(dir),
                       dir << ": cannot make the output folder (" << ec.message() << ")");
   WritePortMarkups(problem, result, JoinPath(dir, "ports.mrk.json"));
-  const std::string text = PlanJson(problem, result, options, inputs);
+  // The inputs are named relative to the plan's own folder, so that the plan opens from any
+  // working directory (and a moved case-and-plan tree keeps working).
+  PlanInputs stored = inputs;
+  auto relative_to_dir = [&](const std::string& p) {
+    std::error_code e;
+    const std::filesystem::path abs = std::filesystem::absolute(p, e);
+    const std::filesystem::path base = std::filesystem::absolute(dir, e);
+    const std::filesystem::path rel = abs.lexically_normal().lexically_relative(base.lexically_normal());
+    return (e || rel.empty()) ? abs.lexically_normal().string() : rel.string();
+  };
+  stored.case_dir = relative_to_dir(inputs.case_dir);
+  stored.robot_file = relative_to_dir(inputs.robot_file);
+  const std::string text = PlanJson(problem, result, options, stored);
   WriteFileAtomically(JoinPath(dir, "plan.json"), finish ? finish(text) : text);
 }
 

@@ -448,12 +448,9 @@ std::shared_ptr<const collision::CollisionWorld> PortPlacementProblem::WorldWith
     const Eigen::Vector3d& d_P) const {
   const std::vector<std::string> moving = MovingStructures();
   if (moving.empty()) return world_;
-  patient::PatientModel moved = *patient_;
-  for (auto& s : moved.structures) {
-    if (std::find(moving.begin(), moving.end(), s.name) == moving.end()) continue;
-    for (auto& v : s.mesh.vertices) v += d_P;
-  }
-  return collision::CollisionWorld::Build(&moved, robot_, world_options_);
+  // The organs' bodies moved in place: their hierarchies are shared, not rebuilt (building the
+  // whole world per shift was 8 % of a plan's time on the bundled default, stop 61).
+  return world_->WithBodiesMoved(moving, patient_->X_WP.linear() * d_P);
 }
 
 std::string PortPlacementProblem::SolveReach(int a, const Placement& placement,

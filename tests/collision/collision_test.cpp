@@ -659,6 +659,59 @@ TEST(CollisionWorld, TwoThreadsAnswerExactlyAsOne) {
   EXPECT_LT(collisions, kQueries - kQueries / 50);
 }
 
+// A world with the heart moved in place (its hierarchy shared, the robustness check's world)
+// answers as a world built anew from the moved heart's vertices: the same contacts, distances
+// within rounding, the same sight lines; the original world is left as it was. A moved world
+// that ignored the move, moved the skin too, or moved by the wrong frame's vector fails.
+TEST(CollisionWorld, AWorldWithABodyMovedInPlaceAnswersAsOneBuiltMoved) {
+  const CartScene s = MakeCartScene();
+  const auto probes = Probes("{shape: capsule, radius: 0.01, length: 0.06}",
+                             "{shape: sphere, radius: 0.015}");
+  const Eigen::Vector3d heart_W = s.patient.X_WP * Eigen::Vector3d(0.03, -0.02, 0.02);
+  const auto original_world = CollisionWorld::Build(&s.patient, probes);
+  for (const Eigen::Vector3d d_P : {Eigen::Vector3d(0.02, 0, 0), Eigen::Vector3d(0, -0.03, 0.01),
+                                    Eigen::Vector3d(-0.01, 0.015, -0.02)}) {
+    patient::PatientModel moved = s.patient;
+    for (auto& v : moved.structures[1].mesh.vertices) v += d_P;
+    const auto rebuilt = CollisionWorld::Build(&moved, probes);
+    const auto in_place =
+        original_world->WithBodiesMoved({"heart"}, s.patient.X_WP.linear() * d_P);
+    CollisionChecker a(rebuilt), b(in_place), original(original_world),
+        fresh(CollisionWorld::Build(&s.patient, probes));
+    const int heart = rebuilt->FindBody("heart");
+    int differing_from_unmoved = 0, heart_contacts = 0;
+    for (int i = 0; i < 400; ++i) {
+      std::mt19937 rng(77 + i);
+      std::uniform_real_distribution<double> u(-0.09, 0.09);
+      const robot::RobotState state =
+          PlaceProbes(*probes, heart_W + Eigen::Vector3d(u(rng), u(rng), u(rng)),
+                      heart_W + Eigen::Vector3d(u(rng), u(rng), u(rng)));
+      for (CollisionChecker* c : {&a, &b, &original, &fresh}) c->SetRobotState(state);
+      std::vector<std::pair<int, int>> pa, pb, po, pf;
+      for (const auto& c : a.Check().contacts) pa.emplace_back(c.a, c.b);
+      for (const auto& c : b.Check().contacts) pb.emplace_back(c.a, c.b);
+      for (const auto& c : original.Check().contacts) po.emplace_back(c.a, c.b);
+      for (const auto& c : fresh.Check().contacts) pf.emplace_back(c.a, c.b);
+      EXPECT_EQ(pa, pb) << "state " << i;
+      EXPECT_EQ(po, pf) << "state " << i << ": the original world changed";
+      differing_from_unmoved += pa != po;
+      for (const auto& p : pa) heart_contacts += p.first == heart || p.second == heart;
+    }
+    EXPECT_GT(differing_from_unmoved, 10) << "the move changed few answers: the test sees little";
+    EXPECT_GT(heart_contacts, 20);
+    // Sight lines through the heart's old and new places.
+    for (int i = 0; i < 200; ++i) {
+      std::mt19937 rng(500 + i);
+      std::uniform_real_distribution<double> u(-0.08, 0.08);
+      const Eigen::Vector3d to = heart_W + Eigen::Vector3d(u(rng), u(rng), u(rng));
+      const Eigen::Vector3d from = to + Eigen::Vector3d(0.0, 0.0, 0.3);
+      EXPECT_EQ(rebuilt->FirstAcross(from, to, 0.001).body,
+                in_place->FirstAcross(from, to, 0.001).body);
+    }
+  }
+  EXPECT_THROW(original_world->WithBodiesMoved({"liver"}, Eigen::Vector3d::Zero()), Error);
+}
+
 // The endoscope's line of sight (issue #41, item 5): a line is hidden exactly when its part
 // outside the margin at its far end crosses a patient structure; a structure that is not the
 // patient's (the table) never hides anything; the body named is the one met first.
