@@ -68,8 +68,13 @@ IkOutcome SolveReach(const robot::RobotModel& robot, const PlanArm& arm,
   const Eigen::VectorXd lower = robot.lower_limits(), upper = robot.upper_limits();
   double damping = 1e-3;
   double previous = std::numeric_limits<double>::infinity();
+  // Each step poses only the tool's chain (the Jacobians read the joints on it); the whole robot
+  // is posed once at the end, for the collision checks that follow.
+  bool configured = false;
   for (int it = 0; it <= iterations; ++it) {
-    if (!kinematics::ForwardKinematics(robot, state->q, state).ok()) break;
+    configured = kinematics::SetConfiguration(robot, state->q, state).ok();
+    if (!configured) break;
+    kinematics::ForwardKinematicsToLink(robot, tool.link, state);
     const Eigen::Vector3d p = kinematics::FramePose(*state, tool).translation();
     e.head<3>() = p_aim_W - p;
     kinematics::ComputeFrameJacobian(robot, *state, tool, &J_tool);
@@ -117,6 +122,7 @@ IkOutcome SolveReach(const robot::RobotModel& robot, const PlanArm& arm,
       state->q[i] = std::clamp(state->q[i] + dq[c], lower[i], upper[i]);
     }
   }
+  if (configured) kinematics::ForwardKinematics(robot, state);
   return out;
 }
 
