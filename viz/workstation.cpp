@@ -52,8 +52,6 @@
 namespace trocar::viz {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
-
 /// VTK's trackball camera with the thesis' buttons: right pans, middle zooms.
 class ThesisCameraStyle : public vtkInteractorStyleTrackballCamera {
  public:
@@ -78,7 +76,7 @@ vtkStandardNewMacro(ThesisCameraStyle);
 
 /// A joint's slider range: its limits, or a turn either way (half a metre) where they are open.
 std::pair<double, double> SliderRange(const robot::Joint& joint) {
-  const double open = joint.type == robot::JointType::kPrismatic ? 0.5 : kPi;
+  const double open = joint.type == robot::JointType::kPrismatic ? 0.5 : M_PI;
   return {std::isfinite(joint.limits.lower) ? joint.limits.lower : -open,
           std::isfinite(joint.limits.upper) ? joint.limits.upper : open};
 }
@@ -637,7 +635,7 @@ class Workstation {
     window_.statusBar()->showMessage(
         QString::fromStdString(joint.name) + " = " +
         (joint.type == robot::JointType::kPrismatic ? Fixed(q[joint.q_index] * 1000, 1) + " mm"
-                                                   : Fixed(q[joint.q_index] * 180 / kPi, 1) + "°") +
+                                                   : Fixed(q[joint.q_index] * 180 / M_PI, 1) + "°") +
         ": " + (pose_label_ ? pose_label_->text() : QString()));
     UpdateScope();
     Render();

@@ -565,9 +565,11 @@ TEST(TrocarPlan, OnATerminalTheLongCommandsShowTheirProgress) {
 TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   const std::string out = ::testing::TempDir() + "trocar_plan_cli";
   std::filesystem::remove_all(out);
-  const CommandRun plan =
-      Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
-             " --evaluations 120 --starts 2 --polish-evaluations 10 --top 2 --seed 3");
+  // Planned as a user does, from the checkout with the case's relative path; the plan is then
+  // checked from other working directories (it names its inputs relative to its own folder).
+  const CommandRun plan = test::RunShell(
+      "cd " + test::SourcePath("") + " && " + TROCAR_BINARY + " plan patients/phantom-default --out " +
+      out + " --evaluations 120 --starts 2 --polish-evaluations 10 --top 2 --seed 3");
   ASSERT_TRUE(plan.exit_code == 0 || plan.exit_code == 4) << plan.output;
   EXPECT_NE(plan.output.find("verdict: "), std::string::npos) << plan.output;
   EXPECT_NE(plan.output.find("coverage"), std::string::npos) << plan.output;
@@ -586,6 +588,9 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   const CommandRun check = Trocar("check --plan " + out + "/plan.json");
   EXPECT_EQ(check.exit_code, 0) << check.output;
   EXPECT_NE(check.output.find("all hold"), std::string::npos) << check.output;
+  const CommandRun from_root =
+      test::RunShell("cd / && " + std::string(TROCAR_BINARY) + " check --plan " + out + "/plan.json");
+  EXPECT_EQ(from_root.exit_code, 0) << from_root.output;
   // Beside the optimised plans, the TECAB template placed on this patient, scored and verified
   // as they are (issue #41 item 3).
   {

@@ -152,7 +152,7 @@ TEST(MultiArmSession, APointerGoesWhereItsDeviceTakesItScaledAndMovesNothing) {
 
 // ---- force cues -------------------------------------------------------------------------------
 
-struct Psm {
+struct PsmArm {
   robot::RobotModel model = robot::LoadRobot(test::SourcePath("robots/davinci-classic/psm.yaml"));
   robot::RobotState state{model};
   std::vector<int> all() const {
@@ -169,7 +169,7 @@ struct Psm {
 };
 
 TEST(ForceFeedback, NearnessPushesAwayFromTheObstacleGrowingAsTheGapCloses) {
-  Psm psm;
+  PsmArm psm;
   psm.At(psm.model.defaults().home);
   control::ForceFeedbackOptions options;
   control::ForceFeedback feedback(psm.model, psm.all(), options);
@@ -201,7 +201,7 @@ TEST(ForceFeedback, NearnessPushesAwayFromTheObstacleGrowingAsTheGapCloses) {
 }
 
 TEST(ForceFeedback, JointAndInsertionLimitsPushBackAgainstTheMotionTowardThem) {
-  Psm psm;
+  PsmArm psm;
   control::ForceFeedback feedback(psm.model, psm.all());
   const int insertion = 2, yaw = 0;
   const Eigen::VectorXd lo = psm.model.lower_limits(), hi = psm.model.upper_limits();
