@@ -277,12 +277,10 @@ PlanFile ReadPlanFile(const std::string& path) {
   PlanFile file;
   file.path = path;
   const std::string plan_dir = ParentDirectory(path);
-  // Relative inputs are relative to the plan's folder (plans before stop 61: to the folder
-  // trocar plan ran in, tried second).
+  // Plans name their inputs by absolute paths (since stop 61); a relative one (an older plan, or
+  // one a user edited) from the working directory, else from the plan's folder.
   auto resolve = [&](const std::string& p) {
-    if (std::filesystem::path(p).is_absolute()) return p;
-    const std::string in_plan_dir = JoinPath(plan_dir, p);
-    return std::filesystem::exists(in_plan_dir) || !std::filesystem::exists(p) ? in_plan_dir : p;
+    return std::filesystem::exists(p) ? p : JoinPath(plan_dir, p);
   };
   const Field inputs = root["inputs"];
   file.case_dir = resolve(inputs["case"].String());

@@ -381,18 +381,17 @@ void WritePlanFolder(const std::string& dir, const PortPlacementProblem& problem
   TROCAR_THROW_UNLESS(!ec && std::filesystem::is_directory(dir),
                       dir << ": cannot make the output folder (" << ec.message() << ")");
   WritePortMarkups(problem, result, JoinPath(dir, "ports.mrk.json"));
-  // The inputs are named relative to the plan's own folder, so that the plan opens from any
-  // working directory (and a moved case-and-plan tree keeps working).
+  // The inputs are named by absolute paths, so that the plan opens from any working directory
+  // and a copy of it in another folder still finds them (a path relative to the folder trocar
+  // plan ran in did neither).
   PlanInputs stored = inputs;
-  auto relative_to_dir = [&](const std::string& p) {
+  auto absolute = [](const std::string& p) {
     std::error_code e;
     const std::filesystem::path abs = std::filesystem::absolute(p, e);
-    const std::filesystem::path base = std::filesystem::absolute(dir, e);
-    const std::filesystem::path rel = abs.lexically_normal().lexically_relative(base.lexically_normal());
-    return (e || rel.empty()) ? abs.lexically_normal().string() : rel.string();
+    return e ? p : abs.lexically_normal().string();
   };
-  stored.case_dir = relative_to_dir(inputs.case_dir);
-  stored.robot_file = relative_to_dir(inputs.robot_file);
+  stored.case_dir = absolute(inputs.case_dir);
+  stored.robot_file = absolute(inputs.robot_file);
   const std::string text = PlanJson(problem, result, options, stored);
   WriteFileAtomically(JoinPath(dir, "plan.json"), finish ? finish(text) : text);
 }
