@@ -307,26 +307,9 @@ CollisionWorld::CollisionWorld(std::unique_ptr<Impl> impl) : impl_(std::move(imp
 std::shared_ptr<const CollisionWorld> CollisionWorld::WithBodiesMoved(
     const std::vector<std::string>& names, const Eigen::Vector3d& d_W) const {
   TROCAR_THROW_UNLESS(d_W.allFinite(), "collision world: a body moved by a non-finite vector");
-  auto impl = std::make_unique<Impl>();
   const Impl& w = *impl_;
-  impl->options = w.options;
-  impl->robot = w.robot;
-  impl->bodies = w.bodies;
-  impl->geometry = w.geometry;
-  impl->X_pose = w.X_pose;
-  impl->convex = w.convex;
-  impl->mesh = w.mesh;
-  impl->arms = w.arms;
-  impl->ports = w.ports;
-  impl->port_frame = w.port_frame;
-  impl->port_link = w.port_link;
-  impl->robot_bodies = w.robot_bodies;
-  impl->fixed_bodies = w.fixed_bodies;
-  impl->allowed = w.allowed;
-  impl->classes = w.classes;
-  impl->auto_allowed = w.auto_allowed;
-  impl->triangles = w.triangles;
-  impl->object_construction = w.object_construction;  // the geometry is shared
+  // A copy shares the geometry, the hierarchies and the lock guarding them (shared pointers).
+  auto impl = std::make_unique<Impl>(w);
   for (const std::string& name : names) {
     bool found = false;
     for (int b : w.fixed_bodies) {

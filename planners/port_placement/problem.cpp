@@ -71,9 +71,11 @@ IkOutcome SolveReach(const robot::RobotModel& robot, const PlanArm& arm,
   // Each step poses only the tool's chain (the Jacobians read the joints on it); the whole robot
   // is posed once at the end, for the collision checks that follow.
   bool configured = false;
+  Eigen::VectorXd posed_q;  // the last configuration whose closures were solved
   for (int it = 0; it <= iterations; ++it) {
     configured = kinematics::SetConfiguration(robot, state->q, state).ok();
     if (!configured) break;
+    posed_q = state->q;
     kinematics::ForwardKinematicsToLink(robot, tool.link, state);
     const Eigen::Vector3d p = kinematics::FramePose(*state, tool).translation();
     e.head<3>() = p_aim_W - p;
@@ -122,7 +124,13 @@ IkOutcome SolveReach(const robot::RobotModel& robot, const PlanArm& arm,
       state->q[i] = std::clamp(state->q[i] + dq[c], lower[i], upper[i]);
     }
   }
-  if (configured) kinematics::ForwardKinematics(robot, state);
+  if (configured) {
+    kinematics::ForwardKinematics(robot, state);
+  } else if (posed_q.size() > 0) {
+    // A step left the closures unsolvable: back to the last posed configuration, whole.
+    state->q = posed_q;
+    kinematics::ForwardKinematics(robot, state->q, state);
+  }
   return out;
 }
 

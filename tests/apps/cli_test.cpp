@@ -566,7 +566,7 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
   const std::string out = ::testing::TempDir() + "trocar_plan_cli";
   std::filesystem::remove_all(out);
   // Planned as a user does, from the checkout with the case's relative path; the plan is then
-  // checked from other working directories (it names its inputs relative to its own folder).
+  // checked from other working directories (it names its inputs by absolute paths).
   const CommandRun plan = test::RunShell(
       "cd " + test::SourcePath("") + " && " + TROCAR_BINARY + " plan patients/phantom-default --out " +
       out + " --evaluations 120 --starts 2 --polish-evaluations 10 --top 2 --seed 3");
