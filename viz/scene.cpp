@@ -722,6 +722,50 @@ CameraPose Scene::OnFrame(const FrameCamera& camera) const {
   return pose;
 }
 
+bool SoftwareRendering(vtkRenderWindow* window) {
+  const char* caps = window ? window->ReportCapabilities() : nullptr;
+  return caps && IsSoftwareRenderer(caps);
+}
+
+bool IsSoftwareRenderer(const std::string& text) {
+  const auto line = text.find("OpenGL renderer string:");
+  if (line == std::string::npos) return false;
+  const std::string renderer = text.substr(line, text.find('\n', line) - line);
+  for (const char* software : {"llvmpipe", "softpipe", "swrast", "Software Rasterizer"})
+    if (renderer.find(software) != std::string::npos) return true;
+  return false;
+}
+
+Image ReadPixels(vtkRenderWindow* window, int width, int height) {
+  vtkNew<vtkWindowToImageFilter> grab;
+  grab->SetInput(window);
+  grab->SetInputBufferTypeToRGB();
+  grab->ReadFrontBufferOff();
+  grab->Update();
+  vtkImageData* data = grab->GetOutput();
+  int dims[3];
+  data->GetDimensions(dims);
+  TROCAR_THROW_UNLESS(dims[0] == width && dims[1] == height && data->GetNumberOfScalarComponents() == 3,
+                      "the renderer returned a " << dims[0] << "x" << dims[1] << " image, not "
+                                                 << width << "x" << height);
+  Image image;
+  image.width = width;
+  image.height = height;
+  image.rgb.resize(static_cast<std::size_t>(3) * width * height);
+  const auto* pixels = static_cast<const unsigned char*>(data->GetScalarPointer());
+  for (int y = 0; y < height; ++y) {  // VTK's rows run bottom to top
+    std::copy_n(pixels + static_cast<std::size_t>(3) * width * (height - 1 - y), 3 * width,
+                image.rgb.begin() + static_cast<std::ptrdiff_t>(3) * width * y);
+  }
+  return image;
+}
+
+bool AdaptToRenderer(vtkRenderWindow* window) {
+  if (!window || window->GetMultiSamples() == 0 || !SoftwareRendering(window)) return false;
+  window->SetMultiSamples(0);
+  return true;
+}
+
 void Scene::AddTo(vtkRenderer* renderer) const {
   for (const auto& g : impl_->groups)
     for (const auto& a : g.actors) renderer->AddActor(a);
@@ -956,26 +1000,7 @@ Image Render(const Scene& scene, const Views& views, int width, int height) {
     }
   }
   window->Render();
-  vtkNew<vtkWindowToImageFilter> grab;
-  grab->SetInput(window);
-  grab->SetInputBufferTypeToRGB();
-  grab->ReadFrontBufferOff();
-  grab->Update();
-  vtkImageData* data = grab->GetOutput();
-  int dims[3];
-  data->GetDimensions(dims);
-  TROCAR_THROW_UNLESS(dims[0] == width && dims[1] == height && data->GetNumberOfScalarComponents() == 3,
-                      "the renderer returned a " << dims[0] << "x" << dims[1] << " image, not "
-                                                 << width << "x" << height);
-  Image image;
-  image.width = width;
-  image.height = height;
-  image.rgb.resize(static_cast<std::size_t>(3) * width * height);
-  const auto* pixels = static_cast<const unsigned char*>(data->GetScalarPointer());
-  for (int y = 0; y < height; ++y) {  // VTK's rows run bottom to top
-    std::copy_n(pixels + static_cast<std::size_t>(3) * width * (height - 1 - y), 3 * width,
-                image.rgb.begin() + static_cast<std::ptrdiff_t>(3) * width * y);
-  }
+  Image image = ReadPixels(window, width, height);
   // The renderers give the scene's actors' graphics resources back, so that they can be drawn
   // in another window.
   window->Finalize();

@@ -29,6 +29,7 @@
 #include "robot/robot_state.hpp"
 
 class vtkRenderer;
+class vtkRenderWindow;
 
 namespace trocar::viz {
 
@@ -71,6 +72,21 @@ struct FrameCamera {
   double view_angle_deg = 70.0;  ///< the scope's field of view (2 × the plan's half angle)
   double light_intensity = 1.0;  ///< the light at the scope tip
 };
+
+/// Whether `window` draws with a software rasteriser (Mesa's llvmpipe, softpipe or swrast: Xvfb or
+/// a machine without a GPU), from its OpenGL renderer string; false before its first frame.
+bool SoftwareRendering(vtkRenderWindow* window);
+/// The same from a window's capabilities text (vtkRenderWindow::ReportCapabilities): its
+/// "OpenGL renderer string" line names llvmpipe, softpipe, swrast or a software rasterizer.
+bool IsSoftwareRenderer(const std::string& capabilities);
+
+/// Fits an interactive window's drawing to what draws it; call after its first frame. With a
+/// software rasteriser, multisampling off: VTK's default of 8 samples cost a frame of the default
+/// scene 115 ms instead of 41 under llvmpipe at 1280x720, and 2 or 4 samples cost as much
+/// (bench/view_bench; docs/decisions.md, "A window that keeps up"). The pictures
+/// (`trocar view --screenshot`) never multisample. With a GPU, kept. Returns true when it turned
+/// multisampling off (the next frame shows it).
+bool AdaptToRenderer(vtkRenderWindow* window);
 
 class Scene {
  public:
@@ -174,6 +190,10 @@ using Views = std::vector<std::pair<ViewSpec, CameraPose>>;
 /// display (Xvfb when headless). @throws trocar::Error when no display is open or the size is
 /// out of 16..8192.
 Image Render(const Scene& scene, const Views& views, int width, int height);
+
+/// What `window` last drew, `width` × `height` pixels (rows top to bottom).
+/// @throws trocar::Error when the window's size is not that.
+Image ReadPixels(vtkRenderWindow* window, int width, int height);
 
 /// Render + WritePng.
 void Screenshot(const Scene& scene, const Views& views, int width, int height,

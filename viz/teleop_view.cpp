@@ -163,6 +163,8 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
     if (options.overlay) overlay->SetInput(options.overlay().c_str());
     render_window->Render();
     ++stats.frames;
+    // After the first frame the renderer is known: multisampling off under software rendering.
+    if (stats.frames == 1) AdaptToRenderer(render_window);
     if (finished()) {
       timer.stop();
       if (!options.grab_path.empty()) {

@@ -256,7 +256,16 @@ class Workstation {
   }
 
  private:
-  void Render() { render_window_->Render(); }
+  void Render() {
+    render_window_->Render();
+    // After the first frame the renderer is known: multisampling off under software rendering
+    // (AdaptToRenderer), shown from the next frame on, drawn now.
+    if (!adapted_) {
+      adapted_ = true;
+      if (AdaptToRenderer(render_window_)) render_window_->Render();
+    }
+  }
+  bool adapted_ = false;
 
   void Fail(const std::string& what) {
     std::cerr << "error: " << what << "\n";
