@@ -86,6 +86,17 @@ Eigen::Isometry3d CartBesideTheTable() {
   return X_WB;
 }
 
+/// The bundled case's flat scene with the cart beside the table.
+std::unique_ptr<Scene> FlatSceneWithTheCartBesideTheTable() {
+  auto cart = LoadShared("robots/davinci-classic/cart.yaml");
+  auto scene = std::make_unique<Scene>(Phantom(), cart, FlatStyle());
+  robot::RobotState state = *scene->robot_state();
+  state.X_WB = CartBesideTheTable();
+  kinematics::ForwardKinematics(*cart, &state);
+  scene->SetRobotState(state);
+  return scene;
+}
+
 /// Where a point lands in a view (pixels, y down) by a pinhole camera with a vertical view angle,
 /// as VTK's; false when it is behind the camera.
 bool Project(const CameraPose& c, int width, int height, const Eigen::Vector3d& p_W, Eigen::Vector2d* px) {
@@ -118,12 +129,8 @@ Eigen::Isometry3d AimScope(Scene* scene, const robot::RobotModel& ecm, const Eig
 }
 
 TEST(Scene, AFlatPictureOfTheBundledCaseShowsThePatientTheTableAndTheRobot) {
-  auto cart = LoadShared("robots/davinci-classic/cart.yaml");
-  Scene scene(Phantom(), cart, FlatStyle());
-  robot::RobotState state = *scene.robot_state();
-  state.X_WB = CartBesideTheTable();
-  kinematics::ForwardKinematics(*cart, &state);
-  scene.SetRobotState(state);
+  const std::unique_ptr<Scene> owned = FlatSceneWithTheCartBesideTheTable();
+  Scene& scene = *owned;
   const int w = 640, h = 400;
   const Views views = {{ViewSpec{}, scene.ExternalCamera(double(w) / h, Scene::Framing::kRoom)}};
   const Image all = Render(scene, views, w, h);
@@ -181,12 +188,8 @@ TEST(Scene, AWindowUnderSoftwareRenderingDrawsWhatThePicturesShow) {
   EXPECT_FALSE(IsSoftwareRenderer("OpenGL vendor string:  llvmpipe\n"));
   EXPECT_FALSE(IsSoftwareRenderer(""));
 
-  auto cart = LoadShared("robots/davinci-classic/cart.yaml");
-  Scene scene(Phantom(), cart, FlatStyle());
-  robot::RobotState state = *scene.robot_state();
-  state.X_WB = CartBesideTheTable();
-  kinematics::ForwardKinematics(*cart, &state);
-  scene.SetRobotState(state);
+  const std::unique_ptr<Scene> owned = FlatSceneWithTheCartBesideTheTable();
+  Scene& scene = *owned;
   const int w = 320, h = 200;
   const Views views = {{ViewSpec{}, scene.ExternalCamera(double(w) / h)}};
   const Image picture = Render(scene, views, w, h);
