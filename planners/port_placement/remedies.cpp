@@ -185,11 +185,10 @@ Remedy FindRemedy(const PortPlacementProblem& problem, const Placement& placemen
 #pragma omp for schedule(dynamic, 1)
     for (int i = 0; i < n; ++i) {
       if (!ws) ws = std::make_unique<Workspace>(problem);
-      // As a final plan is evaluated (the setup-joint solver's full effort, detailed).
-      PortPlacementProblem::EvaluateOptions how;
-      how.detailed = true;
-      how.full_solver = true;
-      const Evaluation e = problem.Evaluate(tried[i].placement, ws.get(), how);
+      // Exactly as a final plan is evaluated (EvaluateFinalPlan: detailed, the better of the
+      // setup-joint solver's search effort and its full effort). Until stop 62 the full effort
+      // alone, which lands the setup arms on other solutions than the plan's own.
+      const Evaluation e = EvaluateFinalPlan(problem, tried[i].placement, ws.get());
       Remedy& r = found[i];
       r.kind = tried[i].kind;
       r.arm = arm;
