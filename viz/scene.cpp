@@ -11,6 +11,7 @@
 #include <vtkActor.h>
 #include <vtkAppendPolyData.h>
 #include <vtkCamera.h>
+#include <vtkCommand.h>
 #include <vtkCellArray.h>
 #include <vtkConeSource.h>
 #include <vtkCubeSource.h>
@@ -764,6 +765,29 @@ bool AdaptToRenderer(vtkRenderWindow* window) {
   if (!window || window->GetMultiSamples() == 0 || !SoftwareRendering(window)) return false;
   window->SetMultiSamples(0);
   return true;
+}
+
+namespace {
+
+// AdaptToRenderer once, at the end of the window's first frame drawn.
+class AdaptOnce : public vtkCommand {
+ public:
+  static AdaptOnce* New() { return new AdaptOnce; }
+  void Execute(vtkObject* caller, unsigned long, void*) override {
+    if (done_) return;
+    done_ = true;
+    AdaptToRenderer(vtkRenderWindow::SafeDownCast(caller));
+  }
+
+ private:
+  bool done_ = false;
+};
+
+}  // namespace
+
+void AdaptAfterFirstFrame(vtkRenderWindow* window) {
+  vtkNew<AdaptOnce> adapt;
+  window->AddObserver(vtkCommand::EndEvent, adapt);
 }
 
 void Scene::AddTo(vtkRenderer* renderer) const {

@@ -87,6 +87,10 @@ bool IsSoftwareRenderer(const std::string& capabilities);
 /// (`trocar view --screenshot`) never multisample. With a GPU, kept. Returns true when it turned
 /// multisampling off (the next frame shows it).
 bool AdaptToRenderer(vtkRenderWindow* window);
+/// AdaptToRenderer at the end of the first frame `window` draws, while its context is current
+/// (an interactive window's toolkit draws it when it is ready; asked about its renderer before,
+/// the Qt window crashed about one run in six).
+void AdaptAfterFirstFrame(vtkRenderWindow* window);
 
 class Scene {
  public:

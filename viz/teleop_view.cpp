@@ -107,6 +107,7 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
   auto* widget = new QVTKOpenGLNativeWidget;
   vtkNew<vtkGenericOpenGLRenderWindow> render_window;
   widget->setRenderWindow(render_window);
+  AdaptAfterFirstFrame(render_window);  // multisampling off under software rendering
   vtkNew<vtkRenderer> renderer;
   scene->AddTo(renderer);
   render_window->AddRenderer(renderer);
@@ -163,8 +164,6 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
     if (options.overlay) overlay->SetInput(options.overlay().c_str());
     render_window->Render();
     ++stats.frames;
-    // After the first frame the renderer is known: multisampling off under software rendering.
-    if (stats.frames == 1) AdaptToRenderer(render_window);
     if (finished()) {
       timer.stop();
       if (!options.grab_path.empty()) {

@@ -171,6 +171,7 @@ class Workstation {
     vtk_widget_ = new QVTKOpenGLNativeWidget;
     render_window_ = vtkSmartPointer<vtkGenericOpenGLRenderWindow>::New();
     vtk_widget_->setRenderWindow(render_window_);
+    AdaptAfterFirstFrame(render_window_);  // multisampling off under software rendering
     external_->SetViewport(0, 0, 0.5, 1);
     scope_->SetViewport(0.5, 0, 1, 1);
     scene_->AddTo(external_);
@@ -256,16 +257,7 @@ class Workstation {
   }
 
  private:
-  void Render() {
-    render_window_->Render();
-    // After the first frame the renderer is known: multisampling off under software rendering
-    // (AdaptToRenderer), shown from the next frame on, drawn now.
-    if (!adapted_) {
-      adapted_ = true;
-      if (AdaptToRenderer(render_window_)) render_window_->Render();
-    }
-  }
-  bool adapted_ = false;
+  void Render() { render_window_->Render(); }
 
   void Fail(const std::string& what) {
     std::cerr << "error: " << what << "\n";
