@@ -221,6 +221,25 @@ TEST(Scene, AWindowUnderSoftwareRenderingDrawsWhatThePicturesShow) {
   EXPECT_GT(blended, bytes / 200) << "the first frame is multisampled";
   EXPECT_LE(differ, bytes / 5000) << "the adapted window draws what the picture shows";
   window->Finalize();
+  // What the teleop window and the workstation use: AdaptAfterFirstFrame adapts at the end of the
+  // first frame the window draws (not before it: no frame, no renderer to ask).
+  vtkNew<vtkRenderWindow> observed;
+  observed->SetOffScreenRendering(1);
+  observed->SetSize(w, h);
+  vtkNew<vtkRenderer> observed_renderer;
+  scene.AddTo(observed_renderer);
+  observed->AddRenderer(observed_renderer);
+  Scene::Apply(views[0].second, observed_renderer);
+  AdaptAfterFirstFrame(observed);
+  EXPECT_GT(observed->GetMultiSamples(), 0) << "adapted before any frame";
+  observed->Render();
+  EXPECT_EQ(observed->GetMultiSamples(), 0) << "not adapted at the end of the first frame";
+  observed->Render();
+  const Image second = ReadPixels(observed, w, h);
+  long observed_differ = 0;
+  for (std::size_t i = 0; i < second.rgb.size(); ++i) observed_differ += second.rgb[i] != picture.rgb[i];
+  EXPECT_LE(observed_differ, bytes / 5000);
+  observed->Finalize();
 }
 
 // The external view looks at the chest past the arms (issue #43 item 2). A boom (a box 0.9 m
