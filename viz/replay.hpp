@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "motion/plan_collisions.hpp"
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
 #include "robot/robot_state.hpp"
 
 namespace trocar::viz {

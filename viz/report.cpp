@@ -12,6 +12,7 @@
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "plan/signoff.hpp"
 #include "scene.hpp"
 
 namespace trocar::viz {

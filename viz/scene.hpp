@@ -24,7 +24,7 @@
 
 #include "common/image.hpp"
 #include "patient/patient_model.hpp"
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
 #include "robot/robot_model.hpp"
 #include "robot/robot_state.hpp"
 

@@ -5,7 +5,6 @@
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
-#include "port_placement/plan_io.hpp"
 #include "robot/load_robot.hpp"
 
 namespace trocar::viz {

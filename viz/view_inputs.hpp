@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "motion/plan_collisions.hpp"
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
 #include "scene.hpp"
 
 namespace trocar::viz {

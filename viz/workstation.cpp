@@ -44,7 +44,7 @@
 
 #include "common/error.hpp"
 #include "kinematics/forward_kinematics.hpp"
-#include "port_placement/plan_io.hpp"
+#include "plan/signoff.hpp"
 #include "replay.hpp"
 #include "scene_file.hpp"
 #include "view_inputs.hpp"

@@ -11,7 +11,7 @@
 #include <optional>
 #include <string>
 
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
 #include "scene.hpp"
 #include "view_inputs.hpp"
 

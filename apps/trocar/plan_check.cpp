@@ -6,18 +6,16 @@
 #include <iomanip>
 #include <iostream>
 #include <memory>
-#include <nlohmann/json.hpp>
 #include <sstream>
 
 #include "apps/trocar/commands.hpp"
 #include "collision/collision_world.hpp"
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
-#include "common/json_util.hpp"
-#include "port_placement/plan_file.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "patient/patient_model.hpp"
+#include "plan/plan_file.hpp"
 #include "port_placement/plan_io.hpp"
 #include "port_placement/port_rules.hpp"
 #include "robot/load_robot.hpp"
@@ -25,17 +23,8 @@
 namespace trocar::apps {
 namespace {
 
-using nlohmann::json;
-
 constexpr double kPortTolerance = 0.001;  // m: an RCM at its port, a port on its curve
 constexpr double kSlack = 1e-4;           // m: beyond the tolerance the plan claims
-
-Eigen::Vector3d Vec(const json& j, const std::string& what) {
-  TROCAR_THROW_UNLESS(
-      j.is_array() && j.size() == 3 && j[0].is_number() && j[1].is_number() && j[2].is_number(),
-      what << ": expected [x, y, z]");
-  return Eigen::Vector3d(j[0].get<double>(), j[1].get<double>(), j[2].get<double>());
-}
 
 double DistanceToPolyline(const Eigen::Vector3d& p, const std::vector<Eigen::Vector3d>& line) {
   double best = std::numeric_limits<double>::infinity();
@@ -60,30 +49,12 @@ std::string Mm(double m) {
 int CheckPlanFile(const std::string& path, std::ostream& out) {
   // The typed reader first: every field's type, size and range, the cart's one pose; then the
   // independent re-check of what the plan claims.
+  // Through the plan file's one reader (every field's type, size and range, the cart's one
+  // pose); what it claims is then re-checked here independently of the code that made it.
   const planners::PlanFile typed = planners::ReadPlanFile(path);
-  json doc;
-  try {
-    doc = ReadJsonFile(path, "a plan");
-  } catch (const json::exception& e) {
-    TROCAR_THROW(path << ": not a plan (JSON: " << e.what() << ")");
-  }
-  auto field = [&](const json& j, const std::string& name) -> const json& {
-    TROCAR_THROW_UNLESS(j.is_object() && j.contains(name),
-                        path << ": missing field '" << name << "'");
-    return j.at(name);
-  };
-  // Every field is read inside the try: a field of the wrong type ("version": "2") is a malformed
-  // plan named by its file, never an internal error.
-  try {
-  TROCAR_THROW_UNLESS(doc.is_object() && doc.contains("format") && doc["format"].is_string() &&
-                          doc["format"].get<std::string>() == "trocar-plan",
-                      path << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
-  const int version = JsonInt(field(doc, "version"), path, "version");
-  TROCAR_THROW_UNLESS(version == planners::kPlanFormatVersion,
-                      path << ": plan format version " << version << ", this trocar reads version "
-                           << planners::kPlanFormatVersion);
-    // The inputs through the typed reader (resolved against the plan's folder as every reader
-    // does), and whether they still fit by the one shared check.
+  {
+    // The inputs (resolved against the plan's folder as every reader does), and whether they
+    // still fit by the one shared check.
     const std::string& robot_file = typed.robot_file;
     const std::string& case_dir = typed.case_dir;
     std::vector<std::string> failures;
@@ -93,11 +64,11 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
     auto robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(robot_file));
     const patient::PatientModel patient = patient::ImportPatient(case_dir);
     if (const std::string m = planners::PatientModelMismatch(typed, patient, case_dir); !m.empty()) fail(m);
-    const json& arms = field(field(doc, "robot"), "arms");
+    const std::vector<planners::StoredArm>& arms = typed.arms;
     // Every arm's tool frame is a frame of the robot (a tampered or foreign plan file is named,
     // before any pose is checked with it).
     for (std::size_t i = 0; i < arms.size(); ++i) {
-      const std::string tool = field(arms[i], "tool_frame").get<std::string>();
+      const std::string& tool = arms[i].tool_frame;
       if (tool.empty()) continue;
       try {
         (void)robot->GetFrame(tool);
@@ -105,15 +76,14 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         TROCAR_THROW(path << ": robot.arms[" << i << "].tool_frame: " << e.what());
       }
     }
-    const json& scoring = field(doc, "scoring");
-    const double ik_tolerance = field(scoring, "ik_tolerance_m").get<double>();
-    const double half_fov = field(scoring, "scope_half_fov_deg").get<double>() * M_PI / 180;
-    const double scope_min = field(scoring, "scope_min_distance_m").get<double>();
-    const double scope_max = field(scoring, "scope_max_distance_m").get<double>();
+    const planners::StoredScoring& scoring = typed.scoring;
+    const double ik_tolerance = scoring.ik_tolerance_m;
+    const double half_fov = scoring.scope_half_fov_deg * M_PI / 180;
+    const double scope_min = scoring.scope_min_distance_m;
+    const double scope_max = scoring.scope_max_distance_m;
     collision::WorldOptions world_options;
     for (const auto& arm : arms) {
-      if (field(arm, "rcm_frame").get<std::string>().empty())
-        world_options.shaft_ports.push_back(field(arm, "shaft_link"));
+      if (arm.rcm_frame.empty()) world_options.shaft_ports.push_back(arm.shaft_link);
     }
     const auto world = collision::CollisionWorld::Build(&patient, robot, world_options);
     std::unique_ptr<collision::TriangleBvh> skin_bvh;
@@ -129,7 +99,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       int shaft = 0;
       for (const auto& port : world->ports()) shaft += port.frame.empty() ? 0 : 1;
       for (const auto& arm : arms) {
-        const std::string rcm = field(arm, "rcm_frame").get<std::string>();
+        const std::string& rcm = arm.rcm_frame;
         int index = rcm.empty() ? shaft++ : -1;
         for (std::size_t p = 0; p < world->ports().size() && !rcm.empty(); ++p) {
           if (world->ports()[p].frame == rcm) index = static_cast<int>(p);
@@ -153,9 +123,8 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       const double r = world->options().port_radius;
       if (a >= incisions_W.size()) return d + r;
       const double cut = planners::PortTrackLength(d, pivot_W, incisions_W[a]) + r;
-      const std::string tool = field(arms[a], "tool_frame").get<std::string>();
-      if (!skin_bvh || field(arms[a], "role").get<std::string>() != "instrument" || tool.empty())
-        return cut;
+      const std::string& tool = arms[a].tool_frame;
+      if (!skin_bvh || arms[a].role != "instrument" || tool.empty()) return cut;
       const Eigen::Vector3d tip_W =
           kinematics::FramePose(state, robot->GetFrame(tool)).translation();
       return planners::TrackAllowance(*skin_bvh, d, X_PW * pivot_W, X_PW * incisions_W[a],
@@ -171,7 +140,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       for (std::size_t a = 0; a < world_port.size() && a < pivots_W.size(); ++a) {
         if (world_port[a] < 0) continue;
         checker.SetPortPosition(world_port[a], pivots_W[a], allowance(a, pivots_W[a], state));
-        if (work_W && field(arms[a], "role").get<std::string>() == "instrument")
+        if (work_W && arms[a].role == "instrument")
           checker.SetWorkSite(world_port[a], *work_W, planners::kWorkSiteRadius);
       }
       const collision::CollisionReport report = checker.Check();
@@ -183,71 +152,55 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       return std::make_pair(static_cast<int>(report.contacts.size()), text);
     };
     std::vector<Eigen::Vector3d> aims, sample_points;
-    for (const auto& s : field(doc, "target_samples")) {
-      aims.push_back(Vec(field(s, "aim_W"), "target_samples[].aim_W"));
-      sample_points.push_back(Vec(field(s, "p_W"), "target_samples[].p_W"));
+    for (const planners::StoredSample& s : typed.samples) {
+      aims.push_back(s.aim_W);
+      sample_points.push_back(s.p_W);
     }
-    // A sample's recorded joints (plans[].samples[].q): active joints of the robot, numbers.
-    auto set_sample_joints = [&](const json& r, robot::RobotState* st) {
-      const json& q = field(r, "q");
-      TROCAR_THROW_UNLESS(q.is_object(), path << ": plans[].samples[].q: expected an object of joint values");
-      for (const auto& [name, value] : q.items()) {
+    // A sample's recorded joints (plans[].samples[].q): active joints of the robot.
+    auto set_sample_joints = [&](const planners::StoredReach& r, robot::RobotState* st) {
+      for (const auto& [name, value] : r.q) {
         const int j = robot->GetJoint(name);
-        TROCAR_THROW_UNLESS(robot->joint(j).q_index >= 0 && value.is_number(),
+        TROCAR_THROW_UNLESS(robot->joint(j).q_index >= 0,
                             path << ": plans[].samples[].q names '" << name
-                                 << "': expected an active joint of the robot with a number");
-        st->q[robot->joint(j).q_index] = value.get<double>();
+                                 << "': expected an active joint of the robot");
+        st->q[robot->joint(j).q_index] = value;
       }
     };
     int claims = 0;
     // The ranked plans, then the baselines beside them (the template, a surgeon's ports): every
     // claim of each is checked the same way.
-    std::vector<std::pair<const json*, std::string>> to_check;
-    TROCAR_THROW_UNLESS(field(doc, "plans").is_array() && !doc["plans"].empty(),
-                        path << ": plans: expected an array of at least one plan, found "
-                             << doc["plans"].dump().substr(0, 40));
-    for (const auto& plan : field(doc, "plans"))
-      to_check.push_back({&plan, "plan " + std::to_string(JsonInt(field(plan, "rank"), path, "plans[].rank", 1)) + ": "});
-    if (doc.contains("baselines")) {
-      TROCAR_THROW_UNLESS(doc["baselines"].is_array(), path << ": baselines: expected an array");
-      for (const auto& b : doc["baselines"]) {
-        TROCAR_THROW_UNLESS(b.is_object(), path << ": baselines[]: expected an object");
-        TROCAR_THROW_UNLESS(b.contains("placed") && b["placed"].is_boolean(),
-                            path << ": baselines[].placed: expected true or false");
-        TROCAR_THROW_UNLESS(b.contains("kind") && b["kind"].is_string(),
-                            path << ": baselines[].kind: expected a string");
-        if (b["placed"].get<bool>())
-          to_check.push_back({&field(b, "plan"), "baseline " + b["kind"].get<std::string>() + ": "});
-      }
+    std::vector<std::pair<const planners::StoredPlan*, std::string>> to_check;
+    for (const planners::StoredPlan& plan : typed.plans)
+      to_check.push_back({&plan, "plan " + std::to_string(plan.rank) + ": "});
+    for (const planners::StoredBaseline& b : typed.baselines) {
+      if (b.placed) to_check.push_back({&b.plan, "baseline " + b.kind + ": "});
     }
     for (const auto& [plan_ptr, tag] : to_check) {
-      const json& plan = *plan_ptr;
+      const planners::StoredPlan& plan = *plan_ptr;
       const std::size_t failures_before = failures.size();
       robot::RobotState state(*robot);
       // Cart on the floor.
-      const json& cart = field(plan, "cart");
-      const double yaw = field(cart, "yaw_deg").get<double>() * M_PI / 180;
+      const double yaw = plan.cart_yaw_deg * M_PI / 180;
       state.X_WB = Eigen::Isometry3d::Identity();
       state.X_WB.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-      state.X_WB.translation() =
-          Eigen::Vector3d(field(cart, "x").get<double>(), field(cart, "y").get<double>(), 0);
+      state.X_WB.translation() = Eigen::Vector3d(plan.cart_x, plan.cart_y, 0);
       ++claims;
       // Setup joints: held, inside their limits.
-      for (const auto& [name, value] : field(plan, "setup_joints").items()) {
+      for (const auto& [name, value] : plan.setup_joints) {
         ++claims;
         try {
-          const auto r = kinematics::SetHeldJoint(*robot, name, value.get<double>(), &state);
+          const auto r = kinematics::SetHeldJoint(*robot, name, value, &state);
           if (!r.ok()) fail(tag + "setup joint '" + name + "': " + r.message);
         } catch (const Error& e) {
           fail(tag + "setup joint '" + name + "': " + e.what());
         }
       }
       // Nominal configuration.
-      for (const auto& [name, value] : field(plan, "q_nominal").items()) {
+      for (const auto& [name, value] : plan.q_nominal) {
         const int j = robot->GetJoint(name);
         TROCAR_THROW_UNLESS(robot->joint(j).q_index >= 0,
                             path << ": q_nominal names '" << name << "', not an active joint");
-        state.q[robot->joint(j).q_index] = value.get<double>();
+        state.q[robot->joint(j).q_index] = value;
       }
       ++claims;
       for (const auto& v : kinematics::LimitViolations(*robot, state.q))
@@ -258,20 +211,20 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       // Ports: on their candidate curve, RCMs at them.
       std::vector<Eigen::Vector3d> pivots;
       incisions_W.clear();
-      const json& ports = field(plan, "ports");
+      const std::vector<planners::StoredPort>& ports = plan.ports;
       TROCAR_THROW_UNLESS(ports.size() == arms.size(), path << ": " << tag << ports.size()
                                                             << " ports for " << arms.size()
                                                             << " arms");
       for (std::size_t a = 0; a < arms.size(); ++a) {
-        const json& port = ports[a];
-        const Eigen::Vector3d p_W = Vec(field(port, "p_W"), "ports[].p_W");
-        const Eigen::Vector3d p_P = Vec(field(port, "p_P"), "ports[].p_P");
-        const std::string arm_name = field(arms[a], "name").get<std::string>();
+        const planners::StoredPort& port = ports[a];
+        const Eigen::Vector3d p_W = port.p_W;
+        const Eigen::Vector3d p_P = port.p_P;
+        const std::string& arm_name = arms[a].name;
         incisions_W.push_back(p_W);
         claims += 2;
         if ((patient.X_WP * p_P - p_W).norm() > kSlack)
           fail(tag + arm_name + ": port p_W is not X_WP p_P");
-        const std::string candidate = field(port, "candidate").get<std::string>();
+        const std::string& candidate = port.candidate;
         const patient::PortCandidate* curve = nullptr;
         for (const auto& c : patient.port_candidates) {
           if (c.name == candidate) curve = &c;
@@ -279,7 +232,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
         if (!curve) {
           fail(tag + arm_name + ": port candidate '" + candidate + "' is not one of the patient's");
         } else {
-          const Eigen::Vector3d curve_P = Vec(field(port, "curve_P"), "ports[].curve_P");
+          const Eigen::Vector3d curve_P = port.curve_P;
           ++claims;
           if (DistanceToPolyline(curve_P, curve->skin) > kPortTolerance)
             fail(tag + arm_name + ": port site is " + Mm(DistanceToPolyline(curve_P, curve->skin)) +
@@ -293,8 +246,8 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           const double off = skin_bvh->Closest(p_P, p_P).distance;
           if (off > kPortTolerance) fail(tag + arm_name + ": the incision is " + Mm(off) + " off the skin");
         }
-        const std::string rcm = field(arms[a], "rcm_frame").get<std::string>();
-        const Eigen::Vector3d rcm_W = Vec(field(port, "rcm_W"), "ports[].rcm_W");
+        const std::string& rcm = arms[a].rcm_frame;
+        const Eigen::Vector3d rcm_W = port.rcm_W;
         pivots.push_back(rcm_W);
         ++claims;
         if ((rcm_W - p_W).norm() > 0.1)
@@ -312,7 +265,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           fail(tag + arm_name + ": RCM frame '" + rcm + "' is " + Mm(off) + " from its pivot");
       }
       // Nominal pose collision-free when the plan says "placed".
-      if (field(plan, "status").get<std::string>() == "placed") {
+      if (plan.status == "placed") {
         ++claims;
         const auto [n, which] = collisions(nominal, pivots);
         if (n > 0)
@@ -320,31 +273,31 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
                " pairs collide at the nominal pose: " + which);
       }
       // Every sample the plan calls reached or seen.
-      for (const auto& r : field(plan, "samples")) {
-        const int sample = JsonInt(field(r, "sample"), path, "plans[].samples[].sample", 0);
+      for (const planners::StoredReach& r : plan.reaches) {
+        const int sample = r.sample;
         TROCAR_THROW_UNLESS(sample >= 0 && sample < static_cast<int>(aims.size()),
                             path << ": sample index " << sample << " out of range");
-        const std::string arm_name = field(r, "arm").get<std::string>();
+        const std::string& arm_name = r.arm;
         int a = -1;
         for (std::size_t i = 0; i < arms.size(); ++i) {
-          if (arms[i].at("name") == arm_name) a = static_cast<int>(i);
+          if (arms[i].name == arm_name) a = static_cast<int>(i);
         }
         TROCAR_THROW_UNLESS(a >= 0, path << ": sample names unknown arm '" << arm_name << "'");
-        const bool scope = field(arms[a], "role").get<std::string>() == "endoscope";
+        const bool scope = arms[a].role == "endoscope";
         const std::string where = tag + arm_name + " at sample " + std::to_string(sample) + ": ";
-        if (!field(r, "reached").get<bool>()) continue;
+        if (!r.reached) continue;
         ++claims;
-        const robot::Frame& tool = robot->GetFrame(field(arms[a], "tool_frame").get<std::string>());
+        const robot::Frame& tool = robot->GetFrame(arms[a].tool_frame);
         if (scope) {
           // The camera the plan says the scope looks from, and its view axis in that frame: a
           // frame of this arm (the tool, or one of its frames named like it), along a unit axis.
           const robot::Frame* camera = &tool;
           Eigen::Vector3d axis_F = Eigen::Vector3d::UnitZ();
           bool have_view = false;
-          for (const auto& v : plan.value("views", json::array())) {
-            if (v.value("arm", "") != arm_name) continue;
-            const std::string frame = field(v, "frame").get<std::string>();
-            axis_F = Vec(field(v, "axis_F"), "views[].axis_F");
+          for (const planners::StoredView& v : plan.views) {
+            if (v.arm != arm_name) continue;
+            const std::string& frame = v.frame;
+            axis_F = v.axis_F;
             const std::string prefix = arm_name + "_";
             TROCAR_THROW_UNLESS(frame == tool.name || frame.rfind(prefix, 0) == 0,
                                 path << ": view frame '" << frame << "' is not on arm "
@@ -412,13 +365,11 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
             (kinematics::FramePose(state, tool).translation() - aims[sample]).norm();
         if (tip_error > ik_tolerance + kSlack)
           fail(where + "the tool tip is " + Mm(tip_error) + " from the target");
-        const std::string shaft = field(arms[a], "shaft_link").get<std::string>();
-        if (field(arms[a], "rcm_frame").get<std::string>().empty()) {
+        const std::string& shaft = arms[a].shaft_link;
+        if (arms[a].rcm_frame.empty()) {
           const int link = robot->GetLink(shaft);
-          const Eigen::Vector3d A =
-              state.X_WL[link] * Vec(field(arms[a], "shaft_a_L"), "shaft_a_L");
-          const Eigen::Vector3d B =
-              state.X_WL[link] * Vec(field(arms[a], "shaft_b_L"), "shaft_b_L");
+          const Eigen::Vector3d A = state.X_WL[link] * arms[a].shaft_a_L;
+          const Eigen::Vector3d B = state.X_WL[link] * arms[a].shaft_b_L;
           const Eigen::Vector3d u = (B - A).normalized(), d = pivots[a] - A;
           const double off = (d - d.dot(u) * u).norm();
           if (off > ik_tolerance + kSlack)
@@ -431,49 +382,41 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
       // Verified motions (trocar verify): each solved path starts at the nominal pose, ends at
       // its target, and is collision-free and within limits at every state of its segments cut
       // at the re-check step — checked here with this file's own checker, not the planner's.
-      if (plan.contains("verification")) {
-        const json& v = plan["verification"];
-        const double step = field(v, "recheck_step").get<double>();
-        const double weight = field(v, "prismatic_weight_per_m").get<double>();
+      if (plan.verified) {
+        const double step = plan.verification_run.recheck_step;
+        const double weight = plan.verification_run.prismatic_weight_per_m;
         TROCAR_THROW_UNLESS(step >= 1e-4 && step <= 1.0 && weight > 0 && weight <= 1000,
                             path << ": verification recheck_step " << step
                                  << " (expected 1e-4..1) or prismatic_weight_per_m " << weight
                                  << " (expected (0, 1000]) out of range");
         int solved = 0, total = 0;
-        for (const auto& m : field(v, "motions")) {
+        for (const planners::StoredMotion& m : plan.motions) {
           ++total;
-          if (!field(m, "solved").get<bool>()) continue;
+          if (!m.solved) continue;
           ++solved;
           ++claims;
-          const std::string arm_name = field(m, "arm").get<std::string>();
-          const int sample = JsonInt(field(m, "sample"), path, "plans[].verification.motions[].sample", 0);
+          const std::string& arm_name = m.arm;
+          const int sample = m.sample;
           TROCAR_THROW_UNLESS(sample >= 0 && sample < static_cast<int>(aims.size()),
                               path << ": motion sample " << sample << " out of range");
           const std::string where =
               tag + arm_name + " motion to sample " + std::to_string(sample) + ": ";
           int a = -1;
           for (std::size_t i = 0; i < arms.size(); ++i) {
-            if (arms[i].at("name") == arm_name) a = static_cast<int>(i);
+            if (arms[i].name == arm_name) a = static_cast<int>(i);
           }
           TROCAR_THROW_UNLESS(a >= 0, path << ": motion names unknown arm '" << arm_name << "'");
           std::vector<int> qi;
           std::vector<double> scale;
-          for (const auto& name : field(m, "joints")) {
-            const robot::Joint& joint = robot->joint(robot->GetJoint(name.get<std::string>()));
+          for (const std::string& name : m.joints) {
+            const robot::Joint& joint = robot->joint(robot->GetJoint(name));
             TROCAR_THROW_UNLESS(joint.q_index >= 0, path << ": motion joint " << name
                                                          << " is not an active joint");
             qi.push_back(joint.q_index);
             scale.push_back(joint.type == robot::JointType::kPrismatic ? weight : 1.0);
           }
-          std::vector<Eigen::VectorXd> waypoints;
-          for (const auto& w : field(m, "waypoints")) {
-            TROCAR_THROW_UNLESS(w.is_array() && w.size() == qi.size(),
-                                path << ": " << where << "a waypoint of the wrong size");
-            Eigen::VectorXd q(qi.size());
-            for (std::size_t c = 0; c < qi.size(); ++c) q[c] = w[c].get<double>();
-            TROCAR_THROW_UNLESS(q.allFinite(), path << ": " << where << "a waypoint is not finite");
-            waypoints.push_back(q);
-          }
+          // Sized as the joints and finite: the reader checked.
+          const std::vector<Eigen::VectorXd>& waypoints = m.waypoints;
           if (waypoints.size() < 2) {
             fail(where + "solved, but its path has fewer than two waypoints");
             continue;
@@ -482,8 +425,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
           for (std::size_t c = 0; c < qi.size(); ++c)
             start_off = std::max(start_off, std::abs(waypoints[0][c] - nominal.q[qi[c]]));
           if (start_off > 1e-6) fail(where + "does not start at the nominal pose");
-          const robot::Frame& tool =
-              robot->GetFrame(field(arms[a], "tool_frame").get<std::string>());
+          const robot::Frame& tool = robot->GetFrame(arms[a].tool_frame);
           // Waypoints within the limits before any segment is cut (a far-off waypoint would make a
           // segment of billions of states).
           std::string first_failure;
@@ -535,7 +477,7 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
             fail(where + "ends with the tool tip " + Mm(tip_error) + " from the target");
         }
         ++claims;
-        const double coverage = field(v, "verified_coverage").get<double>();
+        const double coverage = plan.verified_coverage;
         if (total > 0 && std::abs(coverage - static_cast<double>(solved) / total) > 1e-9)
           fail(tag + "verified coverage " + std::to_string(coverage) + " is not " +
                std::to_string(solved) + " of " + std::to_string(total) + " motions");
@@ -553,8 +495,6 @@ int CheckPlanFile(const std::string& path, std::ostream& out) {
     out << path << ": " << failures.size() << " of " << claims << " claims fail:\n";
     for (const auto& f : failures) out << "  " << f << "\n";
     return 3;
-  } catch (const json::exception& e) {
-    TROCAR_THROW(path << ": malformed plan (" << e.what() << ")");
   }
 }
 

@@ -235,12 +235,10 @@ int RunPlan(PlanOptions o) {
   inputs.robot_hash = planners::HashFile(o.robot);
   inputs.model_hash = planners::HashPatientModel(*patient);
   planners::WritePlanFolder(o.out, problem, result, o.optimizer, inputs,
-                            [&](const std::string& text) {
-                              return verifications.empty()
-                                         ? text
-                                         : planners::AddVerificationJson(
-                                               text, problem, verifications,
-                                               baseline_verifications);
+                            [&](planners::PlanFile* file) {
+                              if (!verifications.empty())
+                                planners::AddVerification(file, problem, verifications,
+                                                          baseline_verifications);
                             });
 
   std::cout << std::fixed;

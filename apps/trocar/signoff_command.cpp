@@ -4,7 +4,8 @@
 
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
+#include "plan/signoff.hpp"
 
 namespace trocar::apps {
 namespace {

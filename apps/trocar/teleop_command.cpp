@@ -29,7 +29,7 @@
 #include "control/igtl_device.hpp"
 #include "scene.hpp"
 #include "view_inputs.hpp"
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
 #include "teleop_view.hpp"
 
 namespace trocar::apps {

@@ -12,7 +12,7 @@
 
 #include "collision/collision_world.hpp"
 #include "patient/patient_model.hpp"
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
 
 namespace trocar::collision {
 class TriangleBvh;

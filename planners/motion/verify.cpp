@@ -2,13 +2,12 @@
 
 #include <omp.h>
 
-#include <atomic>
-
 #include <algorithm>
-#include <exception>
+#include <atomic>
 #include <chrono>
 #include <cmath>
-#include <nlohmann/json.hpp>
+#include <exception>
+#include <limits>
 #include <map>
 #include <numeric>
 #include <sstream>
@@ -168,101 +167,87 @@ void RankByVerification(PortPlacementResult* result,
 
 namespace {
 
-using nlohmann::json;
-
-json VerificationJson(const PortPlacementProblem& problem, const PlanVerification& v) {
+// A plan's verification as the plan file stores it (`plans[].verification`).
+void StoreVerification(const PortPlacementProblem& problem, const PlanVerification& v,
+                       StoredPlan* plan) {
   const robot::RobotModel& robot = problem.robot();
-  json motions = json::array();
+  plan->verified = true;
+  StoredVerificationRun& run = plan->verification_run;
+  run.planner = OmplPlannerName(v.options.planner);
+  run.time_limit = v.options.time_limit;
+  run.check_step = v.options.check_step;
+  run.recheck_step = v.options.recheck_step;
+  run.prismatic_weight_per_m = 10.0;
+  run.seed = v.options.seed;
+  run.rank_score = v.rank_score;
+  run.states_checked = v.states_checked;
+  run.seconds = v.seconds;
+  run.threads = v.threads;
+  plan->claimed_coverage = v.claimed_coverage;
+  plan->verified_coverage = v.verified_coverage;
+  plan->verified_served = v.served;
+  plan->served_fraction = v.served_fraction;
+  plan->verified_suitable = v.suitable;
+  plan->verification_reasons = v.reasons;
+  plan->motions.clear();
   for (const auto& m : v.motions) {
     const PlanArm& arm = problem.arms()[m.arm];
-    json entry = {{"arm", arm.name},
-                  {"sample", m.sample},
-                  {"outcome", m.outcome},
-                  {"status", ToString(m.status)},
-                  {"solved", m.solved},
-                  {"planning_time_s", m.planning_time},
-                  {"simplification_time_s", m.simplification_time},
-                  {"graph_states", m.graph_states}};
-    if (!m.reason.empty()) entry["reason"] = m.reason;
-    if (!m.path.empty()) {
-      entry["path_length"] = m.path_length;
-      entry["raw_path_length"] = m.raw_path_length;
-      entry["tip_path_length_m"] = m.tip_path_length;
-      entry["rechecked_states"] = m.rechecked_states;
-      if (std::isfinite(m.min_clearance)) entry["min_clearance_m"] = m.min_clearance;
-      json joints = json::array();
-      for (int i : arm.q_indices) joints.push_back(robot.joint(robot.active_joints()[i]).name);
-      json waypoints = json::array();
-      for (const auto& q : m.path) {
-        json row = json::array();
-        for (int c = 0; c < q.size(); ++c) row.push_back(q[c]);
-        waypoints.push_back(row);
-      }
-      entry["joints"] = joints;
-      entry["waypoints"] = waypoints;
+    StoredMotion s;
+    s.arm = arm.name;
+    s.sample = m.sample;
+    s.outcome = m.outcome;
+    s.status = ToString(m.status);
+    s.solved = m.solved;
+    s.planning_time = m.planning_time;
+    s.simplification_time = m.simplification_time;
+    s.graph_states = m.graph_states;
+    s.reason = m.reason;
+    s.has_path = !m.path.empty();
+    if (s.has_path) {
+      s.path_length = m.path_length;
+      s.raw_path_length = m.raw_path_length;
+      s.tip_path_length = m.tip_path_length;
+      s.rechecked_states = m.rechecked_states;
+      s.min_clearance = std::isfinite(m.min_clearance) ? m.min_clearance
+                                                       : std::numeric_limits<double>::quiet_NaN();
+      for (int i : arm.q_indices) s.joints.push_back(robot.joint(robot.active_joints()[i]).name);
+      s.waypoints = m.path;
     }
-    motions.push_back(entry);
+    plan->motions.push_back(std::move(s));
   }
-  json served = json::array();
-  for (bool b : v.served) served.push_back(b);
-  return {{"planner", OmplPlannerName(v.options.planner)},
-          {"time_limit_s", v.options.time_limit},
-          {"check_step", v.options.check_step},
-          {"recheck_step", v.options.recheck_step},
-          {"prismatic_weight_per_m", 10.0},
-          {"seed", v.options.seed},
-          {"claimed_coverage", v.claimed_coverage},
-          {"verified_coverage", v.verified_coverage},
-          {"served", served},
-          {"served_fraction", v.served_fraction},
-          {"rank_score", v.rank_score},
-          {"suitable", v.suitable},
-          {"reasons", v.reasons},
-          {"states_checked", v.states_checked},
-          {"seconds", v.seconds},
-          {"threads", v.threads},
-          {"motions", motions}};
 }
 
 }  // namespace
 
-std::string AddVerificationJson(const std::string& plan_json, const PortPlacementProblem& problem,
-                                const std::vector<PlanVerification>& verifications,
-                                const std::vector<PlanVerification>& baselines) {
-  // The plan document trocar has just written: one that does not parse back is a fault here.
-  json doc;
-  try {
-    doc = json::parse(plan_json);
-  } catch (const json::exception& e) {
-    TROCAR_CHECK(false, "the plan document written a moment ago does not parse back: " << e.what());
-  }
+void AddVerification(PlanFile* file, const PortPlacementProblem& problem,
+                     const std::vector<PlanVerification>& verifications,
+                     const std::vector<PlanVerification>& baselines) {
   if (!baselines.empty()) {
     std::size_t next = 0;
-    for (json& b : doc.at("baselines")) {
-      if (!b.value("placed", false)) continue;
+    for (StoredBaseline& b : file->baselines) {
+      if (!b.placed) continue;
       TROCAR_CHECK(next < baselines.size(), "plan file: more placed baselines than verifications");
       const PlanVerification& v = baselines[next++];
-      b["plan"]["verification"] = VerificationJson(problem, v);
-      b["verdict"]["verified"] = {{"suitable", v.suitable}, {"reasons", v.reasons}};
+      StoreVerification(problem, v, &b.plan);
+      b.verified = StoredVerdict{v.suitable, "", v.reasons};
     }
   }
-  json& plans = doc.at("plans");
-  TROCAR_CHECK(plans.size() == verifications.size(),
-               "plan file: " << plans.size() << " plans, " << verifications.size()
+  TROCAR_CHECK(file->plans.size() == verifications.size(),
+               "plan file: " << file->plans.size() << " plans, " << verifications.size()
                              << " verifications");
   for (std::size_t k = 0; k < verifications.size(); ++k)
-    plans[k]["verification"] = VerificationJson(problem, verifications[k]);
+    StoreVerification(problem, verifications[k], &file->plans[k]);
   if (!verifications.empty()) {
     const PlanVerification& best = verifications.front();
     std::ostringstream summary;
     summary << (best.suitable ? "suitable" : "not suitable") << " by verified motions: plan 1 "
             << std::lround(best.verified_coverage * 100) << " % of instrument motions verified, "
             << std::lround(best.served_fraction * 100) << " % of target samples served";
-    doc["verdict"]["verified"] = {{"suitable", best.suitable},
-                                  {"summary", summary.str()},
-                                  {"reasons", best.reasons}};
+    file->has_verified_verdict = true;
+    file->verified_suitable = best.suitable;
+    file->verified_summary = summary.str();
+    file->verified_reasons = best.reasons;
   }
-  return doc.dump(1) + "\n";
 }
 
 }  // namespace trocar::planners

@@ -2,7 +2,7 @@
 /// @file
 /// Verifying a plan by real motions: every instrument arm to every target sample from its start
 /// pose (motion.hpp), the verified coverage, the samples served by verified motions, and a
-/// verdict from them; the plan file's "verification" part (docs/plan-format.md) and the ranking
+/// verdict from them; the plan file's verification part (docs/plan-format.md) and the ranking
 /// with the verified coverage in place of the claimed one.
 
 #include <functional>
@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "motion/motion.hpp"
+#include "plan/plan_file.hpp"
 #include "port_placement/optimizer.hpp"
 
 namespace trocar::planners {
@@ -48,13 +49,13 @@ std::vector<std::size_t> VerifiedOrder(const std::vector<PlanVerification>& veri
 /// first (stable: ties keep their order).
 void RankByVerification(PortPlacementResult* result, std::vector<PlanVerification>* verifications);
 
-/// Adds each plan's "verification" object (motions with their waypoints, coverage, verdict) to
-/// a plan document made by PlanJson, plans in the same order as `verifications`, and the
-/// verified verdict to its "verdict". @return the new document's text.
-/// `baselines` (optional): the verifications of the document's placed baselines, in order (an
-/// entry per baseline; those not placed are skipped).
-std::string AddVerificationJson(const std::string& plan_json, const PortPlacementProblem& problem,
-                                const std::vector<PlanVerification>& verifications,
-                                const std::vector<PlanVerification>& baselines = {});
+/// Adds each plan's verification (motions with their waypoints, coverage, verdict) to a plan
+/// document made by MakePlanFile (port_placement/plan_io.hpp) or read back, plans in the same
+/// order as `verifications` (a verification already there is replaced), and the verified verdict
+/// to its verdict. `baselines` (optional): the verifications of the document's placed baselines,
+/// in order (an entry per baseline; those not placed are skipped).
+void AddVerification(PlanFile* file, const PortPlacementProblem& problem,
+                     const std::vector<PlanVerification>& verifications,
+                     const std::vector<PlanVerification>& baselines = {});
 
 }  // namespace trocar::planners

@@ -1,13 +1,9 @@
 #include "port_placement/plan_io.hpp"
 
-#include "port_placement/fixed_ports.hpp"
-#include "port_placement/port_rules.hpp"
-
-#include <cstdio>
-#include <cstring>
+#include <cmath>
 #include <filesystem>
-#include <iomanip>
-#include <nlohmann/json.hpp>
+#include <limits>
+#include <map>
 #include <sstream>
 
 #include "common/error.hpp"
@@ -15,115 +11,45 @@
 #include "kinematics/forward_kinematics.hpp"
 #include "patient/markups.hpp"
 #include "patient/patient_model.hpp"
+#include "port_placement/fixed_ports.hpp"
+#include "port_placement/plan_config.hpp"
+#include "port_placement/port_rules.hpp"
 
 namespace trocar::planners {
 
 namespace {
 
-using nlohmann::json;
-
-struct Fnv {
-  std::uint64_t h = 14695981039346656037ull;
-  void Add(const void* data, std::size_t n) {
-    const auto* p = static_cast<const unsigned char*>(data);
-    for (std::size_t i = 0; i < n; ++i) {
-      h ^= p[i];
-      h *= 1099511628211ull;
-    }
-  }
-  void Add(double v) { Add(&v, sizeof v); }
-  void Add(const std::string& s) { Add(s.data(), s.size()); }
-  void Add(const Eigen::Vector3d& v) {
-    for (int i = 0; i < 3; ++i) Add(v[i]);
-  }
-  std::string Text() const {
-    std::ostringstream s;
-    s << "fnv1a64:" << std::hex << std::setw(16) << std::setfill('0') << h;
-    return s.str();
-  }
-};
-
-json Vec(const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); }
-
-json Matrix(const Eigen::Isometry3d& X) {
-  json rows = json::array();
-  for (int r = 0; r < 4; ++r) {
-    json row = json::array();
-    for (int c = 0; c < 4; ++c) row.push_back(X.matrix()(r, c));
-    rows.push_back(row);
-  }
-  return rows;
-}
-
-// Values rounded so that text output is stable (1e-12 relative is far below any tolerance).
-double R(double v) {
-  if (!std::isfinite(v)) return v;
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%.12g", v);
-  return std::strtod(buf, nullptr);
-}
-
-json Rounded(const json& j) {
-  if (j.is_number_float()) return R(j.get<double>());
-  if (j.is_array() || j.is_object()) {
-    json out = j;
-    for (auto it = out.begin(); it != out.end(); ++it) *it = Rounded(*it);
-    return out;
-  }
-  return j;
-}
-
-}  // namespace
-
-std::string HashFile(const std::string& path) {
-  Fnv f;
-  f.Add(ReadTextFile(path));
-  return f.Text();
-}
-
-std::string HashPatientModel(const patient::PatientModel& model) {
-  Fnv f;
-  for (const auto& s : model.structures) {
-    f.Add(s.name);
-    for (const auto& v : s.mesh.vertices) f.Add(v);
-    for (const auto& t : s.mesh.triangles) f.Add(t.data(), sizeof(int) * 3);
-  }
-  for (const auto& t : model.targets) {
-    f.Add(t.name);
-    for (const auto& p : t.points) f.Add(p);
-    for (const auto& n : t.normals) f.Add(n);
-  }
-  for (const auto& c : model.port_candidates) {
-    f.Add(c.name);
-    for (const auto& p : c.skin) f.Add(p);
-  }
-  for (int r = 0; r < 4; ++r) {
-    for (int c = 0; c < 4; ++c) f.Add(model.X_WP.matrix()(r, c));
-  }
-  return f.Text();
-}
-
-// One plan's entry in the plan file (docs/plan-format.md, "plans").
-static json PlanEntry(const PortPlacementProblem& problem, const RankedPlan& plan, int rank) {
+// One plan as the plan file stores it (docs/plan-format.md, "plans").
+StoredPlan StorePlan(const PortPlacementProblem& problem, const RankedPlan& plan, int rank) {
   const robot::RobotModel& robot = problem.robot();
   const patient::PatientModel& patient = problem.patient();
   const Evaluation& ev = plan.evaluation;
-  json ports = json::array();
+  StoredPlan out;
+  out.rank = rank;
+  out.status = ToString(ev.status);
+  out.score = ev.score;
+  out.rank_score = plan.rank_score;
+  out.robust_score = plan.robust_score;
+  out.degradation = plan.degradation;
+  out.collisions_at_nominal = ev.collisions;
+  out.message = ev.message;
   for (std::size_t a = 0; a < plan.placement.sites.size(); ++a) {
     const PortSite& site = plan.placement.sites[a];
-    ports.push_back({{"arm", problem.arms()[a].name},
-                     {"candidate", patient.port_candidates[site.candidate].name},
-                     {"s", site.s},
-                     {"curve_P", Vec(site.p_curve_P)},
-                     {"p_P", Vec(site.p_P)},
-                     {"p_W", Vec(site.p_W)},
-                     {"rcm_W", Vec(site.p_rcm_W)},
-                     {"anatomy", DescribePort(patient, site)},
-                     {"skin_allowance", site.skin_allowance},
-                     {"pivot", site.in_gap ? "intercostal gap" : "rcm_depth toward the targets"}});
+    StoredPort port;
+    port.arm = problem.arms()[a].name;
+    port.candidate = patient.port_candidates[site.candidate].name;
+    port.s = site.s;
+    port.curve_P = site.p_curve_P;
+    port.p_P = site.p_P;
+    port.p_W = site.p_W;
+    port.rcm_W = site.p_rcm_W;
+    port.anatomy = DescribePort(patient, site);
+    port.skin_allowance = site.skin_allowance;
+    port.pivot = site.in_gap ? "intercostal gap" : "rcm_depth toward the targets";
+    out.ports.push_back(port);
   }
-  json setup = json::object();
-  json nominal = json::object();
+  // By name, as the file orders them.
+  std::map<std::string, double> setup, nominal;
   for (int j = 0; j < robot.num_joints(); ++j) {
     const robot::Joint& joint = robot.joint(j);
     if (joint.movable() && joint.drive == robot::JointDrive::kHeld && ev.joint_values.size() > 0)
@@ -131,229 +57,309 @@ static json PlanEntry(const PortPlacementProblem& problem, const RankedPlan& pla
     if (joint.movable() && joint.q_index >= 0 && ev.q_nominal.size() > 0)
       nominal[joint.name] = ev.q_nominal[joint.q_index];
   }
-  json terms = json::array();
-  for (const auto& t : ev.terms) {
-    terms.push_back({{"name", t.name},
-                     {"unit", t.unit},
-                     {"value", t.value},
-                     {"score", t.score},
-                     {"weight", t.weight},
-                     {"note", t.note}});
-  }
-  json reaches = json::array();
+  out.setup_joints.assign(setup.begin(), setup.end());
+  out.q_nominal.assign(nominal.begin(), nominal.end());
+  for (const auto& t : ev.terms)
+    out.terms.push_back({t.name, t.value, t.score, t.unit, t.weight, t.note});
   for (const auto& r : ev.reaches) {
     const PlanArm& arm = problem.arms()[r.arm];
-    json q = json::object();
+    StoredReach reach;
+    reach.sample = r.sample;
+    reach.arm = arm.name;
+    reach.reached = r.reached;
+    std::map<std::string, double> q;
     for (std::size_t c = 0;
          c < arm.q_indices.size() && c < static_cast<std::size_t>(r.q_arm.size()); ++c) {
       q[robot.joint(robot.active_joints()[arm.q_indices[c]]).name] = r.q_arm[c];
     }
-    json entry = {{"sample", r.sample}, {"arm", arm.name}, {"reached", r.reached}, {"q", q}};
-    if (arm.role == ArmRole::kEndoscope) {
-      entry["seen"] = r.seen;
-      entry["off_axis_deg"] = r.approach * 180 / M_PI;
+    reach.q.assign(q.begin(), q.end());
+    reach.endoscope = arm.role == ArmRole::kEndoscope;
+    if (reach.endoscope) {
+      reach.seen = r.seen;
+      reach.off_axis_deg = r.approach * 180 / M_PI;
     } else {
-      entry["tip_error_m"] = r.tip_error;
-      entry["dexterity"] = r.dexterity;
-      entry["approach_deg"] = r.approach * 180 / M_PI;
+      reach.tip_error_m = r.tip_error;
+      reach.dexterity = r.dexterity;
+      reach.approach_deg = r.approach * 180 / M_PI;
     }
-    if (!r.reached) entry["reason"] = r.reason;
-    reaches.push_back(entry);
+    if (!r.reached) reach.reason = r.reason;
+    out.reaches.push_back(std::move(reach));
   }
-  json shifts = json::array();
-  for (const auto& s : plan.shifts) {
-    shifts.push_back({{"shift_P", Vec(s.d_P)},
-                      {"score", s.score},
-                      {"coverage", s.coverage},
-                      {"served", s.served}});
-  }
-  json served = json::array();
-  for (bool b : ev.served) served.push_back(b);
-  json views = json::array();
-  for (const auto& v : ev.views) {
-    views.push_back(
-        {{"arm", problem.arms()[v.arm].name}, {"frame", v.frame}, {"axis_F", Vec(v.axis_F)}});
-  }
-  const Eigen::Isometry3d X_WB = plan.placement.X_WB();
-  return json{{"rank", rank},
-                   {"status", ToString(ev.status)},
-                   {"score", ev.score},
-                   {"rank_score", plan.rank_score},
-                   {"robust_score", plan.robust_score},
-                   {"degradation", plan.degradation},
-                   {"collisions_at_nominal", ev.collisions},
-                   {"message", ev.message},
-                   {"ports", ports},
-                   {"views", views},
-                   {"cart",
-                    {{"x", plan.placement.cart_x},
-                     {"y", plan.placement.cart_y},
-                     {"yaw_deg", plan.placement.cart_yaw * 180 / M_PI},
-                     {"X_WB", Matrix(X_WB)}}},
-                   {"setup_joints", setup},
-                   {"q_nominal", nominal},
-                   {"terms", terms},
-                   {"served", served},
-                   {"samples", reaches},
-                   {"robustness", shifts}};
+  for (const auto& s : plan.shifts)
+    out.robustness.push_back({s.d_P, s.score, s.coverage, s.served});
+  out.served = ev.served;
+  for (const auto& v : ev.views)
+    out.views.push_back({problem.arms()[v.arm].name, v.frame, v.axis_F});
+  out.cart_x = plan.placement.cart_x;
+  out.cart_y = plan.placement.cart_y;
+  out.cart_yaw_deg = plan.placement.cart_yaw * 180 / M_PI;
+  out.X_WB = plan.placement.X_WB();
+  return out;
 }
 
-std::string PlanJson(const PortPlacementProblem& problem, const PortPlacementResult& result,
-                     const PortPlacementOptions& options, const PlanInputs& inputs) {
+StoredVerdict StoreVerdict(const Verdict& v) { return {v.suitable, v.summary, v.reasons}; }
+
+}  // namespace
+
+PlanFile MakePlanFile(const PortPlacementProblem& problem, const PortPlacementResult& result,
+                      const PortPlacementOptions& options, const PlanInputs& inputs) {
   const robot::RobotModel& robot = problem.robot();
   const patient::PatientModel& patient = problem.patient();
   const ProblemOptions& po = problem.options();
-  json doc;
-  doc["format"] = "trocar-plan";
-  doc["version"] = kPlanFormatVersion;
-  doc["inputs"] = {{"case", inputs.case_dir},
-                   {"case_hash", inputs.case_hash},
-                   {"robot", inputs.robot_file},
-                   {"robot_hash", inputs.robot_hash},
-                   {"patient_model_hash", inputs.model_hash}};
-  doc["patient"] = {{"name", patient.name}, {"X_WP", Matrix(patient.X_WP)}};
+  PlanFile file;
+  file.case_written = file.case_dir = inputs.case_dir;
+  file.robot_written = file.robot_file = inputs.robot_file;
+  file.case_hash = inputs.case_hash;
+  file.robot_hash = inputs.robot_hash;
+  file.model_hash = inputs.model_hash;
+  file.patient_name = patient.name;
+  file.X_WP = patient.X_WP;
   {
     // The state the plans were made in (patient/operative_state.hpp; docs/operative-state.md).
     const patient::OperativeState& op = patient.operation;
     const patient::OperativeChange& change = patient.operative_change;
-    doc["operation"] = {{"state", op.applied ? "operative" : "ct"},
-                        {"description", op.Describe()},
-                        {"co2_mmHg", op.applied ? op.co2_mmhg : 0.0},
-                        {"left_lung_isolated", op.applied && op.left_lung_isolated},
-                        {"left_side_up_deg", patient.left_side_up * 180 / M_PI},
-                        {"heart_shift_m", op.moves() ? op.heart_shift : 0.0},
-                        {"heart_shift_range_m",
-                         op.moves() ? json::array({op.heart_shift_min, op.heart_shift_max})
-                                    : json::array({0.0, 0.0})},
-                        {"direction_P", Vec(change.direction_P)},
-                        {"d_P", Vec(change.d_P)},
-                        {"moved_structures", change.structures},
-                        {"moved_targets", change.targets}};
+    StoredOperation s;
+    s.state = op.applied ? "operative" : "ct";
+    s.description = op.Describe();
+    s.co2_mmHg = op.applied ? op.co2_mmhg : 0.0;
+    s.left_lung_isolated = op.applied && op.left_lung_isolated;
+    s.left_side_up_deg = patient.left_side_up * 180 / M_PI;
+    s.heart_shift_m = op.moves() ? op.heart_shift : 0.0;
+    s.heart_shift_min_m = op.moves() ? op.heart_shift_min : 0.0;
+    s.heart_shift_max_m = op.moves() ? op.heart_shift_max : 0.0;
+    s.direction_P = change.direction_P;
+    s.d_P = change.d_P;
+    s.moved_structures = change.structures;
+    s.moved_targets = change.targets;
+    file.operation = s;
   }
-  json arms = json::array();
-  for (const auto& arm : problem.arms()) {
-    json joints = json::array();
-    for (int i : arm.q_indices) joints.push_back(robot.joint(robot.active_joints()[i]).name);
-    arms.push_back({{"name", arm.name},
-                    {"role", ToString(arm.role)},
-                    {"rcm_frame", arm.rcm_frame},
-                    {"tool_frame", arm.tool_frame},
-                    {"shaft_link", arm.shaft_link >= 0 ? robot.link(arm.shaft_link).name : ""},
-                    {"shaft_a_L", Vec(arm.p_L_shaft_a)},
-                    {"shaft_b_L", Vec(arm.p_L_shaft_b)},
-                    {"joints", joints},
-                    {"max_reach_m",
-                     std::isfinite(problem.MaxReach(static_cast<int>(&arm - &problem.arms()[0])))
-                         ? json(problem.MaxReach(static_cast<int>(&arm - &problem.arms()[0])))
-                         : json(nullptr)}});
+  file.robot_name = robot.name();
+  for (std::size_t a = 0; a < problem.arms().size(); ++a) {
+    const PlanArm& arm = problem.arms()[a];
+    StoredArm s;
+    s.name = arm.name;
+    s.role = ToString(arm.role);
+    s.rcm_frame = arm.rcm_frame;
+    s.tool_frame = arm.tool_frame;
+    s.shaft_link = arm.shaft_link >= 0 ? robot.link(arm.shaft_link).name : "";
+    s.shaft_a_L = arm.p_L_shaft_a;
+    s.shaft_b_L = arm.p_L_shaft_b;
+    for (int i : arm.q_indices) s.joints.push_back(robot.joint(robot.active_joints()[i]).name);
+    s.max_reach = problem.MaxReach(static_cast<int>(a));
+    file.arms.push_back(s);
   }
-  doc["robot"] = {{"name", robot.name()}, {"arms", arms}};
+  StoredAlgorithm& alg = file.algorithm;
+  alg.global = result.algorithm;
+  alg.local = result.local;
+  alg.seed = options.seed;
+  alg.starts = options.starts;
+  alg.evaluations_budget = options.evaluations;
+  alg.polish_evaluations = options.polish_evaluations;
+  alg.evaluations = result.evaluations;
+  alg.global_evaluations = result.global_evaluations;
+  alg.best_global_score = result.best_global_score;
+  alg.time_limit_s = options.time_limit;
+  alg.time_limit_hit = result.time_limit_hit;
+  alg.grid = result.grid;
+  alg.top_k = options.top_k;
+  alg.distinct_distance_m = options.distinct_distance;
+  alg.robustness_shift_m = options.robustness_shift;
+  alg.robustness_weight = options.robustness_weight;
   const ScoreWeights& w = po.weights;
-  doc["algorithm"] = {{"global", result.algorithm},
-                      {"local", result.local},
-                      {"seed", options.seed},
-                      {"starts", options.starts},
-                      {"evaluations_budget", options.evaluations},
-                      {"polish_evaluations", options.polish_evaluations},
-                      {"evaluations", result.evaluations},
-                      {"global_evaluations", result.global_evaluations},
-                      {"best_global_score", result.best_global_score},
-                      {"time_limit_s", options.time_limit},
-                      {"time_limit_hit", result.time_limit_hit},
-                      {"grid", result.grid},
-                      {"top_k", options.top_k},
-                      {"distinct_distance_m", options.distinct_distance},
-                      {"robustness_shift_m", options.robustness_shift},
-                      {"robustness_weight", options.robustness_weight}};
-  doc["scoring"] = {{"weights",
-                     {{"coverage", w.coverage},
-                      {"served", w.served},
-                      {"dexterity", w.dexterity},
-                      {"approach", w.approach},
-                      {"triangulation", w.triangulation},
-                      {"endoscope", w.endoscope},
-                      {"spacing", w.spacing},
-                      {"clearance_arm_arm", w.clearance_arm_arm},
-                      {"clearance_arm_patient", w.clearance_arm_patient},
-                      {"clearance_instrument_rib", w.clearance_instrument_rib}}},
-                    {"standoff_m", po.standoff},
-                    {"rcm_depth_m", po.rcm_depth},
-                    {"gap_search_depth_m", po.gap_search_depth},
-                    {"ik_tolerance_m", po.ik_tolerance},
-                    {"reach_restarts", po.reach_restarts},
-                    {"sight_margin_m", kSightMargin},
-                    {"scope_half_fov_deg", po.scope_half_fov * 180 / M_PI},
-                    {"scope_min_distance_m", po.scope_min_distance},
-                    {"scope_max_distance_m", po.scope_max_distance},
-                    {"scope_working_distance_m", po.scope_working_distance},
-                    {"scope_moves", po.scope_moves},
-                    {"samples_per_target", po.samples_per_target},
-                    {"suitable_fraction", options.suitable_fraction}};
-  doc["verdict"] = {{"suitable", result.verdict.suitable},
-                    {"summary", result.verdict.summary},
-                    {"reasons", result.verdict.reasons}};
-  json samples = json::array();
+  StoredScoring& sc = file.scoring;
+  sc.weights = {{"approach", w.approach},
+                {"clearance_arm_arm", w.clearance_arm_arm},
+                {"clearance_arm_patient", w.clearance_arm_patient},
+                {"clearance_instrument_rib", w.clearance_instrument_rib},
+                {"coverage", w.coverage},
+                {"dexterity", w.dexterity},
+                {"endoscope", w.endoscope},
+                {"served", w.served},
+                {"spacing", w.spacing},
+                {"triangulation", w.triangulation}};
+  sc.standoff_m = po.standoff;
+  sc.rcm_depth_m = po.rcm_depth;
+  sc.gap_search_depth_m = po.gap_search_depth;
+  sc.ik_tolerance_m = po.ik_tolerance;
+  sc.reach_restarts = po.reach_restarts;
+  sc.sight_margin_m = kSightMargin;
+  sc.scope_half_fov_deg = po.scope_half_fov * 180 / M_PI;
+  sc.scope_min_distance_m = po.scope_min_distance;
+  sc.scope_max_distance_m = po.scope_max_distance;
+  sc.scope_working_distance_m = po.scope_working_distance;
+  sc.scope_moves = po.scope_moves;
+  sc.samples_per_target = po.samples_per_target;
+  sc.suitable_fraction = options.suitable_fraction;
+  file.suitable = result.verdict.suitable;
+  file.summary = result.verdict.summary;
+  file.reasons = result.verdict.reasons;
   for (std::size_t i = 0; i < problem.samples().size(); ++i) {
     const auto& s = problem.samples()[i];
-    samples.push_back({{"index", i},
-                       {"target", patient.targets[s.target].name},
-                       {"point", s.point},
-                       {"arc_length_m", s.arc_length},
-                       {"p_W", Vec(s.p_W)},
-                       {"n_W", Vec(s.n_W)},
-                       {"aim_W", Vec(s.p_W + po.standoff * s.n_W)}});
+    StoredSample t;
+    t.index = static_cast<int>(i);
+    t.target = patient.targets[s.target].name;
+    t.point = s.point;
+    t.arc_length = s.arc_length;
+    t.p_W = s.p_W;
+    t.n_W = s.n_W;
+    t.aim_W = s.p_W + po.standoff * s.n_W;
+    file.samples.push_back(t);
   }
-  doc["target_samples"] = samples;
-  json plans = json::array();
   for (std::size_t k = 0; k < result.plans.size(); ++k)
-    plans.push_back(PlanEntry(problem, result.plans[k], static_cast<int>(k) + 1));
-  doc["plans"] = plans;
+    file.plans.push_back(StorePlan(problem, result.plans[k], static_cast<int>(k) + 1));
   if (!result.ports_given.empty())
-    doc["ports_given"] = {{"what", result.ports_given}, {"where", result.ports_where}};
+    file.ports_given = std::make_pair(result.ports_given, result.ports_where);
   // The baselines beside the optimised plans (the template, a surgeon's ports).
-  json baselines = json::array();
   for (const Baseline& b : result.baselines) {
-    json entry = {{"kind", b.kind}, {"name", b.name}, {"placed", b.placed}};
+    StoredBaseline s;
+    s.kind = b.kind;
+    s.name = b.name;
+    s.placed = b.placed;
     if (!b.placed) {
-      entry["why_not"] = b.why_not;
+      s.why_not = b.why_not;
     } else {
       const FixedPortsPlan& f = b.fixed;
-      entry["source"] = f.ports.source;
-      entry["where"] = f.ports.where;
-      entry["notes"] = f.ports.notes;
-      entry["search"] = f.search;
-      entry["evaluations"] = f.evaluations;
-      entry["verdict"] = {{"suitable", f.verdict.suitable},
-                          {"summary", f.verdict.summary},
-                          {"reasons", f.verdict.reasons}};
-      entry["plan"] = PlanEntry(problem, f.plan, 0);
+      s.source = f.ports.source;
+      s.where = f.ports.where;
+      s.notes = f.ports.notes;
+      s.search = f.search;
+      s.evaluations = f.evaluations;
+      const StoredVerdict v = StoreVerdict(f.verdict);
+      s.suitable = v.suitable;
+      s.summary = v.summary;
+      s.reasons = v.reasons;
+      s.plan = StorePlan(problem, f.plan, 0);
     }
-    baselines.push_back(entry);
+    file.baselines.push_back(std::move(s));
   }
-  doc["baselines"] = baselines;
   // The anatomical selection criteria beside the verdict (docs/selection-criteria.md).
-  json criteria = json::array();
   for (const Criterion& c : result.criteria.criteria) {
-    criteria.push_back({{"name", c.name},
-                        {"title", c.title},
-                        {"value", c.measured() ? json(c.value) : json(nullptr)},
-                        {"unit", c.unit},
-                        {"threshold", c.threshold},
-                        {"favourable_when", c.at_least ? "at least the threshold" : "at most the threshold"},
-                        {"favourable", c.favourable()},
-                        {"meaning", c.meaning},
-                        {"how", c.how},
-                        {"source", c.source}});
+    StoredCriterion s;
+    s.name = c.name;
+    s.title = c.title;
+    s.value = c.measured() ? c.value : std::numeric_limits<double>::quiet_NaN();
+    s.unit = c.unit;
+    s.threshold = c.threshold;
+    s.favourable_when = c.at_least ? "at least the threshold" : "at most the threshold";
+    s.favourable = c.favourable();
+    s.meaning = c.meaning;
+    s.how = c.how;
+    s.source = c.source;
+    file.criteria.push_back(s);
   }
-  doc["selection_criteria"] = {{"criteria", criteria},
-                               {"comparison", result.criteria_comparison}};
-  json convergence = json::array();
-  for (const auto& p : result.trace) convergence.push_back(json::array({p.evaluations, p.best}));
-  doc["convergence"] = convergence;
-  json timings = json::object();
-  for (const auto& [stage, s] : result.timings) timings[stage] = s;
-  doc["run"] = {{"threads", result.threads}, {"timings_s", timings}};
-  return Rounded(doc).dump(1) + "\n";
+  file.criteria_comparison = result.criteria_comparison;
+  for (const auto& p : result.trace) file.convergence.emplace_back(p.evaluations, p.best);
+  file.run_threads = result.threads;
+  std::map<std::string, double> timings(result.timings.begin(), result.timings.end());
+  file.timings_s.assign(timings.begin(), timings.end());
+  return file;
+}
+
+ProblemOptions PlanProblemOptions(const PlanFile& file) {
+  ProblemOptions po;
+  ReadPlanConfig(file.case_dir, &po);
+  po.arms.clear();
+  po.roles.clear();
+  for (const StoredArm& arm : file.arms) {
+    po.arms.push_back(arm.name);
+    po.roles.push_back(arm.name + "=" + arm.role);
+  }
+  const StoredScoring& s = file.scoring;
+  auto weight = [&](const std::string& name) {
+    const double w = s.Weight(name, std::numeric_limits<double>::quiet_NaN());
+    TROCAR_THROW_UNLESS(!std::isnan(w), file.path << ": scoring.weights." << name << ": missing");
+    return w;
+  };
+  po.weights.coverage = weight("coverage");
+  // Plans written before stop 51 have no served term: scored without it.
+  po.weights.served = s.Weight("served", 0.0);
+  po.weights.dexterity = weight("dexterity");
+  po.weights.approach = weight("approach");
+  po.weights.triangulation = weight("triangulation");
+  po.weights.endoscope = weight("endoscope");
+  po.weights.spacing = weight("spacing");
+  po.weights.clearance_arm_arm = weight("clearance_arm_arm");
+  po.weights.clearance_arm_patient = weight("clearance_arm_patient");
+  po.weights.clearance_instrument_rib = weight("clearance_instrument_rib");
+  po.standoff = s.standoff_m;
+  po.rcm_depth = s.rcm_depth_m;
+  po.gap_search_depth = s.gap_search_depth_m;
+  po.ik_tolerance = s.ik_tolerance_m;
+  po.scope_half_fov = s.scope_half_fov_deg * M_PI / 180;
+  po.scope_min_distance = s.scope_min_distance_m;
+  po.scope_max_distance = s.scope_max_distance_m;
+  po.scope_working_distance = s.scope_working_distance_m;
+  // Plans written before stop 54 judged the scope from its docking pose only.
+  po.scope_moves = s.scope_moves.value_or(false);
+  TROCAR_THROW_UNLESS(s.samples_per_target >= 1 && s.samples_per_target <= 100000,
+                      file.path << ": scoring.samples_per_target: " << s.samples_per_target
+                                << ", expected 1 to 100000");
+  po.samples_per_target = s.samples_per_target;
+  po.seed = file.algorithm.seed;
+  return po;
+}
+
+RankedPlan RestorePlan(const PortPlacementProblem& problem, const PlanFile& file,
+                       std::size_t index) {
+  TROCAR_CHECK(index < file.plans.size(),
+               "RestorePlan: plan " << index + 1 << " of " << file.plans.size());
+  const StoredPlan& p = file.plans[index];
+  const patient::PatientModel& patient = problem.patient();
+  const robot::RobotModel& robot = problem.robot();
+  const std::string where = file.path + ": plan " + std::to_string(index + 1);
+  TROCAR_THROW_UNLESS(
+      p.ports.size() == problem.arms().size(),
+      where << " has " << p.ports.size() << " ports for " << problem.arms().size() << " arms");
+  RankedPlan plan;
+  for (const StoredPort& port : p.ports) {
+    int candidate = -1;
+    for (int c = 0; c < static_cast<int>(patient.port_candidates.size()); ++c) {
+      if (patient.port_candidates[c].name == port.candidate) candidate = c;
+    }
+    TROCAR_THROW_UNLESS(candidate >= 0, where << ": port candidate '" << port.candidate
+                                              << "' is not one of the patient's");
+    plan.placement.sites.push_back(problem.Site(candidate, port.s));
+    TROCAR_THROW_UNLESS(
+        (plan.placement.sites.back().p_W - port.p_W).norm() < 1e-4,
+        where << ": the port of \"" << port.arm << "\" is not where its candidate curve puts it");
+  }
+  plan.placement.cart_x = p.cart_x;
+  plan.placement.cart_y = p.cart_y;
+  plan.placement.cart_yaw = p.cart_yaw_deg * M_PI / 180;
+  plan.rank_score = p.rank_score;
+  // The plan as written: its status, its nominal pose (setup joints and active joints by name),
+  // its coverage term and what its endoscope sees. A nominal pose that is not valid makes every
+  // motion an "invalid start", named.
+  Evaluation& ev = plan.evaluation;
+  ev.status = p.status == ToString(PlacementStatus::kPlaced)        ? PlacementStatus::kPlaced
+              : p.status == ToString(PlacementStatus::kInCollision) ? PlacementStatus::kInCollision
+                                                                    : PlacementStatus::kUnreachable;
+  ev.score = p.score;
+  const robot::RobotState state = NominalState(robot, p, where);
+  ev.q_nominal = state.q;
+  ev.joint_values = state.joint_values;
+  for (const StoredTerm& t : p.terms) {
+    ScoreTerm term;
+    term.name = t.name;
+    term.value = t.value;
+    term.score = t.score;
+    ev.terms.push_back(term);
+  }
+  for (const StoredReach& r : p.reaches) {
+    if (!r.endoscope) continue;
+    SampleReach reach;
+    reach.sample = r.sample;
+    for (std::size_t a = 0; a < problem.arms().size(); ++a) {
+      if (problem.arms()[a].name == r.arm) reach.arm = static_cast<int>(a);
+    }
+    TROCAR_THROW_UNLESS(reach.arm >= 0 && reach.sample >= 0 &&
+                            reach.sample < static_cast<int>(problem.samples().size()),
+                        where << ": a sample names arm '" << r.arm << "' or index " << reach.sample
+                              << " that the plan has not");
+    reach.seen = reach.reached = r.seen;
+    ev.reaches.push_back(reach);
+  }
+  return plan;
 }
 
 void WritePortMarkups(const PortPlacementProblem& problem, const PortPlacementResult& result,
@@ -374,8 +380,7 @@ void WritePortMarkups(const PortPlacementProblem& problem, const PortPlacementRe
 
 void WritePlanFolder(const std::string& dir, const PortPlacementProblem& problem,
                      const PortPlacementResult& result, const PortPlacementOptions& options,
-                     const PlanInputs& inputs,
-                     const std::function<std::string(const std::string&)>& finish) {
+                     const PlanInputs& inputs, const std::function<void(PlanFile*)>& finish) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   TROCAR_THROW_UNLESS(!ec && std::filesystem::is_directory(dir),
@@ -392,8 +397,9 @@ void WritePlanFolder(const std::string& dir, const PortPlacementProblem& problem
   };
   stored.case_dir = absolute(inputs.case_dir);
   stored.robot_file = absolute(inputs.robot_file);
-  const std::string text = PlanJson(problem, result, options, stored);
-  WriteFileAtomically(JoinPath(dir, "plan.json"), finish ? finish(text) : text);
+  PlanFile file = MakePlanFile(problem, result, options, stored);
+  if (finish) finish(&file);
+  WritePlanFile(JoinPath(dir, "plan.json"), file);
 }
 
 }  // namespace trocar::planners

@@ -68,7 +68,7 @@ struct ProblemOptions {
   /// the skin (or the patient has no ribs), the pivot is `rcm_depth` inside the skin toward the
   /// targets (m).
   double rcm_depth = 0.025;
-  double gap_search_depth = 0.06;  ///< m, at most kMaxPivotDepth (plan_io.hpp)
+  double gap_search_depth = 0.06;  ///< m, at most kMaxPivotDepth (port_rules.hpp)
   /// Cart pose bounds, around the centre of the candidate curves: the direction the cart comes
   /// from (any), its distance on the floor (m), and its heading off facing the centre (rad).
   double cart_distance_min = 0.6, cart_distance_max = 1.5;

@@ -589,8 +589,8 @@ TEST(OptimizePorts, SameSeedSamePlanWithOneAndTwoThreads) {
   auto plan_without_run = [&](int threads, unsigned seed) {
     PortPlacementOptions o = Small(threads);
     o.seed = seed;
-    nlohmann::json j =
-        nlohmann::json::parse(PlanJson(problem, OptimizePorts(problem, o), o, inputs));
+    nlohmann::json j = nlohmann::json::parse(
+        PlanFileText(MakePlanFile(problem, OptimizePorts(problem, o), o, inputs)));
     j.erase("run");
     return j.dump();
   };

@@ -5,7 +5,8 @@
 #include <gtest/gtest.h>
 
 #include "common/error.hpp"
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
+#include "plan/signoff.hpp"
 
 namespace trocar {
 namespace {

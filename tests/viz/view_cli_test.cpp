@@ -21,7 +21,8 @@
 #include "control/igtl_device.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include <thread>
-#include "port_placement/plan_file.hpp"
+#include "plan/plan_file.hpp"
+#include "plan/signoff.hpp"
 #include "robot/load_robot.hpp"
 #include "scene.hpp"
 #include "test_util.hpp"
