@@ -95,14 +95,19 @@ YAML::Node YamlReader::Require(const YAML::Node& map, const std::string& key,
 
 void YamlReader::ExpectMap(const YAML::Node& node, const std::string& path,
                            std::initializer_list<const char*> allowed) const {
+  ExpectMap(node, path, std::vector<std::string>(allowed.begin(), allowed.end()));
+}
+
+void YamlReader::ExpectMap(const YAML::Node& node, const std::string& path,
+                           const std::vector<std::string>& allowed) const {
   TROCAR_THROW_UNLESS(node.IsMap(), Where(node, path) << ": expected a mapping");
   for (const auto& entry : node) {
     const std::string key = entry.first.as<std::string>();
     bool known = false;
-    for (const char* a : allowed) known = known || key == a;
+    for (const std::string& a : allowed) known = known || key == a;
     if (!known) {
       std::string expected;
-      for (const char* a : allowed) expected += (expected.empty() ? "" : ", ") + std::string(a);
+      for (const std::string& a : allowed) expected += (expected.empty() ? "" : ", ") + a;
       TROCAR_THROW(Where(entry.first, path) << ": unknown field '" << key
                                             << "' (expected one of: " << expected << ")");
     }

@@ -28,6 +28,8 @@ class YamlReader {
   /// The node must be a map whose keys are all in `allowed` (catches typos).
   void ExpectMap(const YAML::Node& node, const std::string& path,
                  std::initializer_list<const char*> allowed) const;
+  void ExpectMap(const YAML::Node& node, const std::string& path,
+                 const std::vector<std::string>& allowed) const;
   void ExpectSequence(const YAML::Node& node, const std::string& path) const;
 
   /// A finite number; also accepts "pi/2", "-90 deg" and similar (ParseScalarExpression).

@@ -5,6 +5,7 @@
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "common/yaml_util.hpp"
+#include "port_placement/score_terms.hpp"
 
 namespace trocar::planners {
 
@@ -40,9 +41,10 @@ void ReadPlanConfig(const std::string& case_dir, ProblemOptions* options) {
   }
   if (plan["weights"]) {
     const YAML::Node w = plan["weights"];
-    y.ExpectMap(w, "plan.weights",
-                {"coverage", "served", "dexterity", "approach", "triangulation", "endoscope", "spacing",
-                 "clearance_arm_arm", "clearance_arm_patient", "clearance_instrument_rib"});
+    // One weight per score term, named as the term (score_terms.hpp).
+    std::vector<std::string> names;
+    for (const ScoreTermDefinition& term : ScoreTermDefinitions()) names.push_back(term.name);
+    y.ExpectMap(w, "plan.weights", names);
     ScoreWeights& sw = options->weights;
     auto read = [&](const char* key, double* value) {
       if (!w[key]) return;
@@ -52,16 +54,8 @@ void ReadPlanConfig(const std::string& case_dir, ProblemOptions* options) {
                                                   << ", expected a weight from 0 to 100");
       *value = v;
     };
-    read("coverage", &sw.coverage);
-    read("served", &sw.served);
-    read("dexterity", &sw.dexterity);
-    read("approach", &sw.approach);
-    read("triangulation", &sw.triangulation);
-    read("endoscope", &sw.endoscope);
-    read("spacing", &sw.spacing);
-    read("clearance_arm_arm", &sw.clearance_arm_arm);
-    read("clearance_arm_patient", &sw.clearance_arm_patient);
-    read("clearance_instrument_rib", &sw.clearance_instrument_rib);
+    for (const ScoreTermDefinition& term : ScoreTermDefinitions())
+      read(term.name, &(sw.*term.weight));
     TROCAR_THROW_UNLESS(sw.sum() > 0, y.Where(w, "plan.weights") << ": every weight is 0");
   }
 }

@@ -14,6 +14,7 @@
 #include "port_placement/fixed_ports.hpp"
 #include "port_placement/plan_config.hpp"
 #include "port_placement/port_rules.hpp"
+#include "port_placement/score_terms.hpp"
 
 namespace trocar::planners {
 
@@ -167,16 +168,8 @@ PlanFile MakePlanFile(const PortPlacementProblem& problem, const PortPlacementRe
   alg.robustness_weight = options.robustness_weight;
   const ScoreWeights& w = po.weights;
   StoredScoring& sc = file.scoring;
-  sc.weights = {{"approach", w.approach},
-                {"clearance_arm_arm", w.clearance_arm_arm},
-                {"clearance_arm_patient", w.clearance_arm_patient},
-                {"clearance_instrument_rib", w.clearance_instrument_rib},
-                {"coverage", w.coverage},
-                {"dexterity", w.dexterity},
-                {"endoscope", w.endoscope},
-                {"served", w.served},
-                {"spacing", w.spacing},
-                {"triangulation", w.triangulation}};
+  for (const ScoreTermDefinition& term : ScoreTermDefinitions())
+    sc.weights.emplace_back(term.name, w.*term.weight);
   sc.standoff_m = po.standoff;
   sc.rcm_depth_m = po.rcm_depth;
   sc.gap_search_depth_m = po.gap_search_depth;
@@ -265,22 +258,16 @@ ProblemOptions PlanProblemOptions(const PlanFile& file) {
     po.roles.push_back(arm.name + "=" + arm.role);
   }
   const StoredScoring& s = file.scoring;
-  auto weight = [&](const std::string& name) {
-    const double w = s.Weight(name, std::numeric_limits<double>::quiet_NaN());
-    TROCAR_THROW_UNLESS(!std::isnan(w), file.path << ": scoring.weights." << name << ": missing");
-    return w;
-  };
-  po.weights.coverage = weight("coverage");
-  // Plans written before stop 51 have no served term: scored without it.
-  po.weights.served = s.Weight("served", 0.0);
-  po.weights.dexterity = weight("dexterity");
-  po.weights.approach = weight("approach");
-  po.weights.triangulation = weight("triangulation");
-  po.weights.endoscope = weight("endoscope");
-  po.weights.spacing = weight("spacing");
-  po.weights.clearance_arm_arm = weight("clearance_arm_arm");
-  po.weights.clearance_arm_patient = weight("clearance_arm_patient");
-  po.weights.clearance_instrument_rib = weight("clearance_instrument_rib");
+  // A weight per term, by its name (score_terms.hpp). Plans written before stop 51 have no served
+  // term: scored without it.
+  for (const ScoreTermDefinition& term : ScoreTermDefinitions()) {
+    const double w = s.Weight(term.name, std::string(term.name) == "served"
+                                             ? 0.0
+                                             : std::numeric_limits<double>::quiet_NaN());
+    TROCAR_THROW_UNLESS(!std::isnan(w),
+                        file.path << ": scoring.weights." << term.name << ": missing");
+    po.weights.*term.weight = w;
+  }
   po.standoff = s.standoff_m;
   po.rcm_depth = s.rcm_depth_m;
   po.gap_search_depth = s.gap_search_depth_m;

@@ -15,6 +15,7 @@
 #include "kinematics/jacobian.hpp"
 #include "patient/patient_model.hpp"
 #include "port_placement/port_rules.hpp"
+#include "port_placement/score_terms.hpp"
 
 namespace trocar::planners {
 
@@ -30,19 +31,6 @@ Eigen::Vector3d Centroid(const std::vector<Eigen::Vector3d>& points) {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
   for (const auto& p : points) c += p;
   return points.empty() ? c : Eigen::Vector3d(c / static_cast<double>(points.size()));
-}
-
-// Score of the angle between two instruments (deg): 1 at 60, 0.5 at 45 and 75, 0 at 15 and 105.
-double TriangulationScore(double deg) {
-  const double off = std::abs(deg - 60.0);
-  if (off <= 15.0) return 1.0 - off / 30.0;
-  return std::max(0.0, 0.5 - (off - 15.0) / 60.0);
-}
-
-// Score of the approach angle against the target's normal: 1 within 30 deg, 0 at 90 deg.
-double ApproachScore(double rad) {
-  const double deg = rad / kDeg;
-  return std::clamp((90.0 - deg) / 60.0, 0.0, 1.0);
 }
 
 struct IkOutcome {
@@ -263,8 +251,9 @@ double InverseCondition(const Eigen::MatrixXd& J) {
 }  // namespace
 
 double ScoreWeights::sum() const {
-  return coverage + served + dexterity + approach + triangulation + endoscope + spacing +
-         clearance_arm_arm + clearance_arm_patient + clearance_instrument_rib;
+  double total = 0.0;
+  for (const ScoreTermDefinition& term : ScoreTermDefinitions()) total += this->*term.weight;
+  return total;
 }
 
 Eigen::Isometry3d Placement::X_WB() const {
@@ -312,12 +301,8 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
   TROCAR_THROW_UNLESS(options.samples_per_target >= 1,
                       "samples per target: " << options.samples_per_target << ", expected >= 1");
   TROCAR_THROW_UNLESS(options.weights.sum() > 0.0, "score weights: their sum must be positive");
-  for (double w :
-       {options.weights.coverage, options.weights.served, options.weights.dexterity,
-        options.weights.approach,
-        options.weights.triangulation, options.weights.endoscope, options.weights.spacing,
-        options.weights.clearance_arm_arm, options.weights.clearance_arm_patient,
-        options.weights.clearance_instrument_rib}) {
+  for (const ScoreTermDefinition& term : ScoreTermDefinitions()) {
+    const double w = options.weights.*term.weight;
     TROCAR_THROW_UNLESS(std::isfinite(w) && w >= 0.0,
                         "score weights: " << w << " is not a finite weight >= 0");
   }
@@ -829,22 +814,25 @@ std::vector<double> PortPlacementProblem::Encode(const Placement& placement) con
   return x;
 }
 
-Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace* ws,
-                                          const EvaluateOptions& how) const {
+// What docking left for the rest of an evaluation: the nominal pose is in the workspace's state.
+struct PortPlacementProblem::Docking {
+  bool placed = false;                 // the setup joints put every RCM at its port
+  collision::CollisionReport nominal;  // contacts at the nominal pose
+  std::vector<bool> nominal_ok;        // per arm: its nominal pose was reached
+};
+
+PortPlacementProblem::Docking PortPlacementProblem::Dock(const Placement& placement,
+                                                         const std::vector<TargetSample>& samples,
+                                                         bool full_solver, Workspace* ws,
+                                                         Evaluation* ev) const {
   const robot::RobotModel& robot = *robot_;
-  const std::vector<TargetSample>& samples = how.samples ? *how.samples : samples_;
-  const bool detailed = how.detailed, full_solver = how.full_solver;
-  TROCAR_THROW_UNLESS(
-      placement.sites.size() == arms_.size(),
-      "placement: " << placement.sites.size() << " ports for " << arms_.size() << " arms");
-  Evaluation ev;
   robot::RobotState& state = ws->state;
   collision::CollisionChecker& checker = *ws->checker;
+  Docking out;
   CartPlacementResult placed;
   collision::CollisionReport nominal;
   std::vector<bool> nominal_ok;
   robot::RobotState best_state = state;
-  CartPlacementResult best_placed;
   collision::CollisionReport best_nominal;
   std::vector<bool> best_ok;
   std::string best_message;
@@ -878,138 +866,147 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
     cart_options.starts = full_solver ? 32 : options_.suj_starts;
     cart_options.max_iterations = full_solver ? 300 : options_.suj_iterations;
     placed = PlaceCart(robot, request, cart_options, &state);
-    ev.message = placed.message;
+    ev->message = placed.message;
     if (!placed.ok()) {
       if (attempt == 0) {
-        ev.status = PlacementStatus::kUnreachable;
+        ev->status = PlacementStatus::kUnreachable;
         // Below every placed plan, better the nearer the RCMs come to their ports.
-        ev.score = -2.0 - std::min(placed.worst_position_error, 1.0);
-        return ev;
+        ev->score = -2.0 - std::min(placed.worst_position_error, 1.0);
+        return out;
       }
       continue;
     }
-
-    // Nominal pose: each arm aimed at the targets' centroid, the instruments just inside their
-    // ports (their start pose), the endoscope at its working distance.
-    nominal_ok.assign(arms_.size(), true);
-    for (std::size_t a = 0; a < arms_.size(); ++a) {
-      const PlanArm& arm = arms_[a];
-      const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
-      const Eigen::Vector3d dir = (aim_W_ - port).normalized();
-      const Eigen::Vector3d p =
-          arm.role == ArmRole::kEndoscope
-              ? Eigen::Vector3d(aim_W_ - options_.scope_working_distance * dir)
-              : Eigen::Vector3d(port + kNominalDepth * dir);
-      const IkOutcome ik =
-          planners::SolveReach(robot, arm, p, port, options_.ik_iterations * 2, 0.005, &state);
-      nominal_ok[a] = ik.converged;
-    }
-    kinematics::ForwardKinematics(robot, state.q, &state);
-    checker.SetRobotState(state);
-    SetPorts(placement, state, &checker);
-    nominal = checker.Check();
-    // One aim for every arm (the centroid of all the targets) can run an arm along the chest
-    // wall into the ribs of its own space (a port low on the chest, the LIMA high under the
-    // wall), and a placement with such a start pose is dropped before its reach is looked at.
-    // An arm in contact is then aimed, in turn, at each target's own centroid, then toward the
-    // way it enters (the space's inward normal: straight into the chest, as an instrument is
-    // inserted under vision); the first aim free of contacts is kept, else the fewest contacts.
-    for (std::size_t a = 0; a < arms_.size() && nominal.collision; ++a) {
-      const PlanArm& arm = arms_[a];
-      const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
-      std::vector<Eigen::Vector3d> aims;  // points to aim at, in the order tried
-      for (int t = 0; t < static_cast<int>(patient_->targets.size()); ++t) {
-        std::vector<Eigen::Vector3d> points;
-        for (const auto& sample : samples)
-          if (sample.target == t) points.push_back(sample.p_W);
-        if (!points.empty()) aims.push_back(Centroid(points));
-      }
-      if (placement.sites[a].in_gap) {
-        const Eigen::Vector3d inward =
-            (port - patient_->X_WP * placement.sites[a].p_curve_P).normalized();
-        const double reach = (aim_W_ - port).norm();
-        if (inward.allFinite()) aims.push_back(port + reach * inward);
-      }
-      robot::RobotState kept = state;
-      bool kept_ok = nominal_ok[a];
-      for (const Eigen::Vector3d& aim : aims) {
-        const Eigen::Vector3d dir = (aim - port).normalized();
-        if (!dir.allFinite()) continue;
-        const Eigen::Vector3d p =
-            arm.role == ArmRole::kEndoscope
-                ? Eigen::Vector3d(port + std::max(kNominalDepth,
-                                                  (aim - port).norm() -
-                                                      options_.scope_working_distance) *
-                                             dir)
-                : Eigen::Vector3d(port + kNominalDepth * dir);
-        robot::RobotState trial = state;
-        const IkOutcome ik = planners::SolveReach(robot, arm, p, port, options_.ik_iterations * 2,
-                                                  0.005, &trial);
-        if (!ik.converged) continue;
-        kinematics::ForwardKinematics(robot, trial.q, &trial);
-        checker.SetRobotState(trial);
-        const collision::CollisionReport turned = checker.Check();
-        if (turned.contacts.size() < nominal.contacts.size()) {
-          nominal = turned;
-          kept = trial;
-          kept_ok = true;
-        }
-        if (!turned.collision) break;
-      }
-      state = kept;
-      nominal_ok[a] = kept_ok;
-      checker.SetRobotState(state);
-    }
-    ev.q_nominal = state.q;
-    ev.joint_values = state.joint_values;
+    nominal_ok = AimArms(placement, samples, ws, &nominal);
+    ev->q_nominal = state.q;
+    ev->joint_values = state.joint_values;
     if (!have_best || nominal.contacts.size() < best_nominal.contacts.size()) {
       have_best = true;
       best_state = state;
-      best_placed = placed;
       best_nominal = nominal;
       best_ok = nominal_ok;
-      best_message = ev.message;
+      best_message = ev->message;
     }
     if (!nominal.collision) break;
   }
   state = best_state;
-  placed = best_placed;
-  nominal = best_nominal;
-  nominal_ok = best_ok;
-  ev.message = best_message;
-  ev.q_nominal = state.q;
-  ev.joint_values = state.joint_values;
+  out.placed = true;
+  out.nominal = best_nominal;
+  out.nominal_ok = best_ok;
+  ev->message = best_message;
+  ev->q_nominal = state.q;
+  ev->joint_values = state.joint_values;
   checker.SetRobotState(state);
   SetPorts(placement, state, &checker);
-  ev.collisions = static_cast<int>(nominal.contacts.size());
-  if (nominal.collision) {
-    ev.status = PlacementStatus::kInCollision;
+  ev->collisions = static_cast<int>(out.nominal.contacts.size());
+  if (out.nominal.collision) {
+    ev->status = PlacementStatus::kInCollision;
     std::ostringstream m;
-    m << ev.message << "  in collision at the nominal pose: " << nominal.contacts.size()
+    m << ev->message << "  in collision at the nominal pose: " << out.nominal.contacts.size()
       << " pairs";
-    for (std::size_t i = 0; i < std::min<std::size_t>(3, nominal.contacts.size()); ++i) {
-      m << (i == 0 ? " (" : ", ") << checker.world().DescribePair(nominal.contacts[i].a, nominal.contacts[i].b);
+    for (std::size_t i = 0; i < std::min<std::size_t>(3, out.nominal.contacts.size()); ++i) {
+      m << (i == 0 ? " (" : ", ")
+        << checker.world().DescribePair(out.nominal.contacts[i].a, out.nominal.contacts[i].b);
     }
     m << ")\n";
-    ev.message = m.str();
+    ev->message = m.str();
   } else {
-    ev.status = PlacementStatus::kPlaced;
+    ev->status = PlacementStatus::kPlaced;
   }
-  // Per arm and sample: reach (instruments) or view (endoscopes). While optimising, a placement
-  // already in collision at its nominal pose is not taken further (its score is banded below
-  // every collision-free one, ranked by its geometric terms and its number of contacts).
-  const bool skip_reach = nominal.collision && !detailed;
-  const int ns = static_cast<int>(samples.size());
+  return out;
+}
 
+std::vector<bool> PortPlacementProblem::AimArms(const Placement& placement,
+                                                const std::vector<TargetSample>& samples,
+                                                Workspace* ws,
+                                                collision::CollisionReport* nominal) const {
+  const robot::RobotModel& robot = *robot_;
+  robot::RobotState& state = ws->state;
+  collision::CollisionChecker& checker = *ws->checker;
+  // Nominal pose: each arm aimed at the targets' centroid, the instruments just inside their
+  // ports (their start pose), the endoscope at its working distance.
+  std::vector<bool> nominal_ok(arms_.size(), true);
+  for (std::size_t a = 0; a < arms_.size(); ++a) {
+    const PlanArm& arm = arms_[a];
+    const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+    const Eigen::Vector3d dir = (aim_W_ - port).normalized();
+    const Eigen::Vector3d p = arm.role == ArmRole::kEndoscope
+                                  ? Eigen::Vector3d(aim_W_ - options_.scope_working_distance * dir)
+                                  : Eigen::Vector3d(port + kNominalDepth * dir);
+    const IkOutcome ik =
+        planners::SolveReach(robot, arm, p, port, options_.ik_iterations * 2, 0.005, &state);
+    nominal_ok[a] = ik.converged;
+  }
+  kinematics::ForwardKinematics(robot, state.q, &state);
+  checker.SetRobotState(state);
+  SetPorts(placement, state, &checker);
+  *nominal = checker.Check();
+  // One aim for every arm (the centroid of all the targets) can run an arm along the chest
+  // wall into the ribs of its own space (a port low on the chest, the LIMA high under the
+  // wall), and a placement with such a start pose is dropped before its reach is looked at.
+  // An arm in contact is then aimed, in turn, at each target's own centroid, then toward the
+  // way it enters (the space's inward normal: straight into the chest, as an instrument is
+  // inserted under vision); the first aim free of contacts is kept, else the fewest contacts.
+  for (std::size_t a = 0; a < arms_.size() && nominal->collision; ++a) {
+    const PlanArm& arm = arms_[a];
+    const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+    std::vector<Eigen::Vector3d> aims;  // points to aim at, in the order tried
+    for (int t = 0; t < static_cast<int>(patient_->targets.size()); ++t) {
+      std::vector<Eigen::Vector3d> points;
+      for (const auto& sample : samples)
+        if (sample.target == t) points.push_back(sample.p_W);
+      if (!points.empty()) aims.push_back(Centroid(points));
+    }
+    if (placement.sites[a].in_gap) {
+      const Eigen::Vector3d inward =
+          (port - patient_->X_WP * placement.sites[a].p_curve_P).normalized();
+      const double reach = (aim_W_ - port).norm();
+      if (inward.allFinite()) aims.push_back(port + reach * inward);
+    }
+    robot::RobotState kept = state;
+    bool kept_ok = nominal_ok[a];
+    for (const Eigen::Vector3d& aim : aims) {
+      const Eigen::Vector3d dir = (aim - port).normalized();
+      if (!dir.allFinite()) continue;
+      const Eigen::Vector3d p =
+          arm.role == ArmRole::kEndoscope
+              ? Eigen::Vector3d(
+                    port +
+                    std::max(kNominalDepth, (aim - port).norm() - options_.scope_working_distance) *
+                        dir)
+              : Eigen::Vector3d(port + kNominalDepth * dir);
+      robot::RobotState trial = state;
+      const IkOutcome ik =
+          planners::SolveReach(robot, arm, p, port, options_.ik_iterations * 2, 0.005, &trial);
+      if (!ik.converged) continue;
+      kinematics::ForwardKinematics(robot, trial.q, &trial);
+      checker.SetRobotState(trial);
+      const collision::CollisionReport turned = checker.Check();
+      if (turned.contacts.size() < nominal->contacts.size()) {
+        *nominal = turned;
+        kept = trial;
+        kept_ok = true;
+      }
+      if (!turned.collision) break;
+    }
+    state = kept;
+    nominal_ok[a] = kept_ok;
+    checker.SetRobotState(state);
+  }
+  return nominal_ok;
+}
+
+void PortPlacementProblem::ChooseViews(const Placement& placement,
+                                       const std::vector<TargetSample>& samples,
+                                       const Docking& docked, bool skip_reach, Workspace* ws,
+                                       Evaluation* ev) const {
   // Endoscopes: which camera (straight or angled scope) and which roll of the scope sees the most
   // samples from the nominal pose. The straight scope looks along the shaft: its view axis is the
   // tool frame's axis nearest the shaft; an angled camera frame looks along the same axis of its
   // own frame. The roll is the arm's joint turning about the shaft.
-  // Whether a sample is hidden from a camera at p_W by a patient structure (kSightMargin).
-  const collision::CollisionWorld& sight_world = checker.world();
-  auto hidden_by = [&](const Eigen::Vector3d& p_W, int s) {
-    return sight_world.FirstAcross(p_W, samples[s].p_W, kSightMargin).body;
-  };
+  const robot::RobotModel& robot = *robot_;
+  robot::RobotState& state = ws->state;
+  collision::CollisionChecker& checker = *ws->checker;
+  const int ns = static_cast<int>(samples.size());
   // The lines of sight from the scope's nominal tip, shared by every roll and camera frame tried
   // (a roll turns the scope about its shaft: its tip stays where it is); found when first asked
   // (-1: not yet).
@@ -1027,7 +1024,10 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
       if (angle > options_.scope_half_fov || dist < options_.scope_min_distance ||
           dist > options_.scope_max_distance)
         continue;
-      if (in_sight[s] < 0) in_sight[s] = hidden_by(sight_from_W, s) < 0 ? 1 : 0;
+      if (in_sight[s] < 0)
+        in_sight[s] =
+            checker.world().FirstAcross(sight_from_W, samples[s].p_W, kSightMargin).body < 0 ? 1
+                                                                                             : 0;
       seen += in_sight[s];
     }
     return seen;
@@ -1046,7 +1046,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
         k = c;
     }
     view.axis_F = Eigen::Vector3d::Unit(k) * (X_WT.linear().col(k).dot(shaft) < 0 ? -1.0 : 1.0);
-    if (!skip_reach && nominal_ok[a]) {
+    if (!skip_reach && docked.nominal_ok[a]) {
       in_sight.assign(ns, -1);
       sight_from_W = X_WT.translation();
       kinematics::Matrix6Xd J;
@@ -1087,8 +1087,200 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
         }
       }
     }
-    ev.views.push_back(view);
+    ev->views.push_back(view);
   }
+}
+
+void PortPlacementProblem::ScopeReaches(int a, const Placement& placement,
+                                        const std::vector<TargetSample>& samples,
+                                        const Docking& docked,
+                                        const robot::RobotState& nominal_state,
+                                        const Evaluation& ev, Workspace* ws,
+                                        std::vector<SampleReach>* reach) const {
+  const robot::RobotModel& robot = *robot_;
+  robot::RobotState& state = ws->state;
+  collision::CollisionChecker& checker = *ws->checker;
+  const PlanArm& arm = arms_[a];
+  const bool ok = docked.nominal_ok[a], collision = docked.nominal.collision;
+  const int ns = static_cast<int>(samples.size());
+  state = nominal_state;
+  const Evaluation::View* chosen = nullptr;
+  for (const auto& v : ev.views) {
+    if (v.arm == a) chosen = &v;
+  }
+  const Eigen::Isometry3d X_WC = kinematics::FramePose(state, robot.GetFrame(chosen->frame));
+  const Eigen::Vector3d tip = X_WC.translation();
+  const Eigen::Vector3d view = X_WC.linear() * chosen->axis_F;
+  for (int s = 0; s < ns; ++s) {
+    SampleReach& r = (*reach)[s];
+    r.sample = s;
+    r.arm = a;
+    const Eigen::Vector3d d = samples[s].p_W - tip;
+    const double dist = d.norm();
+    const double angle = std::acos(std::clamp(view.dot(d / std::max(dist, 1e-9)), -1.0, 1.0));
+    const bool in_view = ok && !collision && angle <= options_.scope_half_fov &&
+                         dist >= options_.scope_min_distance && dist <= options_.scope_max_distance;
+    const int hidden =
+        in_view ? checker.world().FirstAcross(tip, samples[s].p_W, kSightMargin).body : -1;
+    r.seen = in_view && hidden < 0;
+    r.reached = r.seen;
+    r.approach = angle;
+    if (!r.seen) {
+      std::ostringstream why;
+      if (!ok)
+        why << "the endoscope cannot reach its viewpoint";
+      else if (collision)
+        why << "the nominal pose is in collision";
+      else if (angle > options_.scope_half_fov)
+        why << "outside the field of view (" << std::lround(angle / kDeg) << " deg off the axis)";
+      else if (hidden >= 0)
+        why << "hidden behind the " << checker.world().bodies()[hidden].name;
+      else
+        why << "outside the working distance (" << std::lround(dist * 1e3) << " mm)";
+      r.reason = why.str();
+    }
+    r.q_arm.resize(arm.q_indices.size());
+    for (std::size_t c = 0; c < arm.q_indices.size(); ++c) r.q_arm[c] = state.q[arm.q_indices[c]];
+    // Not seen from the docking pose: the camera is moved to look at it, as the surgeon
+    // moves it to each work site (Cannon et al. 2003 score the endoscope per surgical site;
+    // docs/decisions.md, "The endoscope looks at each work site").
+    if (!r.seen && options_.scope_moves && ok && !collision) {
+      robot::RobotState moved = nominal_state;
+      std::string why_not;
+      if (LookAt(a, placement, *chosen, samples[s].p_W, &moved, &checker, &why_not)) {
+        r.seen = r.reached = true;
+        r.reason.clear();
+        const Eigen::Isometry3d X_WM = kinematics::FramePose(moved, robot.GetFrame(chosen->frame));
+        const Eigen::Vector3d dm = samples[s].p_W - X_WM.translation();
+        r.approach =
+            std::acos(std::clamp((X_WM.linear() * chosen->axis_F).dot(dm.normalized()), -1.0, 1.0));
+        for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
+          r.q_arm[c] = moved.q[arm.q_indices[c]];
+      } else if (!why_not.empty()) {
+        r.reason += "; moved to look at it: " + why_not;
+      }
+    }
+  }
+  checker.SetRobotState(nominal_state);
+  SetPorts(placement, nominal_state, &checker);
+}
+
+void PortPlacementProblem::InstrumentReaches(int a, const Placement& placement,
+                                             const std::vector<TargetSample>& samples,
+                                             const Docking& docked, bool skip_reach,
+                                             const robot::RobotState& nominal_state,
+                                             const EvaluateOptions& how, Workspace* ws,
+                                             std::vector<SampleReach>* reach) const {
+  const robot::RobotModel& robot = *robot_;
+  robot::RobotState& state = ws->state;
+  collision::CollisionChecker& checker = *ws->checker;
+  const PlanArm& arm = arms_[a];
+  const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+  const int ns = static_cast<int>(samples.size());
+  for (int s = 0; s < ns; ++s) {
+    SampleReach& r = (*reach)[s];
+    r.sample = s;
+    r.arm = a;
+    if (skip_reach) {
+      r.reason = "the nominal pose is in collision";
+      continue;
+    }
+    const Eigen::Vector3d p_aim = samples[s].p_W + options_.standoff * samples[s].n_W;
+    const Eigen::Vector3d dir = (p_aim - port).normalized();
+    r.approach = std::acos(std::clamp(dir.dot(-samples[s].n_W), -1.0, 1.0));
+    // From the nominal pose, then, when that solution is in contact, from other wrist poses
+    // (ReachSeed); the first valid solution is kept, else the first attempt's answer and reason.
+    for (int attempt = 0;; ++attempt) {
+      state = nominal_state;
+      if (!ReachSeed(a, attempt, &state)) break;
+      const IkOutcome ik = planners::SolveReach(robot, arm, p_aim, port, options_.ik_iterations,
+                                                options_.ik_tolerance, &state);
+      std::string why;
+      if (!ik.converged) {
+        if (attempt == 0)
+          why = ReachFailure(robot, arm, state, p_aim, port, max_reach_[a], ik, patient_->X_WP);
+      } else {
+        checker.SetRobotState(state);
+        SetPorts(placement, state, &checker,
+                 &samples[s].p_W);  // the jaws may touch the organ there
+        // Only this arm moved from the nominal pose: when that pose is free, only its pairs can
+        // collide (the others' allowances and work sites are as they were or wider).
+        const int only_arm = docked.nominal.collision ? -1 : world_arm_[a];
+        if (!checker.InCollision(how.sample_mask & collision::kAllMovingPairs, only_arm)) {
+          r.reached = true;
+        } else if (attempt == 0 && how.detailed) {
+          const auto report = checker.Check(how.sample_mask & collision::kAllMovingPairs, only_arm);
+          const auto& c = report.contacts.front();
+          why = "collision: " + checker.world().DescribePair(c.a, c.b);
+        } else if (attempt == 0) {
+          why = "collision";
+        }
+      }
+      if (attempt == 0 || r.reached) {
+        r.tip_error = ik.error;
+        r.q_arm.resize(arm.q_indices.size());
+        for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
+          r.q_arm[c] = state.q[arm.q_indices[c]];
+      }
+      if (attempt == 0) r.reason = why;
+      if (r.reached) {
+        r.reason.clear();
+        break;
+      }
+      // Out of the arm's reach from its nominal pose: the outer joints decide that, and another
+      // wrist pose moves the tip by a centimetre at most; the restarts are for contacts.
+      if (attempt == 0 && !ik.converged) break;
+    }
+    if (!r.reached) continue;
+    kinematics::Matrix6Xd J_WT;
+    kinematics::ComputeFrameJacobian(robot, state, robot.GetFrame(arm.tool_frame), &J_WT);
+    std::vector<int> cols;
+    for (int i : arm.q_indices) {
+      if (J_WT.col(i).norm() > 1e-9) cols.push_back(i);
+    }
+    Eigen::MatrixXd J(6, cols.size());
+    for (std::size_t c = 0; c < cols.size(); ++c) {
+      J.col(c).head<3>() = J_WT.col(cols[c]).head<3>();
+      J.col(c).tail<3>() = J_WT.col(cols[c]).tail<3>() / kCharacteristicLength;
+    }
+    r.dexterity = InverseCondition(J);
+  }
+}
+
+double PortPlacementProblem::ShaftRibClearance(const Placement& placement) const {
+  double rib = std::numeric_limits<double>::infinity();
+  if (!ribs_) return rib;
+  const Eigen::Isometry3d X_PW = patient_->X_WP.inverse();
+  for (std::size_t a = 0; a < arms_.size(); ++a) {
+    const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+    const Eigen::Vector3d dir = (aim_W_ - port).normalized();
+    // The shaft through the chest wall: 4 cm either side of its pivot.
+    const auto closest = ribs_->Closest(X_PW * (port - 0.04 * dir), X_PW * (port + 0.04 * dir));
+    rib = std::min(rib, closest.distance);
+  }
+  return rib;
+}
+
+// The stages: the cart docked and the arms at their nominal pose (Dock, AimArms), the endoscopes'
+// views (ChooseViews), each arm's reach or view of every sample (InstrumentReaches,
+// ScopeReaches), then the score terms (score_terms.hpp) and their weighted mean.
+Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace* ws,
+                                          const EvaluateOptions& how) const {
+  const std::vector<TargetSample>& samples = how.samples ? *how.samples : samples_;
+  TROCAR_THROW_UNLESS(
+      placement.sites.size() == arms_.size(),
+      "placement: " << placement.sites.size() << " ports for " << arms_.size() << " arms");
+  Evaluation ev;
+  const Docking docked = Dock(placement, samples, how.full_solver, ws, &ev);
+  if (!docked.placed) return ev;
+  robot::RobotState& state = ws->state;
+  collision::CollisionChecker& checker = *ws->checker;
+  // Per arm and sample: reach (instruments) or view (endoscopes). While optimising, a placement
+  // already in collision at its nominal pose is not taken further (its score is banded below
+  // every collision-free one, ranked by its geometric terms and its number of contacts).
+  const bool skip_reach = docked.nominal.collision && !how.detailed;
+  const int ns = static_cast<int>(samples.size());
+  ChooseViews(placement, samples, docked, skip_reach, ws, &ev);
   ev.q_nominal = state.q;
   ev.joint_values = state.joint_values;
   checker.SetRobotState(state);
@@ -1096,154 +1288,19 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
   const robot::RobotState nominal_state = state;
 
   std::vector<std::vector<SampleReach>> reach(arms_.size(), std::vector<SampleReach>(ns));
-  for (std::size_t a = 0; a < arms_.size(); ++a) {
-    const PlanArm& arm = arms_[a];
-    const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
-    if (arm.role == ArmRole::kEndoscope) {
-      state = nominal_state;
-      const Evaluation::View* chosen = nullptr;
-      for (const auto& v : ev.views) {
-        if (v.arm == static_cast<int>(a)) chosen = &v;
-      }
-      const Eigen::Isometry3d X_WC = kinematics::FramePose(state, robot.GetFrame(chosen->frame));
-      const Eigen::Vector3d tip = X_WC.translation();
-      const Eigen::Vector3d view = X_WC.linear() * chosen->axis_F;
-      (void)port;
-      for (int s = 0; s < ns; ++s) {
-        SampleReach& r = reach[a][s];
-        r.sample = s;
-        r.arm = static_cast<int>(a);
-        const Eigen::Vector3d d = samples[s].p_W - tip;
-        const double dist = d.norm();
-        const double angle = std::acos(std::clamp(view.dot(d / std::max(dist, 1e-9)), -1.0, 1.0));
-        const bool in_view = nominal_ok[a] && !nominal.collision &&
-                             angle <= options_.scope_half_fov &&
-                             dist >= options_.scope_min_distance &&
-                             dist <= options_.scope_max_distance;
-        const int hidden = in_view ? hidden_by(tip, s) : -1;
-        r.seen = in_view && hidden < 0;
-        r.reached = r.seen;
-        r.approach = angle;
-        if (!r.seen) {
-          std::ostringstream why;
-          if (!nominal_ok[a])
-            why << "the endoscope cannot reach its viewpoint";
-          else if (nominal.collision)
-            why << "the nominal pose is in collision";
-          else if (angle > options_.scope_half_fov)
-            why << "outside the field of view (" << std::lround(angle / kDeg)
-                << " deg off the axis)";
-          else if (hidden >= 0)
-            why << "hidden behind the " << sight_world.bodies()[hidden].name;
-          else
-            why << "outside the working distance (" << std::lround(dist * 1e3) << " mm)";
-          r.reason = why.str();
-        }
-        r.q_arm.resize(arm.q_indices.size());
-        for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
-          r.q_arm[c] = state.q[arm.q_indices[c]];
-        // Not seen from the docking pose: the camera is moved to look at it, as the surgeon
-        // moves it to each work site (Cannon et al. 2003 score the endoscope per surgical site;
-        // docs/decisions.md, "The endoscope looks at each work site").
-        if (!r.seen && options_.scope_moves && nominal_ok[a] && !nominal.collision) {
-          robot::RobotState moved = nominal_state;
-          std::string why_not;
-          if (LookAt(a, placement, *chosen, samples[s].p_W, &moved, &checker, &why_not)) {
-            r.seen = r.reached = true;
-            r.reason.clear();
-            const Eigen::Isometry3d X_WM = kinematics::FramePose(moved, robot.GetFrame(chosen->frame));
-            const Eigen::Vector3d dm = samples[s].p_W - X_WM.translation();
-            r.approach = std::acos(std::clamp((X_WM.linear() * chosen->axis_F).dot(dm.normalized()), -1.0, 1.0));
-            for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
-              r.q_arm[c] = moved.q[arm.q_indices[c]];
-          } else if (!why_not.empty()) {
-            r.reason += "; moved to look at it: " + why_not;
-          }
-        }
-      }
-      checker.SetRobotState(nominal_state);
-      SetPorts(placement, nominal_state, &checker);
-      continue;
-    }
-    for (int s = 0; s < ns; ++s) {
-      SampleReach& r = reach[a][s];
-      r.sample = s;
-      r.arm = static_cast<int>(a);
-      if (skip_reach) {
-        r.reason = "the nominal pose is in collision";
-        continue;
-      }
-      const Eigen::Vector3d p_aim = samples[s].p_W + options_.standoff * samples[s].n_W;
-      const Eigen::Vector3d dir = (p_aim - port).normalized();
-      r.approach = std::acos(std::clamp(dir.dot(-samples[s].n_W), -1.0, 1.0));
-      // From the nominal pose, then, when that solution is in contact, from other wrist poses
-      // (ReachSeed); the first valid solution is kept, else the first attempt's answer and reason.
-      for (int attempt = 0;; ++attempt) {
-        state = nominal_state;
-        if (!ReachSeed(static_cast<int>(a), attempt, &state)) break;
-        const IkOutcome ik = planners::SolveReach(robot, arm, p_aim, port,
-                                                  options_.ik_iterations, options_.ik_tolerance,
-                                                  &state);
-        std::string why;
-        if (!ik.converged) {
-          if (attempt == 0) why = ReachFailure(robot, arm, state, p_aim, port, max_reach_[a], ik, patient_->X_WP);
-        } else {
-          checker.SetRobotState(state);
-          SetPorts(placement, state, &checker, &samples[s].p_W);  // the jaws may touch the organ there
-          // Only this arm moved from the nominal pose: when that pose is free, only its pairs can
-          // collide (the others' allowances and work sites are as they were or wider).
-          const int only_arm = nominal.collision ? -1 : world_arm_[a];
-          if (!checker.InCollision(how.sample_mask & collision::kAllMovingPairs, only_arm)) {
-            r.reached = true;
-          } else if (attempt == 0 && detailed) {
-            const auto report =
-                checker.Check(how.sample_mask & collision::kAllMovingPairs, only_arm);
-            const auto& c = report.contacts.front();
-            why = "collision: " + checker.world().DescribePair(c.a, c.b);
-          } else if (attempt == 0) {
-            why = "collision";
-          }
-        }
-        if (attempt == 0 || r.reached) {
-          r.tip_error = ik.error;
-          r.q_arm.resize(arm.q_indices.size());
-          for (std::size_t c = 0; c < arm.q_indices.size(); ++c)
-            r.q_arm[c] = state.q[arm.q_indices[c]];
-        }
-        if (attempt == 0) r.reason = why;
-        if (r.reached) {
-          r.reason.clear();
-          break;
-        }
-        // Out of the arm's reach from its nominal pose: the outer joints decide that, and another
-        // wrist pose moves the tip by a centimetre at most; the restarts are for contacts.
-        if (attempt == 0 && !ik.converged) break;
-      }
-      if (!r.reached) continue;
-      kinematics::Matrix6Xd J_WT;
-      kinematics::ComputeFrameJacobian(robot, state, robot.GetFrame(arm.tool_frame), &J_WT);
-      std::vector<int> cols;
-      for (int i : arm.q_indices) {
-        if (J_WT.col(i).norm() > 1e-9) cols.push_back(i);
-      }
-      Eigen::MatrixXd J(6, cols.size());
-      for (std::size_t c = 0; c < cols.size(); ++c) {
-        J.col(c).head<3>() = J_WT.col(cols[c]).head<3>();
-        J.col(c).tail<3>() = J_WT.col(cols[c]).tail<3>() / kCharacteristicLength;
-      }
-      r.dexterity = InverseCondition(J);
-    }
-  }
-
-  // Terms.
-  const ScoreWeights& w = options_.weights;
   std::vector<int> instruments, scopes;
   for (std::size_t a = 0; a < arms_.size(); ++a) {
-    (arms_[a].role == ArmRole::kEndoscope ? scopes : instruments).push_back(static_cast<int>(a));
+    const int arm = static_cast<int>(a);
+    if (arms_[a].role == ArmRole::kEndoscope) {
+      scopes.push_back(arm);
+      ScopeReaches(arm, placement, samples, docked, nominal_state, ev, ws, &reach[a]);
+    } else {
+      instruments.push_back(arm);
+      InstrumentReaches(arm, placement, samples, docked, skip_reach, nominal_state, how, ws,
+                        &reach[a]);
+    }
   }
   ev.served.assign(ns, true);
-  double coverage = 0, dexterity = 0, approach = 0, approach_deg = 0;
-  int reached_count = 0;
   for (int s = 0; s < ns; ++s) {
     for (int a : instruments) ev.served[s] = ev.served[s] && reach[a][s].reached;
     if (!scopes.empty()) {
@@ -1251,89 +1308,6 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
       for (int a : scopes) seen = seen || reach[a][s].seen;
       ev.served[s] = ev.served[s] && seen;
     }
-  }
-  for (int a : instruments) {
-    for (int s = 0; s < ns; ++s) {
-      const SampleReach& r = reach[a][s];
-      if (!r.reached) continue;
-      ++reached_count;
-      dexterity += r.dexterity;
-      approach += ApproachScore(r.approach);
-      approach_deg += r.approach / kDeg;
-    }
-  }
-  const double slots = std::max<double>(1, instruments.size() * ns);
-  coverage = reached_count / slots;
-  const double per_reached = std::max(1, reached_count);
-  auto add = [&](const std::string& name, const std::string& unit, double value, double score,
-                 double weight, const std::string& note) {
-    ev.terms.push_back({name, unit, value, std::clamp(score, 0.0, 1.0), weight, note});
-  };
-  add("coverage", "fraction", coverage, coverage, w.coverage,
-      "share of (instrument, target sample) pairs reached within joint and insertion limits, every "
-      "arm "
-      "collision-free");
-  const double served =
-      ns > 0 ? static_cast<double>(std::count(ev.served.begin(), ev.served.end(), true)) / ns : 0.0;
-  add("served", "fraction", served, served, w.served,
-      "share of target samples every instrument reaches and the endoscope (when there is one) "
-      "sees: the two-handed work under vision the verdict asks for");
-  add("dexterity", "1", dexterity / per_reached, dexterity / per_reached * coverage, w.dexterity,
-      "mean inverse condition number of the tool Jacobian at the reached samples (length 0.1 m), "
-      "times coverage");
-  add("approach", "deg", reached_count ? approach_deg / per_reached : 90.0, approach / slots,
-      w.approach,
-      "mean angle between instrument axis and the target's approach normal; score 1 within 30 deg, "
-      "0 at 90");
-  // Triangulation between the first two instruments, at every sample (geometric: from the ports).
-  double tri_deg = 0, tri_score = 0;
-  if (instruments.size() >= 2) {
-    const Eigen::Vector3d p1 = placement.sites[instruments[0]].p_W,
-                          p2 = placement.sites[instruments[1]].p_W;
-    for (int s = 0; s < ns; ++s) {
-      const Eigen::Vector3d a = (p1 - samples[s].p_W).normalized(),
-                            b = (p2 - samples[s].p_W).normalized();
-      const double deg = std::acos(std::clamp(a.dot(b), -1.0, 1.0)) / kDeg;
-      tri_deg += deg;
-      tri_score += TriangulationScore(deg);
-    }
-    tri_deg /= std::max(1, ns);
-    tri_score /= std::max(1, ns);
-    add("triangulation", "deg", tri_deg, tri_score, w.triangulation,
-        "mean angle between the two instruments at the target samples; 60 ideal, 45-75 acceptable "
-        "(score 0.5)");
-  } else {
-    add("triangulation", "deg", 0.0, 1.0, 0.0, "fewer than two instruments: not applicable");
-  }
-  if (!scopes.empty()) {
-    int seen = 0;
-    for (int s = 0; s < ns; ++s) {
-      for (int a : scopes) {
-        if (reach[a][s].seen) {
-          ++seen;
-          break;
-        }
-      }
-    }
-    add("endoscope", "fraction", static_cast<double>(seen) / std::max(1, ns),
-        static_cast<double>(seen) / std::max(1, ns), w.endoscope,
-        "share of target samples inside the scope's field of view, in front of it, within its "
-        "working distance");
-  } else {
-    add("endoscope", "fraction", 0.0, 1.0, 0.0, "no endoscope arm: not applicable");
-  }
-  double spacing = std::numeric_limits<double>::infinity();
-  for (std::size_t a = 0; a < placement.sites.size(); ++a) {
-    for (std::size_t b = a + 1; b < placement.sites.size(); ++b) {
-      spacing = std::min(spacing, (placement.sites[a].p_W - placement.sites[b].p_W).norm());
-    }
-  }
-  if (std::isfinite(spacing)) {
-    add("spacing", "m", spacing,
-        (spacing - options_.spacing_min) / (options_.spacing_ideal - options_.spacing_min),
-        w.spacing, "smallest distance between two ports; full score from 8 cm");
-  } else {
-    add("spacing", "m", 0.0, 1.0, 0.0, "one port: not applicable");
   }
   // Clearances at the nominal pose.
   checker.SetRobotState(nominal_state);
@@ -1344,32 +1318,17 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
     return i < by_class.size() && by_class[i].valid() ? by_class[i].distance
                                                       : std::numeric_limits<double>::infinity();
   };
-  const double arm_arm = clearance(collision::PairClass::kArmArm);
-  const double arm_patient = clearance(collision::PairClass::kArmPatient);
-  add("clearance_arm_arm", "m", std::isfinite(arm_arm) ? arm_arm : -1.0,
-      std::isfinite(arm_arm) ? arm_arm / options_.clearance_scale : 1.0, w.clearance_arm_arm,
-      "smallest distance between two arms at the nominal pose (-1: one arm); full score from 5 cm");
-  add("clearance_arm_patient", "m", arm_patient, arm_patient / options_.clearance_scale,
-      w.clearance_arm_patient,
-      "smallest distance from an arm (not its instrument) to the patient at the nominal pose; full "
-      "score from 5 cm");
-  double rib = std::numeric_limits<double>::infinity();
-  if (ribs_) {
-    const Eigen::Isometry3d X_PW = patient_->X_WP.inverse();
-    for (std::size_t a = 0; a < arms_.size(); ++a) {
-      const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
-      const Eigen::Vector3d dir = (aim_W_ - port).normalized();
-      // The shaft through the chest wall: 4 cm either side of its pivot.
-      const auto closest = ribs_->Closest(X_PW * (port - 0.04 * dir), X_PW * (port + 0.04 * dir));
-      rib = std::min(rib, closest.distance);
-    }
-  }
-  add("clearance_instrument_rib", "m", std::isfinite(rib) ? rib : -1.0,
-      std::isfinite(rib) ? rib / options_.rib_clearance_scale : 1.0, w.clearance_instrument_rib,
-      "smallest distance from a shaft's axis (4 cm either side of its pivot, aimed at the targets) "
-      "to a rib; full "
-      "score from 4 mm (-1: no ribs)");
-
+  const TermInputs in{placement,
+                      samples,
+                      reach,
+                      ev.served,
+                      instruments,
+                      scopes,
+                      options_,
+                      clearance(collision::PairClass::kArmArm),
+                      clearance(collision::PairClass::kArmPatient),
+                      ShaftRibClearance(placement)};
+  ev.terms = EvaluateTerms(in, options_.weights);
   double total = 0, weights = 0;
   for (const auto& t : ev.terms) {
     total += t.weight * t.score;
@@ -1380,7 +1339,7 @@ Evaluation PortPlacementProblem::Evaluate(const Placement& placement, Workspace*
     // Below every collision-free plan, better with fewer colliding pairs.
     ev.score = -1.0 + 0.5 * ev.score - 0.01 * std::min(ev.collisions, 50);
   }
-  if (detailed) {
+  if (how.detailed) {
     for (auto& arm_reach : reach) {
       for (auto& r : arm_reach) ev.reaches.push_back(std::move(r));
     }

@@ -311,6 +311,27 @@ class PortPlacementProblem {
               collision::CollisionChecker* checker, std::string* why) const;
 
  private:
+  // Evaluate's stages (problem.cpp): the cart docked and the arms at their nominal pose, the
+  // endoscopes' views, each arm's reach or view of the samples; the terms are score_terms.hpp's.
+  struct Docking;
+  Docking Dock(const Placement& placement, const std::vector<TargetSample>& samples,
+               bool full_solver, Workspace* ws, Evaluation* ev) const;
+  std::vector<bool> AimArms(const Placement& placement, const std::vector<TargetSample>& samples,
+                            Workspace* ws, collision::CollisionReport* nominal) const;
+  void ChooseViews(const Placement& placement, const std::vector<TargetSample>& samples,
+                   const Docking& docked, bool skip_reach, Workspace* ws, Evaluation* ev) const;
+  void ScopeReaches(int a, const Placement& placement, const std::vector<TargetSample>& samples,
+                    const Docking& docked, const robot::RobotState& nominal_state,
+                    const Evaluation& ev, Workspace* ws, std::vector<SampleReach>* reach) const;
+  void InstrumentReaches(int a, const Placement& placement,
+                         const std::vector<TargetSample>& samples, const Docking& docked,
+                         bool skip_reach, const robot::RobotState& nominal_state,
+                         const EvaluateOptions& how, Workspace* ws,
+                         std::vector<SampleReach>* reach) const;
+  /// m from the shafts' axes (4 cm either side of their pivots, aimed at the targets) to a rib;
+  /// +inf without ribs.
+  double ShaftRibClearance(const Placement& placement) const;
+
   std::vector<int> world_port_;  // per arm: index of its port in the collision world
   std::vector<int> world_arm_;   // per arm: its index in the collision world's arms (-1: none)
   std::shared_ptr<const patient::PatientModel> patient_;

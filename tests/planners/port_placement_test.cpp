@@ -1,9 +1,9 @@
 // Port placement: arms found from the robot description, the problem's bad input, determinism
 // across thread counts, plans whose claims hold, and a verdict for a patient no plan serves.
 #include <gtest/gtest.h>
+
 #include <algorithm>
 #include <filesystem>
-
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -17,12 +17,13 @@
 #include "patient/operative_state.hpp"
 #include "patient/patient_model.hpp"
 #include "patient/phantom.hpp"
+#include "planners/bundled.hpp"
 #include "port_placement/arms.hpp"
 #include "port_placement/optimizer.hpp"
 #include "port_placement/plan_io.hpp"
 #include "port_placement/port_rules.hpp"
+#include "port_placement/score_terms.hpp"
 #include "robot/load_robot.hpp"
-#include "planners/bundled.hpp"
 #include "test_util.hpp"
 
 namespace trocar::planners {
@@ -834,6 +835,58 @@ TEST(PortPlacementProblem, TheServedTermIsTheShareOfSamplesEveryArmServes) {
   }
   EXPECT_GT(checked, 0);
   EXPECT_NEAR(po.weights.coverage + po.weights.served, 0.35, 1e-12);
+}
+
+// The score terms come from one table (score_terms.hpp): every evaluation lists its terms in the
+// table's order with the table's units and the options' weights, a term that does not apply (one
+// instrument: no triangulation; no endoscope) has weight 0 and says why, and a placed plan's score
+// is the weighted mean of the terms' scores.
+TEST(PortPlacementProblem, TheTermsAreTheTablesWithTheOptionsWeightsAndTheScoreIsTheirMean) {
+  ProblemOptions po;
+  po.arms = {"psm1"};
+  po.samples_per_target = 3;
+  po.weights.spacing = 0.3;  // weights the table must take from the options, not its own
+  po.weights.dexterity = 0.0;
+  const PortPlacementProblem problem(Phantom(), Cart(), po);
+  const auto& table = ScoreTermDefinitions();
+  ASSERT_EQ(table.size(), 10u);
+  double sum = 0.0;
+  for (const auto& t : table) sum += po.weights.*t.weight;
+  EXPECT_DOUBLE_EQ(po.weights.sum(), sum);
+  std::mt19937 rng(5);
+  Workspace ws(problem);
+  int placed = 0;
+  for (int i = 0; i < 40; ++i) {
+    std::vector<double> x;
+    for (std::size_t d = 0; d < problem.lower_bounds().size(); ++d)
+      x.push_back(std::uniform_real_distribution<double>(problem.lower_bounds()[d],
+                                                         problem.upper_bounds()[d])(rng));
+    const Evaluation ev = problem.Evaluate(problem.Decode(x), &ws);
+    if (ev.status == PlacementStatus::kUnreachable) continue;
+    ASSERT_EQ(ev.terms.size(), table.size());
+    double total = 0.0, weights = 0.0;
+    for (std::size_t k = 0; k < table.size(); ++k) {
+      const ScoreTerm& t = ev.terms[k];
+      EXPECT_EQ(t.name, table[k].name);
+      EXPECT_EQ(t.unit, table[k].unit);
+      EXPECT_GE(t.score, 0.0);
+      EXPECT_LE(t.score, 1.0);
+      const bool applies =
+          t.name != "triangulation" && t.name != "endoscope" && t.name != "spacing";
+      EXPECT_EQ(t.weight, applies ? po.weights.*table[k].weight : 0.0) << t.name;
+      if (!applies) {
+        EXPECT_NE(t.note.find("not applicable"), std::string::npos) << t.note;
+        EXPECT_EQ(t.score, 1.0);
+      }
+      total += t.weight * t.score;
+      weights += t.weight;
+    }
+    if (ev.status == PlacementStatus::kPlaced) {
+      ++placed;
+      EXPECT_NEAR(ev.score, total / weights, 1e-12);
+    }
+  }
+  EXPECT_GT(placed, 0);
 }
 
 // Every sample a plan calls reached is re-checked here with the robot model and a fresh
