@@ -472,57 +472,85 @@ Evaluation EvaluateFinalPlan(const PortPlacementProblem& problem, const Placemen
   return use_full ? full : ev;
 }
 
-PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
-                                  const PortPlacementOptions& options) {
-  ValidateOptions(options);
-  for (const Placement& p : options.initial)
-    TROCAR_CHECK(p.sites.size() == problem.arms().size(),
-                 "initial placement: " << p.sites.size() << " ports for " << problem.arms().size()
-                                       << " arms");
-  const auto t0 = Clock::now();
-  const auto deadline = t0 + std::chrono::duration_cast<Clock::duration>(
-                                 std::chrono::duration<double>(options.time_limit));
-  PortPlacementResult result;
-  result.algorithm = options.algorithm;
-  result.local = options.local;
-  result.threads = options.threads > 0 ? options.threads : omp_get_max_threads();
-  const int threads = result.threads;
-  const int dim = problem.dimension();
-  const std::vector<double> lb = problem.lower_bounds(), ub = problem.upper_bounds();
-  const int cart = dim - 3;
-  std::atomic<int> counter{0};
-  std::atomic<bool> out_of_time{false};
-  auto progress = [&](double fraction, const std::string& stage) {
-    if (options.progress && omp_get_thread_num() == 0)
-      options.progress(std::clamp(fraction, 0.0, 1.0), stage);
-  };
-  auto stamp = [&](const std::string& stage, Clock::time_point since) {
-    result.timings.push_back({stage, std::chrono::duration<double>(Clock::now() - since).count()});
-  };
+namespace {
 
-  // --- Global stage -------------------------------------------------------------------------
-  std::vector<Sample> archive;
-  // The exhaustive grid's evaluations within the archive (all of it for "exhaustive"; the seeds
-  // after the given placements otherwise), for the polish (below).
-  std::vector<int> grid_samples;
-  auto t_stage = Clock::now();
+// One OptimizePorts run as stages over its shared state (the deadline, the evaluations counted,
+// the archive of every global evaluation): the global stage (Cannon's grid as the exhaustive
+// baseline, or as the seeds of the global algorithm's starts), the distinct candidates polished
+// locally, the final plans scored in detail and for robustness, then the verdict.
+class Search {
+ public:
+  Search(const PortPlacementProblem& problem, const PortPlacementOptions& options)
+      : problem_(problem),
+        options_(options),
+        t0_(Clock::now()),
+        deadline_(t0_ + std::chrono::duration_cast<Clock::duration>(
+                            std::chrono::duration<double>(options.time_limit))),
+        threads_(options.threads > 0 ? options.threads : omp_get_max_threads()),
+        dim_(problem.dimension()),
+        cart_(dim_ - 3),
+        lb_(problem.lower_bounds()),
+        ub_(problem.upper_bounds()) {}
+
+  PortPlacementResult Run() {
+    result_.algorithm = options_.algorithm;
+    result_.local = options_.local;
+    result_.threads = threads_;
+    auto t_stage = Clock::now();
+    if (options_.algorithm == "exhaustive") {
+      Exhaustive();
+    } else {
+      Global();
+    }
+    result_.global_evaluations = static_cast<int>(archive_.size());
+    result_.best_global_score = -std::numeric_limits<double>::infinity();
+    for (const auto& s : archive_)
+      result_.best_global_score = std::max(result_.best_global_score, s.score);
+    Stamp("global " + options_.algorithm, t_stage);
+
+    t_stage = Clock::now();
+    std::vector<Sample> pool = Candidates();
+    const int polished = Polish(&pool);
+    Stamp("polish " + options_.local, t_stage);
+
+    t_stage = Clock::now();
+    int final_evaluations = 0;
+    result_.plans = FinalPlans(pool, &final_evaluations);
+    Stamp("final plans and robustness", t_stage);
+    result_.evaluations = result_.global_evaluations + polished + final_evaluations;
+    result_.time_limit_hit = out_of_time_.load();
+
+    result_.verdict = JudgePlans(problem_, result_.plans, options_);
+    Stamp("total", t0_);
+    return std::move(result_);
+  }
+
+ private:
+  void Progress(double fraction, const std::string& stage) const {
+    if (options_.progress && omp_get_thread_num() == 0)
+      options_.progress(std::clamp(fraction, 0.0, 1.0), stage);
+  }
+  void Stamp(const std::string& stage, Clock::time_point since) {
+    result_.timings.push_back({stage, std::chrono::duration<double>(Clock::now() - since).count()});
+  }
+
   // Cannon et al. 2003's grid: every assignment of grid sites to the arms scored by the port-only
   // (geometric) terms; the best triads with a grid of cart poses, for full evaluation. It is the
   // exhaustive baseline, and the first stage of the default global search (its seeds).
-  auto cannon_grid = [&](std::string* description) {
-    const int curves = static_cast<int>(problem.patient().port_candidates.size());
+  std::vector<std::vector<double>> CannonGrid(std::string* description) const {
+    const int curves = static_cast<int>(problem_.patient().port_candidates.size());
     const std::vector<double> along = {0.1, 0.3, 0.5, 0.7, 0.9};
     std::vector<PortSite> grid;
     for (int c = 0; c < curves; ++c) {
-      if (problem.patient().port_candidates[c].skin.size() < 2) continue;
-      for (double s : along) grid.push_back(problem.Site(c, s));
+      if (problem_.patient().port_candidates[c].skin.size() < 2) continue;
+      for (double s : along) grid.push_back(problem_.Site(c, s));
     }
     // Which samples each site reaches along a clear line (a shaft through the heart or a rib
     // reaches nothing): the triads are ranked by what their ports allow, not by distance alone.
     std::vector<SiteAccess> lines(grid.size());
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
-    for (int i = 0; i < static_cast<int>(grid.size()); ++i) lines[i] = SiteLines(problem, grid[i]);
-    const int arms = static_cast<int>(problem.arms().size());
+#pragma omp parallel for num_threads(threads_) schedule(dynamic, 1)
+    for (int i = 0; i < static_cast<int>(grid.size()); ++i) lines[i] = SiteLines(problem_, grid[i]);
+    const int arms = static_cast<int>(problem_.arms().size());
     std::vector<std::pair<double, std::vector<int>>> assignments;
     std::vector<int> pick(arms, 0);
     const int g = static_cast<int>(grid.size());
@@ -534,7 +562,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
           sites.push_back(grid[i]);
           access.push_back(&lines[i]);
         }
-        assignments.push_back({GeometricScore(problem, sites, access), pick});
+        assignments.push_back({GeometricScore(problem_, sites, access), pick});
         return;
       }
       for (int i = 0; i < g; ++i) {
@@ -557,7 +585,7 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
           std::vector<double> x;
           for (int i : assignments[k].second)
             x.insert(x.end(), {grid[i].candidate + 0.5, grid[i].s});
-          x.insert(x.end(), {from, std::clamp(d, lb[cart + 1], ub[cart + 1]), 0.0});
+          x.insert(x.end(), {from, std::clamp(d, lb_[cart_ + 1], ub_[cart_ + 1]), 0.0});
           xs.push_back(x);
         }
       }
@@ -566,107 +594,110 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
     grid_text << along.size() << " sites on each of " << curves
               << " candidate curves (at 10, 30, 50, 70, 90 % of "
               << "its length): " << assignments.size() << " assignments of sites to " << arms
-              << " arms scored by the port-only terms along clear lines; the best " << keep << " with "
-              << directions.size() << " cart directions x " << distances.size()
+              << " arms scored by the port-only terms along clear lines; the best " << keep
+              << " with " << directions.size() << " cart directions x " << distances.size()
               << " distances (0.6, 0.9, 1.2 m), facing the ports: " << xs.size()
               << " full evaluations";
     *description = grid_text.str();
     return xs;
-  };
+  }
+
   // Full evaluations of given decisions, in parallel, in their order (those past the deadline
   // left out), each counted toward the progress shown as `stage` out of `total` evaluations.
-  auto evaluate_all = [&](const std::vector<std::vector<double>>& xs, const std::string& stage,
-                          double total) {
+  std::vector<Sample> EvaluateAll(const std::vector<std::vector<double>>& xs,
+                                  const std::string& stage, double total) {
     std::vector<Sample> out(xs.size());
-#pragma omp parallel num_threads(threads)
+#pragma omp parallel num_threads(threads_)
     {
-      Workspace ws(problem);
+      Workspace ws(problem_);
 #pragma omp for schedule(dynamic, 4)
       for (int i = 0; i < static_cast<int>(xs.size()); ++i) {
-        if (Clock::now() > deadline) {
-          out_of_time.store(true);
+        if (Clock::now() > deadline_) {
+          out_of_time_.store(true);
           continue;
         }
-        out[i] = {xs[i], problem.Evaluate(problem.Decode(xs[i]), &ws).score};
-        const int done = counter.fetch_add(1) + 1;
-        progress(0.7 * done / std::max(1.0, total),
-                 stage + ": " + std::to_string(done) + " of " + std::to_string(std::lround(total)) +
-                     " evaluations");
+        out[i] = {xs[i], problem_.Evaluate(problem_.Decode(xs[i]), &ws).score};
+        const int done = counter_.fetch_add(1) + 1;
+        Progress(0.7 * done / std::max(1.0, total), stage + ": " + std::to_string(done) + " of " +
+                                                        std::to_string(std::lround(total)) +
+                                                        " evaluations");
       }
     }
     out.erase(std::remove_if(out.begin(), out.end(), [](const Sample& s) { return s.x.empty(); }),
               out.end());
     return out;
-  };
-  if (options.algorithm == "exhaustive") {
-    const std::vector<std::vector<double>> xs = cannon_grid(&result.grid);
-    archive = evaluate_all(xs, "exhaustive grid", static_cast<double>(xs.size()));
-    grid_samples.resize(archive.size());
-    std::iota(grid_samples.begin(), grid_samples.end(), 0);
+  }
+
+  // The exhaustive baseline: Cannon's grid, every placement of it evaluated.
+  void Exhaustive() {
+    const std::vector<std::vector<double>> xs = CannonGrid(&result_.grid);
+    archive_ = EvaluateAll(xs, "exhaustive grid", static_cast<double>(xs.size()));
+    grid_samples_.resize(archive_.size());
+    std::iota(grid_samples_.begin(), grid_samples_.end(), 0);
     double best = -std::numeric_limits<double>::infinity();
-    for (std::size_t i = 0; i < archive.size(); ++i) {
-      best = std::max(best, archive[i].score);
-      result.trace.push_back({static_cast<int>(i + 1), best});
+    for (std::size_t i = 0; i < archive_.size(); ++i) {
+      best = std::max(best, archive_[i].score);
+      result_.trace.push_back({static_cast<int>(i + 1), best});
     }
-  } else {
-    // Seeds: Cannon's grid evaluated first (the port-only terms choose the triads at no robot
-    // cost), so that the search never ends below the exhaustive baseline; then the global
-    // algorithm's own starts over the whole box.
-    // A third of the global budget at most (the grid is ordered best triad first), the rest to
-    // the algorithm: the evaluations in all stay the option's.
-    // The given initial placements (the template's) come first, inside the same budget.
-    std::vector<std::vector<double>> seeds = cannon_grid(&result.grid);
+  }
+
+  // Seeds: Cannon's grid evaluated first (the port-only terms choose the triads at no robot
+  // cost), so that the search never ends below the exhaustive baseline; then the global
+  // algorithm's own starts over the whole box. A third of the global budget at most (the grid is
+  // ordered best triad first), the rest to the algorithm: the evaluations in all stay the
+  // option's. The given initial placements (the template's) come first, inside the same budget.
+  void Global() {
+    std::vector<std::vector<double>> seeds = CannonGrid(&result_.grid);
     // The given placements are evaluated even when a third of a tiny budget cannot hold them.
     const std::size_t seed_budget = std::max(
-        static_cast<std::size_t>(std::max(0, options.evaluations / 3)), options.initial.size());
-    for (auto it = options.initial.rbegin(); it != options.initial.rend(); ++it)
-      seeds.insert(seeds.begin(), problem.Encode(*it));
+        static_cast<std::size_t>(std::max(0, options_.evaluations / 3)), options_.initial.size());
+    for (auto it = options_.initial.rbegin(); it != options_.initial.rend(); ++it)
+      seeds.insert(seeds.begin(), problem_.Encode(*it));
     if (seeds.size() > seed_budget) seeds.resize(seed_budget);
-    result.grid = "seeds (the first " + std::to_string(seeds.size()) +
-                  (options.initial.empty()
-                       ? std::string()
-                       : ", " + std::to_string(options.initial.size()) + " given placements first") +
-                  "): " + result.grid;
-    archive = evaluate_all(seeds, "seeds: Cannon's grid", options.evaluations);
-    for (int i = 0; i < static_cast<int>(archive.size()); ++i) {
+    result_.grid = "seeds (the first " + std::to_string(seeds.size()) +
+                   (options_.initial.empty() ? std::string()
+                                             : ", " + std::to_string(options_.initial.size()) +
+                                                   " given placements first") +
+                   "): " + result_.grid;
+    archive_ = EvaluateAll(seeds, "seeds: Cannon's grid", options_.evaluations);
+    for (int i = 0; i < static_cast<int>(archive_.size()); ++i) {
       bool given = false;
-      for (const Placement& p : options.initial) given = given || archive[i].x == problem.Encode(p);
-      if (!given) grid_samples.push_back(i);
+      for (const Placement& p : options_.initial)
+        given = given || archive_[i].x == problem_.Encode(p);
+      if (!given) grid_samples_.push_back(i);
     }
-    const int starts = options.starts;
+    const int starts = options_.starts;
     std::vector<std::vector<Sample>> archives(starts);
     const int per_start =
-        std::max(1, (options.evaluations - static_cast<int>(seeds.size())) / starts);
-    std::atomic<int> done_starts{0};
+        std::max(1, (options_.evaluations - static_cast<int>(seeds.size())) / starts);
     // Progress after every 10th evaluation (the counter holds the seeds' too).
     const std::function<void(int)> global_tick = [&](int n) {
       if (n % 10 != 0) return;
-      progress(0.7 * n / std::max(1, options.evaluations),
-               "global " + options.algorithm + ": " + std::to_string(n) + " of " +
-                   std::to_string(options.evaluations) + " evaluations");
+      Progress(0.7 * n / std::max(1, options_.evaluations),
+               "global " + options_.algorithm + ": " + std::to_string(n) + " of " +
+                   std::to_string(options_.evaluations) + " evaluations");
     };
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
     for (int s = 0; s < starts; ++s) {
-      Workspace ws(problem);
-      std::vector<double> slb = lb, sub = ub;
+      Workspace ws(problem_);
+      std::vector<double> slb = lb_, sub = ub_;
       // Start s searches its own sector of directions the cart comes from.
-      slb[cart] = -M_PI + 2 * M_PI * s / starts;
-      sub[cart] = -M_PI + 2 * M_PI * (s + 1) / starts;
-      std::vector<double> x0(dim);
-      for (int i = 0; i < dim; ++i) x0[i] = 0.5 * (slb[i] + sub[i]);
-      RunNlopt(problem, GlobalAlgorithm(options.algorithm), slb, sub, x0, per_start,
-               options.seed * 7919u + static_cast<unsigned>(s), deadline, &ws, &archives[s],
-               &counter, &out_of_time, options.local, &global_tick);
-      done_starts.fetch_add(1);
-      progress(0.7 * counter.load() / (per_start * starts), "global " + options.algorithm);
+      slb[cart_] = -M_PI + 2 * M_PI * s / starts;
+      sub[cart_] = -M_PI + 2 * M_PI * (s + 1) / starts;
+      std::vector<double> x0(dim_);
+      for (int i = 0; i < dim_; ++i) x0[i] = 0.5 * (slb[i] + sub[i]);
+      RunNlopt(problem_, GlobalAlgorithm(options_.algorithm), slb, sub, x0, per_start,
+               options_.seed * 7919u + static_cast<unsigned>(s), deadline_, &ws, &archives[s],
+               &counter_, &out_of_time_, options_.local, &global_tick);
+      Progress(0.7 * counter_.load() / (per_start * starts), "global " + options_.algorithm);
     }
     // Merge in start order after the seeds; the trace interleaves the starts round-robin (as if
     // run side by side).
     double best = -std::numeric_limits<double>::infinity();
     int total = 0;
-    for (const auto& s : archive) {
+    for (const auto& s : archive_) {
       best = std::max(best, s.score);
-      result.trace.push_back({++total, best});
+      result_.trace.push_back({++total, best});
     }
     std::size_t longest = 0;
     for (const auto& a : archives) longest = std::max(longest, a.size());
@@ -674,134 +705,153 @@ PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
       for (const auto& a : archives) {
         if (i >= a.size()) continue;
         best = std::max(best, a[i].score);
-        result.trace.push_back({++total, best});
+        result_.trace.push_back({++total, best});
       }
     }
-    for (auto& a : archives) archive.insert(archive.end(), a.begin(), a.end());
+    for (auto& a : archives) archive_.insert(archive_.end(), a.begin(), a.end());
   }
-  result.global_evaluations = static_cast<int>(archive.size());
-  result.best_global_score = -std::numeric_limits<double>::infinity();
-  for (const auto& s : archive)
-    result.best_global_score = std::max(result.best_global_score, s.score);
-  if (archive.empty()) result.best_global_score = -std::numeric_limits<double>::infinity();
-  stamp("global " + options.algorithm, t_stage);
 
-  // --- Distinct candidates, polished ------------------------------------------------------------
-  t_stage = Clock::now();
-  std::vector<int> order(archive.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(),
-                   [&](int a, int b) { return archive[a].score > archive[b].score; });
-  const int pool_size = options.top_k + 2;
-  // The best distinct placements of `from` (archive indices, best first).
-  auto distinct_best = [&](const std::vector<int>& from) {
+  // The best distinct placements of `from` (archive indices, best first), top_k + 2 at most.
+  std::vector<Sample> DistinctBest(const std::vector<int>& from) const {
+    const int pool_size = options_.top_k + 2;
     std::vector<Sample> chosen;
     std::vector<Placement> placements;
     for (int i : from) {
       if (static_cast<int>(chosen.size()) >= pool_size) break;
-      const Placement p = problem.Decode(archive[i].x);
+      const Placement p = problem_.Decode(archive_[i].x);
       bool distinct = true;
       for (const auto& q : placements)
-        distinct = distinct && Distinct(p, q, options.distinct_distance);
+        distinct = distinct && Distinct(p, q, options_.distinct_distance);
       if (!distinct) continue;
-      chosen.push_back(archive[i]);
+      chosen.push_back(archive_[i]);
       placements.push_back(p);
     }
     return chosen;
-  };
-  std::vector<Sample> pool = distinct_best(order);
-  // The exhaustive baseline's own pool is polished too, from the same starts with the same seeds
-  // (a polish's seed is a function of its start): the final plans then hold every plan the
-  // baseline would end with, and the search never ends below it. The global search's best
-  // placements can crowd the grid's out of the pool above, and the polish is local: a grid
-  // placement scoring a little lower can polish to more.
-  std::vector<int> grid_order;
-  for (int i : order)
-    if (std::binary_search(grid_samples.begin(), grid_samples.end(), i)) grid_order.push_back(i);
-  for (const Sample& g : distinct_best(grid_order)) {
-    bool in_pool = false;
-    for (const Sample& p : pool) in_pool = in_pool || p.x == g.x;
-    if (!in_pool) pool.push_back(g);
   }
+
+  // The candidates to polish: the archive's best distinct placements, and the exhaustive
+  // baseline's own (polished from the same starts with the same seeds, a polish's seed being a
+  // function of its start: the final plans then hold every plan the baseline would end with, and
+  // the search never ends below it. The global search's best placements can crowd the grid's out
+  // of the pool, and the polish is local: a grid placement scoring a little lower can polish to
+  // more).
+  std::vector<Sample> Candidates() const {
+    std::vector<int> order(archive_.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::stable_sort(order.begin(), order.end(),
+                     [&](int a, int b) { return archive_[a].score > archive_[b].score; });
+    std::vector<Sample> pool = DistinctBest(order);
+    std::vector<int> grid_order;
+    for (int i : order)
+      if (std::binary_search(grid_samples_.begin(), grid_samples_.end(), i))
+        grid_order.push_back(i);
+    for (const Sample& g : DistinctBest(grid_order)) {
+      bool in_pool = false;
+      for (const Sample& p : pool) in_pool = in_pool || p.x == g.x;
+      if (!in_pool) pool.push_back(g);
+    }
+    return pool;
+  }
+
   // A polish's seed: the run's seed and its start (FNV-1a over the start's bytes).
-  auto polish_seed = [&](const std::vector<double>& x) {
+  unsigned PolishSeed(const std::vector<double>& x) const {
     std::uint64_t h = 1469598103934665603ull;
     for (double v : x) {
       std::uint64_t bits;
       std::memcpy(&bits, &v, sizeof bits);
       h = (h ^ bits) * 1099511628211ull;
     }
-    return options.seed * 104729u + static_cast<unsigned>(h ^ (h >> 32));
-  };
-  std::vector<int> polish_counts(pool.size(), 0);
-  if (options.local != "none" && options.polish_evaluations > 0) {
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-    for (int i = 0; i < static_cast<int>(pool.size()); ++i) {
-      Workspace ws(problem);
-      std::vector<double> plb(dim), pub(dim);
-      const std::vector<double> span = [&] {
-        std::vector<double> v(dim);
-        for (int k = 0; k < dim; ++k) v[k] = 0.15 * (ub[k] - lb[k]);
-        return v;
-      }();
-      for (int k = 0; k < dim; ++k) {
-        plb[k] = std::max(lb[k], pool[i].x[k] - span[k]);
-        pub[k] = std::min(ub[k], pool[i].x[k] + span[k]);
+    return options_.seed * 104729u + static_cast<unsigned>(h ^ (h >> 32));
+  }
+
+  // Each candidate polished locally (its ports moved along their curves, within 15 % of the box
+  // around it), kept when better. @return the evaluations spent.
+  int Polish(std::vector<Sample>* pool_out) {
+    std::vector<Sample>& pool = *pool_out;
+    std::vector<int> polish_counts(pool.size(), 0);
+    if (options_.local != "none" && options_.polish_evaluations > 0) {
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads_)
+      for (int i = 0; i < static_cast<int>(pool.size()); ++i) {
+        Workspace ws(problem_);
+        std::vector<double> plb(dim_), pub(dim_);
+        for (int k = 0; k < dim_; ++k) {
+          const double span = 0.15 * (ub_[k] - lb_[k]);
+          plb[k] = std::max(lb_[k], pool[i].x[k] - span);
+          pub[k] = std::min(ub_[k], pool[i].x[k] + span);
+        }
+        // The curve coordinates stay on their curve: the polish moves ports along it.
+        for (int a = 0; a < cart_; a += 2) {
+          const double c = std::floor(pool[i].x[a]);
+          plb[a] = c + 0.25;
+          pub[a] = c + 0.75;
+        }
+        std::vector<double> x0 = pool[i].x;
+        for (int a = 0; a < cart_; a += 2) x0[a] = std::floor(x0[a]) + 0.5;
+        std::vector<Sample> local_archive;
+        RunNlopt(problem_, LocalAlgorithm(options_.local), plb, pub, x0,
+                 options_.polish_evaluations, PolishSeed(pool[i].x), deadline_, &ws, &local_archive,
+                 &counter_, &out_of_time_);
+        polish_counts[i] = static_cast<int>(local_archive.size());
+        for (const auto& s : local_archive) {
+          if (s.score > pool[i].score) pool[i] = s;
+        }
+        Progress(0.7 + 0.15 * (i + 1) / pool.size(), "polish " + options_.local);
       }
-      // The curve coordinates stay on their curve: the polish moves ports along it.
-      for (int a = 0; a < cart; a += 2) {
-        const double c = std::floor(pool[i].x[a]);
-        plb[a] = c + 0.25;
-        pub[a] = c + 0.75;
-      }
-      std::vector<double> x0 = pool[i].x;
-      for (int a = 0; a < cart; a += 2) x0[a] = std::floor(x0[a]) + 0.5;
-      std::vector<Sample> local_archive;
-      RunNlopt(problem, LocalAlgorithm(options.local), plb, pub, x0, options.polish_evaluations,
-               polish_seed(pool[i].x), deadline, &ws, &local_archive,
-               &counter, &out_of_time);
-      polish_counts[i] = static_cast<int>(local_archive.size());
-      for (const auto& s : local_archive) {
-        if (s.score > pool[i].score) pool[i] = s;
-      }
-      progress(0.7 + 0.15 * (i + 1) / pool.size(), "polish " + options.local);
     }
+    return std::accumulate(polish_counts.begin(), polish_counts.end(), 0);
   }
-  stamp("polish " + options.local, t_stage);
 
-  // --- Final plans: detailed, robustness, ranking ------------------------------------------------
-  t_stage = Clock::now();
-  std::vector<int> pool_order(pool.size());
-  std::iota(pool_order.begin(), pool_order.end(), 0);
-  std::stable_sort(pool_order.begin(), pool_order.end(),
-                   [&](int a, int b) { return pool[a].score > pool[b].score; });
-  std::vector<RankedPlan> finals;
-  for (int i : pool_order) {
-    RankedPlan plan;
-    plan.placement = problem.Decode(pool[i].x);
-    bool distinct = true;
-    for (const auto& f : finals)
-      distinct = distinct && Distinct(plan.placement, f.placement, options.distinct_distance);
-    if (distinct) finals.push_back(std::move(plan));
+  // The polished candidates, best first and distinct, scored in detail and for robustness, ranked
+  // by their rank score: the top_k. `evaluations` gets the evaluations spent.
+  std::vector<RankedPlan> FinalPlans(const std::vector<Sample>& pool, int* evaluations) const {
+    std::vector<int> pool_order(pool.size());
+    std::iota(pool_order.begin(), pool_order.end(), 0);
+    std::stable_sort(pool_order.begin(), pool_order.end(),
+                     [&](int a, int b) { return pool[a].score > pool[b].score; });
+    std::vector<RankedPlan> finals;
+    for (int i : pool_order) {
+      RankedPlan plan;
+      plan.placement = problem_.Decode(pool[i].x);
+      bool distinct = true;
+      for (const auto& f : finals)
+        distinct = distinct && Distinct(plan.placement, f.placement, options_.distinct_distance);
+      if (distinct) finals.push_back(std::move(plan));
+    }
+    *evaluations = ScoreFinalPlans(
+        problem_, options_, threads_,
+        [this](double fraction, const std::string& stage) { Progress(fraction, stage); }, &finals);
+    std::stable_sort(finals.begin(), finals.end(), [](const RankedPlan& a, const RankedPlan& b) {
+      return a.rank_score > b.rank_score;
+    });
+    if (static_cast<int>(finals.size()) > options_.top_k) finals.resize(options_.top_k);
+    return finals;
   }
-  const int final_evaluations = ScoreFinalPlans(problem, options, threads, progress, &finals);
-  std::stable_sort(finals.begin(), finals.end(), [](const RankedPlan& a, const RankedPlan& b) {
-    return a.rank_score > b.rank_score;
-  });
-  if (static_cast<int>(finals.size()) > options.top_k) finals.resize(options.top_k);
-  result.plans = std::move(finals);
-  stamp("final plans and robustness", t_stage);
-  result.evaluations = result.global_evaluations +
-                       std::accumulate(polish_counts.begin(), polish_counts.end(), 0) +
-                       final_evaluations;
-  result.time_limit_hit = out_of_time.load();
 
-  // --- Verdict ---------------------------------------------------------------------------------
-  result.verdict = JudgePlans(problem, result.plans, options);
-  stamp("total", t0);
-  return result;
+  const PortPlacementProblem& problem_;
+  const PortPlacementOptions& options_;
+  const Clock::time_point t0_, deadline_;
+  const int threads_, dim_, cart_;  // cart_: the first of the cart's three decision coordinates
+  const std::vector<double> lb_, ub_;
+  std::atomic<int> counter_{0};  // evaluations done, for the progress
+  std::atomic<bool> out_of_time_{false};
+  PortPlacementResult result_;
+  std::vector<Sample> archive_;  // every global evaluation
+  // The exhaustive grid's evaluations within the archive (all of it for "exhaustive"; the seeds
+  // after the given placements otherwise), for the polish.
+  std::vector<int> grid_samples_;
+};
+
+}  // namespace
+
+PortPlacementResult OptimizePorts(const PortPlacementProblem& problem,
+                                  const PortPlacementOptions& options) {
+  ValidateOptions(options);
+  for (const Placement& p : options.initial)
+    TROCAR_CHECK(p.sites.size() == problem.arms().size(),
+                 "initial placement: " << p.sites.size() << " ports for " << problem.arms().size()
+                                       << " arms");
+  return Search(problem, options).Run();
 }
-
 
 FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
                               const std::vector<FixedPorts>& variants,
