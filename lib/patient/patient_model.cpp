@@ -117,16 +117,80 @@ constexpr double kObliqueGridDegrees = 1.0;
 
 namespace {
 
-// The model in the CT's state, built or loaded from the cache.
-ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const ImportOptions& options) {
+// One import of a case's CT into its model, as named stages over the state they share: the
+// phantom generated when outdated, the cache tried (before and after decoding the CT), the CT
+// loaded and its units settled, body and bone segmented, a roll or an oblique grid turned
+// upright, the label map, the rib cage's layer, the heart, the checks, the surfaces, what is
+// missing, the targets, the port candidates (then off the cut faces), the model carried back to
+// the CT's frame, the cache written. Run() runs them in that order; each stage's time is
+// reported.
+struct CtImport {
   using Clock = std::chrono::steady_clock;
-  std::vector<std::pair<std::string, double>> timings;
-  // The warnings said so far (the report's, once it exists): a stage that then fails carries
-  // them in its error, so that a warning that explains the failure (a header normalised, a
-  // mask resampled) is not lost with the model that would have reported it.
-  const std::vector<std::string>* said = nullptr;
-  bool warnings_told = false;
-  auto stage = [&](const std::string& name, const std::function<void()>& f) {
+
+  CtImport(const std::string& case_dir, const CaseSpec& c, const ImportOptions& options)
+      : case_dir(case_dir),
+        c(c),
+        options(options),
+        cache_dir(JoinPath(case_dir, "cache")),
+        model_bin(JoinPath(cache_dir, "model.bin")) {}
+
+  ImportedPatient Run() {
+    GenerateIfOutdated();
+    ImportedPatient cached;
+    if (FromCacheBeforeDecoding(&cached)) return cached;
+    Stage("load CT", [&] { ct = LoadVolume(c.ct); });
+    key = CacheKey(c, ct.files);
+    if (cache_exists) {
+      ImportedPatient loaded;
+      if (FromCache(key, &loaded)) return loaded;
+    }
+    SettleUnits();
+    Stage("segment body and bone", [&] { seg = Segment(ct, c.seg); });
+    Stage("roll", [&] { TurnUpright(); });
+    if (have_labels) Stage("label map", [&] { FromLabelMap(); });
+    if (!ct.hounsfield && !have_labels) Stage("rib cage layer", [&] { ChartRibCageLayer(); });
+    m.body_min_P = seg.body_min_P;
+    m.body_max_P = seg.body_max_P;
+    Stage("heart", [&] { FindHeart(); });
+    Stage("checks", [&] { RunChecks(); });
+    if (!have_heart) {
+      report.warnings.push_back(
+          "no heart in the model (heart.contrast is false and there is no heart "
+          "mask or label): plans will not avoid it");
+    }
+    if (!heart_note.empty()) report.warnings.push_back(heart_note);
+    voxel = std::abs(ct.index_to_P.determinant());
+    Stage("surfaces", [&] { Surfaces(); });
+    SayWhatIsMissing();
+    Stage("targets", [&] { Targets(); });
+    Stage("port candidates", [&] { PortCandidates(); });
+    KeepPortsOffCutFaces();
+    if (upright) BackToTheCtFrame();
+    m.X_WP = PoseOnTable(m.Find("skin")->mesh, m.left_side_up, m.table);
+    if (options.write_cache) {
+      // A case folder one cannot write to (a read-only checkout) still gives its model.
+      Stage("write cache", [&] {
+        try {
+          WriteCacheFiles(m, report, cache_dir, key, ct.files);
+        } catch (const Error& e) {
+          report.cache_error = e.what();
+        }
+      });
+    }
+    // Said for this import only (the cache just written is sound).
+    if (!cache_damage.empty()) report.warnings.push_back(cache_damage);
+    report.timings = timings;
+    ImportedPatient built;
+    built.model = std::make_shared<const PatientModel>(std::move(m));
+    built.report = std::move(report);
+    return built;
+  }
+
+  // Runs one stage, timed and shown as progress. The warnings said so far (the report's, once it
+  // exists): a stage that then fails carries them in its error, so that a warning that explains
+  // the failure (a header normalised, a mask resampled) is not lost with the model that would
+  // have reported it.
+  void Stage(const std::string& name, const std::function<void()>& f) {
     const auto t0 = Clock::now();
     if (options.progress) options.progress(name);
     try {
@@ -141,26 +205,27 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
       throw Error(message);
     }
     timings.emplace_back(name, std::chrono::duration<double>(Clock::now() - t0).count());
-  };
+  }
+
   // A phantom case's CT is generated on first use, and again when an older generator made it
   // (the anatomy it lays out has changed since).
-  const bool outdated = c.has_phantom && std::filesystem::path(c.ct).filename() == "ct.nrrd" &&
-                        IsRegularFile(c.ct) && !PhantomCaseIsCurrent(case_dir);
-  if (c.has_phantom && (outdated || !std::filesystem::exists(c.ct))) {
-    stage("generate phantom", [&] {
-      WritePhantomCase(GeneratePhantom(c.phantom), case_dir, CtFormat::kNrrdLps,
-                       /*write_patient_yaml=*/false);
-    });
+  void GenerateIfOutdated() {
+    const bool outdated = c.has_phantom && std::filesystem::path(c.ct).filename() == "ct.nrrd" &&
+                          IsRegularFile(c.ct) && !PhantomCaseIsCurrent(case_dir);
+    if (c.has_phantom && (outdated || !std::filesystem::exists(c.ct))) {
+      Stage("generate phantom", [&] {
+        WritePhantomCase(GeneratePhantom(c.phantom), case_dir, CtFormat::kNrrdLps,
+                         /*write_patient_yaml=*/false);
+      });
+    }
   }
-  const std::string cache_dir = JoinPath(case_dir, "cache");
-  const std::string model_bin = JoinPath(cache_dir, "model.bin");
-  std::string cache_damage;  // why a cache that was there could not be trusted
+
   // A cached model with the report of its build (checks, warnings) and of this load.
-  auto load_cache = [&](std::uint64_t key, ImportedPatient* cached) {
+  bool FromCache(std::uint64_t cache_key, ImportedPatient* cached) {
     const auto t0 = Clock::now();
     std::string damage;
     PatientModel model;
-    if (!DeserializeModel(ReadBinaryFile(model_bin), key, &model, &cached->report, &damage)) {
+    if (!DeserializeModel(ReadBinaryFile(model_bin), cache_key, &model, &cached->report, &damage)) {
       if (!damage.empty()) cache_damage = model_bin + ": " + damage + "; rebuilt from the CT";
       return false;
     }
@@ -170,86 +235,70 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
     cached->report.timings = timings;
     cached->report.timings.emplace_back("load cache", std::chrono::duration<double>(Clock::now() - t0).count());
     return true;
-  };
-  const bool cache_exists = options.use_cache && IsRegularFile(model_bin);
-  if (cache_exists) {
-    // Keyed by the CT files the last build read, without decoding the CT (a clinical CT takes a
-    // second to decode; the whole cached load must take less).
-    const std::vector<std::string> last_ct_files = ReadCtFiles(cache_dir);
-    ImportedPatient cached;
-    if (!last_ct_files.empty()) {
-      std::uint64_t key = 0;
-      stage("key inputs", [&] { key = CacheKey(c, last_ct_files); });
-      if (load_cache(key, &cached)) return cached;
-    }
   }
-  Volume ct;
-  stage("load CT", [&] { ct = LoadVolume(c.ct); });
-  const std::uint64_t key = CacheKey(c, ct.files);
-  if (cache_exists) {
-    ImportedPatient cached;
-    if (load_cache(key, &cached)) return cached;
-  }
-  if (c.units == 1) ct.hounsfield = true;
-  if (c.units == 2) ct.hounsfield = false;
 
-  PatientModel m;
-  ImportReport report;
-  said = &report.warnings;
-  m.name = c.name;
-  m.case_dir = case_dir;
-  report.warnings.insert(report.warnings.end(), ct.warnings.begin(), ct.warnings.end());
-  // CT numbers stored without their rescale intercept are converted and said (units: raw keeps
-  // them as they are).
-  double soft_tissue = 0.0;
-  if (c.units != 2 && LooksLikeCtNumbersWithoutIntercept(ct, &soft_tissue)) {
-    for (float& x : ct.values) x -= 1024.0f;
-    ct.hounsfield = true;
-    std::ostringstream w;
-    w << c.ct << ": no value below 0, air near 0 and soft tissue near " << std::lround(soft_tissue)
-      << ": read as CT numbers stored without their rescale intercept, converted to Hounsfield "
-         "units (value - 1024); set units: raw in "
-      << c.file << " if they are not";
-    report.warnings.push_back(w.str());
+  // Keyed by the CT files the last build read, without decoding the CT (a clinical CT takes a
+  // second to decode; the whole cached load must take less).
+  bool FromCacheBeforeDecoding(ImportedPatient* cached) {
+    cache_exists = options.use_cache && IsRegularFile(model_bin);
+    if (!cache_exists) return false;
+    const std::vector<std::string> last_ct_files = ReadCtFiles(cache_dir);
+    if (last_ct_files.empty()) return false;
+    std::uint64_t last_key = 0;
+    Stage("key inputs", [&] { last_key = CacheKey(c, last_ct_files); });
+    return FromCache(last_key, cached);
   }
-  // The default raw thresholds are an 8-bit window's: a raw volume beyond that range needs its
-  // own.
-  if (!ct.hounsfield && !c.thresholds_given && !ct.values.empty()) {
-    const auto [lo, hi] = std::minmax_element(ct.values.begin(), ct.values.end());
-    TROCAR_THROW_UNLESS(*hi <= 255.5f,
-                        c.ct << ": read as a windowed volume ("
-                             << (c.units == 2 ? "units: raw" : "no value at or below -500 HU")
-                             << ") but not an 8-bit window (values " << *lo << " to " << *hi
-                             << "): the default thresholds for windowed volumes (body "
-                             << c.seg.raw_body << ", bone " << c.seg.raw_bone
-                             << ") do not fit it; give thresholds: {body: ..., "
-                             << "bone: ...} in the CT's own units in " << c.file
-                             << ", or units: hounsfield if its values are HU");
+
+  // The CT's units: as the case file says, CT numbers stored without their intercept converted,
+  // a raw volume's range checked against the default thresholds; the model's first fields.
+  void SettleUnits() {
+    if (c.units == 1) ct.hounsfield = true;
+    if (c.units == 2) ct.hounsfield = false;
+    said = &report.warnings;
+    m.name = c.name;
+    m.case_dir = case_dir;
+    report.warnings.insert(report.warnings.end(), ct.warnings.begin(), ct.warnings.end());
+    // CT numbers stored without their rescale intercept are converted and said (units: raw keeps
+    // them as they are).
+    double soft_tissue = 0.0;
+    if (c.units != 2 && LooksLikeCtNumbersWithoutIntercept(ct, &soft_tissue)) {
+      for (float& x : ct.values) x -= 1024.0f;
+      ct.hounsfield = true;
+      std::ostringstream w;
+      w << c.ct << ": no value below 0, air near 0 and soft tissue near "
+        << std::lround(soft_tissue)
+        << ": read as CT numbers stored without their rescale intercept, converted to Hounsfield "
+           "units (value - 1024); set units: raw in "
+        << c.file << " if they are not";
+      report.warnings.push_back(w.str());
+    }
+    // The default raw thresholds are an 8-bit window's: a raw volume beyond that range needs its
+    // own.
+    if (!ct.hounsfield && !c.thresholds_given && !ct.values.empty()) {
+      const auto [lo, hi] = std::minmax_element(ct.values.begin(), ct.values.end());
+      TROCAR_THROW_UNLESS(*hi <= 255.5f,
+                          c.ct << ": read as a windowed volume ("
+                               << (c.units == 2 ? "units: raw" : "no value at or below -500 HU")
+                               << ") but not an 8-bit window (values " << *lo << " to " << *hi
+                               << "): the default thresholds for windowed volumes (body "
+                               << c.seg.raw_body << ", bone " << c.seg.raw_bone
+                               << ") do not fit it; give thresholds: {body: ..., "
+                               << "bone: ...} in the CT's own units in " << c.file
+                               << ", or units: hounsfield if its values are HU");
+    }
+    if (ct.hounsfield && c.intercostal.layer_floor > 0.0) {
+      report.warnings.push_back(
+          "thresholds.rib is for windowed volumes (units: raw); this CT is in Hounsfield units, "
+          "its "
+          "spaces are found between its ribs: not used");
+    }
+    m.ct_source = c.ct;
+    m.table = c.table;
+    m.left_side_up = c.left_side_up;
   }
-  if (ct.hounsfield && c.intercostal.layer_floor > 0.0) {
-    report.warnings.push_back(
-        "thresholds.rib is for windowed volumes (units: raw); this CT is in Hounsfield units, its "
-        "spaces are found between its ribs: not used");
-  }
-  m.ct_source = c.ct;
-  m.table = c.table;
-  m.left_side_up = c.left_side_up;
-  Segmentation seg;
-  stage("segment body and bone", [&] { seg = Segment(ct, c.seg); });
-  // A patient lying rolled about the long axis (a wedge under one side, a scoliotic chest): the
-  // sorting by shape reads left-right and front-back along the scan's axes, and at 8-15 degrees
-  // lost ribs and their numbers. The body's cross-section (wider than deep) gives the roll; the
-  // import then works in a frame D turned upright about the body's centroid (the CT resampled
-  // onto a grid along D's axes), with every input given in P carried into D and the model
-  // carried back into P at the end.
-  Eigen::Isometry3d X_DP = Eigen::Isometry3d::Identity();
-  bool upright = false;
-  // The scan's cut faces are its own grid's: when the import works on a turned grid they are
-  // found, and measured, on the CT as it came (an oblique grid's crop faces, a gantry-tilted
-  // stack's top and bottom, lie slanted across the turned one).
-  Volume grid_P;  // the CT's geometry (no values)
-  std::vector<CutFace> faces_P;
-  stage("roll", [&] {
+
+  // A roll or an oblique grid: the CT resampled onto a grid along an upright frame D.
+  void TurnUpright() {
     const BodyRoll roll = MeasureBodyRoll(ct, seg.body);
     faces_P = FindCutFaces(ct, seg.body);
     bool cut_around = false;  // a crop face on the sides: the cross-section is not the body's
@@ -296,65 +345,55 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
            "turned upright about the body's centroid; the model is in the CT's frame";
       report.checks.push_back(s.str());
     }
-  });
-  LabelledAnatomy labelled;
-  const bool have_labels = !c.labels.empty();
-  if (have_labels) {
-    // Bones, heart and vessels from the label map; the body (skin) stays the CT's own.
-    stage("label map", [&] {
-      LabelMap map = LoadLabelMap(c.labels, c.label_names);
-      MoveVolumeFrame(X_DP, &map.volume);
-      labelled = AnatomyFromLabels(map, ct);
-      seg.bones = labelled.bones;
-    });
   }
+
+  // Bones, heart and vessels from the label map; the body (skin) stays the CT's own.
+  void FromLabelMap() {
+    LabelMap map = LoadLabelMap(c.labels, c.label_names);
+    MoveVolumeFrame(X_DP, &map.volume);
+    labelled = AnatomyFromLabels(map, ct);
+    seg.bones = labelled.bones;
+  }
+
   // A side of a windowed volume (raw units, no label map) whose ribs are not numbered is judged
   // from the chart of the rib cage's layer: its ribs' cross-sections are mostly below the bone
   // threshold, and the components are fragments. The chart keeps the shoulder girdle out of its
   // ribs, and gives its intercostal spaces (port candidates, below).
-  std::vector<IntercostalSpace> layer_spaces[2];  // left, right
-  std::vector<WallReach> layer_reach;             // their sides' walls
-  bool layer_side[2] = {false, false};
-  double layer_floor = 0.0;
-  if (!ct.hounsfield && !have_labels) {
-    stage("rib cage layer", [&] {
-      // Both unnumbered sides in one chart (one distance transform for the wall's depth).
-      IntercostalOptions both = c.intercostal;
-      both.left = !seg.numbering_left.numbered;
-      both.right = !seg.numbering_right.numbered;
-      if (!both.left && !both.right) return;
-      LayerChart chart;
-      std::vector<IntercostalSpace> found;
-      try {
-        found = FindIntercostalSpacesInLayer(ct, seg, both, &chart, &layer_reach);
-      } catch (const Error& e) {
-        // Needed for the ports (not annotated, and asked of an unnumbered side): the error
-        // stands. Needed for the girdle only: the import goes on with the pieces' own rule, and
-        // says so.
-        if (c.port_markups.empty() &&
-            ((c.intercostal.left && both.left) || (c.intercostal.right && both.right)))
-          throw;
-        report.warnings.push_back(
-            std::string("bones: the rib cage's layer could not be charted (") + e.what() +
-            "): the shoulder girdle is judged by the bone pieces alone");
-        return;
-      }
-      layer_floor = chart.floor;
-      for (int side : {+1, -1}) {
-        if (!(side > 0 ? both.left : both.right)) continue;
-        if (c.seg.shape_anatomy)
-          KeepBoneBeyondTheLayerOutOfRibs(ct, chart, side, c.seg.anatomy, &seg);
-        layer_side[side > 0 ? 0 : 1] = true;
-      }
-      for (auto& space : found) layer_spaces[space.side > 0 ? 0 : 1].push_back(std::move(space));
-    });
+  void ChartRibCageLayer() {
+    // Both unnumbered sides in one chart (one distance transform for the wall's depth).
+    IntercostalOptions both = c.intercostal;
+    both.left = !seg.numbering_left.numbered;
+    both.right = !seg.numbering_right.numbered;
+    if (!both.left && !both.right) return;
+    LayerChart chart;
+    std::vector<IntercostalSpace> found;
+    try {
+      found = FindIntercostalSpacesInLayer(ct, seg, both, &chart, &layer_reach);
+    } catch (const Error& e) {
+      // Needed for the ports (not annotated, and asked of an unnumbered side): the error
+      // stands. Needed for the girdle only: the import goes on with the pieces' own rule, and
+      // says so.
+      if (c.port_markups.empty() &&
+          ((c.intercostal.left && both.left) || (c.intercostal.right && both.right)))
+        throw;
+      report.warnings.push_back(std::string("bones: the rib cage's layer could not be charted (") +
+                                e.what() +
+                                "): the shoulder girdle is judged by the bone pieces alone");
+      return;
+    }
+    layer_floor = chart.floor;
+    for (int side : {+1, -1}) {
+      if (!(side > 0 ? both.left : both.right)) continue;
+      if (c.seg.shape_anatomy)
+        KeepBoneBeyondTheLayerOutOfRibs(ct, chart, side, c.seg.anatomy, &seg);
+      layer_side[side > 0 ? 0 : 1] = true;
+    }
+    for (auto& space : found) layer_spaces[space.side > 0 ? 0 : 1].push_back(std::move(space));
   }
-  m.body_min_P = seg.body_min_P;
-  m.body_max_P = seg.body_max_P;
-  Mask heart;
-  bool have_heart = false;
-  std::string heart_note;  // an approximated heart says so
-  stage("heart", [&] {
+
+  // The heart: from a mask, the label map, the contrast-filled blood pool, or approximated from
+  // the mediastinum (and said); a heart of more than 3 litres is refused.
+  void FindHeart() {
     if (!c.heart_mask.empty()) {
       Volume mask = LoadVolume(c.heart_mask);
       MoveVolumeFrame(X_DP, &mask);
@@ -395,9 +434,10 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
                                                           : std::string("the thresholds heart.blood and heart.soft"))
                                  << ": check them");
     }
-  });
-  std::vector<CutFace> cut_faces;
-  stage("checks", [&] {
+  }
+
+  // Orientation from anatomy, what the bone sorting found, the scan's cut faces.
+  void RunChecks() {
     // Orientation from anatomy: a flipped or mirrored header is an error (or, with
     // orientation: {check: false}, a warning), never a silent import.
     const OrientationCheck o = CheckOrientation(ct, seg, have_heart ? &heart : nullptr);
@@ -463,14 +503,10 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
       for (const auto& n : m.cut_faces) names += (names.empty() ? "" : ", ") + n;
       report.checks.push_back("cut faces: " + names);
     }
-  });
-  if (!have_heart) {
-    report.warnings.push_back("no heart in the model (heart.contrast is false and there is no heart "
-                         "mask or label): plans will not avoid it");
   }
-  if (!heart_note.empty()) report.warnings.push_back(heart_note);
-  const double voxel = std::abs(ct.index_to_P.determinant());
-  stage("surfaces", [&] {
+
+  // The structures' surfaces.
+  void Surfaces() {
     // Each structure's surface on its own (VTK pipelines of their own), at most two at a time
     // (each made mask is a whole-volume array), the ribs (the largest contour) first. The model
     // keeps the order below whatever finished first.
@@ -522,12 +558,13 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
         if (s && s->name == name) m.structures.push_back(std::move(*s));
       }
     }
-  });
+  }
+
   // Nothing missing silently (issue #42 item 3): a structure the scan covers that the model
   // lacks is a warning naming it and why it matters. The ribs found on both sides mean the scan
   // covers the front of the chest between them, where the sternum is; ribs on one side only
   // (the other side in the scan: not a cut face) mean the other side's were not found.
-  {
+  void SayWhatIsMissing() {
     const bool left = !seg.bones.ribs_left.empty(), right = !seg.bones.ribs_right.empty();
     if (left && right && m.Find("sternum") == nullptr) {
       report.warnings.push_back(
@@ -545,7 +582,9 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
                                 "found: its intercostal spaces (ports) are missing");
     }
   }
-  stage("targets", [&] {
+
+  // The targets from their markups, inside the scanned box, with their approach normals.
+  void Targets() {
     for (const auto& spec : c.targets) {
       const auto markups = LoadMarkups(spec.markups);
       Target t;
@@ -591,9 +630,11 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
       }
       m.targets.push_back(std::move(t));
     }
-  });
-  int rays_kept = 0, rays_under_arm = 0;  // over the spaces found, out to the skin
-  stage("port candidates", [&] {
+  }
+
+  // The port candidates: annotated curves, or the intercostal spaces found, named from the ribs'
+  // numbers.
+  void PortCandidates() {
     for (const auto& file : c.port_markups) {
       for (const auto& mk : LoadMarkups(file)) {
         Curve skin;
@@ -702,9 +743,10 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
         }
       }
     }
-  });
-  {
-    // No port on a crop face: points within the margin of a face the body is cut by go.
+  }
+
+  // No port on a crop face: points within the margin of a face the body is cut by go.
+  void KeepPortsOffCutFaces() {
     const auto& faces = cut_faces;
     std::vector<PortCandidate> kept;
     int dropped_points = 0, dropped_curves = 0;
@@ -759,8 +801,9 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
       report.warnings.push_back(w.str());
     }
   }
-  if (upright) {
-    // The model back in the CT's frame; the body's box from its voxels' centres there.
+
+  // The model back in the CT's frame; the body's box from its voxels' centres there.
+  void BackToTheCtFrame() {
     const Eigen::Isometry3d X_PD = X_DP.inverse();
     for (auto& structure : m.structures) {
       for (auto& v : structure.mesh.vertices) v = X_PD * v;
@@ -786,24 +829,52 @@ ImportedPatient ImportCtState(const std::string& case_dir, CaseSpec c, const Imp
     m.body_min_P = lo;
     m.body_max_P = hi;
   }
-  m.X_WP = PoseOnTable(m.Find("skin")->mesh, m.left_side_up, m.table);
-  if (options.write_cache) {
-    // A case folder one cannot write to (a read-only checkout) still gives its model.
-    stage("write cache", [&] {
-      try {
-        WriteCacheFiles(m, report, cache_dir, key, ct.files);
-      } catch (const Error& e) {
-        report.cache_error = e.what();
-      }
-    });
-  }
-  // Said for this import only (the cache just written is sound).
-  if (!cache_damage.empty()) report.warnings.push_back(cache_damage);
-  report.timings = timings;
-  ImportedPatient built;
-  built.model = std::make_shared<const PatientModel>(std::move(m));
-  built.report = std::move(report);
-  return built;
+
+  const std::string& case_dir;
+  const CaseSpec& c;
+  const ImportOptions& options;
+  const std::string cache_dir, model_bin;
+  std::vector<std::pair<std::string, double>> timings;  // per stage run, s
+  const std::vector<std::string>* said = nullptr;       // the warnings so far (the report's)
+  bool warnings_told = false;
+  bool cache_exists = false;
+  std::string cache_damage;  // why a cache that was there could not be trusted
+  std::uint64_t key = 0;     // of the inputs, for the cache
+  Volume ct;
+  PatientModel m;
+  ImportReport report;
+  Segmentation seg;
+  // A patient lying rolled about the long axis (a wedge under one side, a scoliotic chest): the
+  // sorting by shape reads left-right and front-back along the scan's axes, and at 8-15 degrees
+  // lost ribs and their numbers. The body's cross-section (wider than deep) gives the roll; the
+  // import then works in a frame D turned upright about the body's centroid (the CT resampled
+  // onto a grid along D's axes), with every input given in P carried into D and the model
+  // carried back into P at the end.
+  Eigen::Isometry3d X_DP = Eigen::Isometry3d::Identity();
+  bool upright = false;
+  // The scan's cut faces are its own grid's: when the import works on a turned grid they are
+  // found, and measured, on the CT as it came (an oblique grid's crop faces, a gantry-tilted
+  // stack's top and bottom, lie slanted across the turned one).
+  Volume grid_P;  // the CT's geometry (no values)
+  std::vector<CutFace> faces_P;
+  LabelledAnatomy labelled;
+  const bool have_labels = !c.labels.empty();
+  std::vector<IntercostalSpace> layer_spaces[2];  // left, right
+  std::vector<WallReach> layer_reach;             // their sides' walls
+  bool layer_side[2] = {false, false};
+  double layer_floor = 0.0;
+  Mask heart;
+  bool have_heart = false;
+  std::string heart_note;  // an approximated heart says so
+  std::vector<CutFace> cut_faces;
+  double voxel = 0.0;                     // m^3
+  int rays_kept = 0, rays_under_arm = 0;  // over the spaces found, out to the skin
+};
+
+// The model in the CT's state, built or loaded from the cache.
+ImportedPatient ImportCtState(const std::string& case_dir, const CaseSpec& c,
+                              const ImportOptions& options) {
+  return CtImport(case_dir, c, options).Run();
 }
 
 }  // namespace
