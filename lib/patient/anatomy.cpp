@@ -801,548 +801,605 @@ long FillRibMarrow(const Volume& ct, const Mask& body, const std::vector<std::ui
   return filled;
 }
 
-// One sorting of the bone (ClassifyBones: with the vessel core of `o`).
-void ClassifyBonesOnce(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
-                       double min_bone_volume) {
-  const Slices slices(ct);
-  Eigen::Vector2d centre = 0.5 * (seg->body_min_P + seg->body_max_P).head<2>();
-  const double half_width = 0.5 * (seg->body_max_P.x() - seg->body_min_P.x());
-  const double voxel_volume = std::abs(ct.index_to_P.determinant());
-  Mask& bone = seg->bone;
-  BoneParts& parts = seg->bones;
-  parts = BoneParts{};
-  SpineAxis axis;
-
-  // 1. Contrast-filled heart and vessels; the bone threshold adapted to the scan: the lowest of
-  //    the plain thresholds at which no blood shows above it, else the contrast threshold with
-  //    the vessels sorted out by their thickness.
-  const long voxels_min_vessel = static_cast<long>(o.contrast_min_volume / voxel_volume);
-  Mask thick_bone;
-  seg->vessels = FindVessels(ct, seg->body, bone, slices, o, &axis, &thick_bone);
-  // The body's axis, that rays about it run from: the bounding box's centre, but left-right at
-  // the spine's midline when the box's centre is more than `axis_box_offset` off it (a crop face
-  // or an arm beside the body pulls the box aside; within it, the box is the steadier estimate).
-  if (axis.any) {
-    std::vector<double> xs;
-    for (int s = 0; s < slices.count; ++s) {
-      if (axis.known[s]) xs.push_back(axis.x[s]);
-    }
-    const double midline = Median(&xs);
-    if (std::abs(midline - centre.x()) > o.axis_box_offset) centre.x() = midline;
+// One sorting of the bone (ClassifyBones: with the vessel core of `o`), as numbered stages over
+// the state they share: (1) contrast-filled heart and vessels taken out and the threshold
+// adapted, (2) the bone's pieces sorted into ribs, sternum, spine and the rest, (3) the rib cage
+// kept to its one layer, (4) the ribs, sternum and spine grown into their marrow and measured,
+// (5) one rib's pieces joined and the stack of ribs kept, (6) the ribs numbered per side.
+struct BoneSorting {
+  BoneSorting(const Volume& ct, Segmentation* seg, const AnatomyOptions& o, double min_bone_volume)
+      : ct(ct),
+        seg(seg),
+        o(o),
+        min_bone_volume(min_bone_volume),
+        slices(ct),
+        centre(0.5 * (seg->body_min_P + seg->body_max_P).head<2>()),
+        half_width(0.5 * (seg->body_max_P.x() - seg->body_min_P.x())),
+        voxel_volume(std::abs(ct.index_to_P.determinant())),
+        bone(seg->bone),
+        parts(seg->bones) {
+    parts = BoneParts{};
   }
-  seg->axis_P = centre;
-  if (ct.hounsfield && !o.plain_bone_hu.empty() && o.plain_bone_hu.front() < seg->bone_threshold) {
-    // Contrast: a blood pool thick and bright enough to be found at all, beside the bone. Without
-    // it, the plain threshold keeps thin ribs and coarse slices' partial-volume bone.
-    long blood = 0, other = 0;
-    const double t = o.plain_bone_hu.front();
-    for (long v = 0; v < static_cast<long>(bone.inside.size()); ++v) {
-      if (seg->vessels.inside[v]) {
-        ++blood;
-      } else if (seg->body.inside[v] && ct.values[v] > t) {
-        ++other;
+  void Run() {
+    SeparateContrast();
+    SortPieces();
+    KeepToTheLayer();
+    GrowAndMeasure();
+    JoinRibs();
+    NumberRibs();
+  }
+
+  void SeparateContrast() {
+    // 1. Contrast-filled heart and vessels; the bone threshold adapted to the scan: the lowest of
+    //    the plain thresholds at which no blood shows above it, else the contrast threshold with
+    //    the vessels sorted out by their thickness.
+    const long voxels_min_vessel = static_cast<long>(o.contrast_min_volume / voxel_volume);
+    seg->vessels = FindVessels(ct, seg->body, bone, slices, o, &axis, &thick_bone);
+    // The body's axis, that rays about it run from: the bounding box's centre, but left-right at
+    // the spine's midline when the box's centre is more than `axis_box_offset` off it (a crop face
+    // or an arm beside the body pulls the box aside; within it, the box is the steadier estimate).
+    if (axis.any) {
+      std::vector<double> xs;
+      for (int s = 0; s < slices.count; ++s) {
+        if (axis.known[s]) xs.push_back(axis.x[s]);
       }
+      const double midline = Median(&xs);
+      if (std::abs(midline - centre.x()) > o.axis_box_offset) centre.x() = midline;
     }
-    seg->contrast = blood >= std::max<double>(voxels_min_vessel, o.contrast_bone_ratio * other);
-    if (!seg->contrast) {
-      std::ostringstream s;
-      s << "no contrast-filled blood pool (" << Ml(blood * voxel_volume)
-        << " of bright blobs off the bone): bone threshold " << t << " HU";
-      seg->anatomy.push_back(s.str());
-      seg->bone_threshold = t;
-      bone = Above(ct, seg->body, t);
-    }
-  } else {
-    seg->contrast = seg->vessels.count() >= voxels_min_vessel;
-  }
-  seg->shoulder.size = ct.size;
-  seg->shoulder.inside.assign(bone.inside.size(), 0);
-  {
-    long count = 0;
-    for (long v = 0; v < static_cast<long>(bone.inside.size()); ++v) {
-      if (!seg->vessels.inside[v]) continue;
-      bone.inside[v] = 0;
-      ++count;
-    }
-    if (count > 0) {
-      seg->anatomy.push_back("contrast-filled heart or vessels brighter than the bone threshold: " +
-                             Ml(count * voxel_volume) + ", kept out of the bone");
-    }
-    seg->contrast_volume = count * voxel_volume;
-  }
-
-  // Enhanced or not (bone grows differently; bright pieces without a cortex can be contrast).
-  const bool plain = ct.hounsfield && !seg->contrast &&
-                     Unenhanced(ct, seg->body, seg->bone_threshold, o, &seg->anatomy);
-
-  // 2. Pieces: the spine's column and the rest, never joined (ribs are cut from the vertebrae at
-  //    the column's edge).
-  std::vector<std::uint8_t> region(bone.inside.size(), 0);
-  for (int k = 0; k < ct.size.z(); ++k) {
-    for (int j = 0; j < ct.size.y(); ++j) {
-      for (int i = 0; i < ct.size.x(); ++i) {
-        const long v = ct.Index(i, j, k);
-        if (!bone.inside[v]) continue;
-        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
-        region[v] = InColumn(axis, slices.Of(p.z()), p, o) ? 2 : 1;
-      }
-    }
-  }
-  const auto pieces = ConnectedComponents(ct, bone, &parts.labels, &region);
-  std::vector<int> kind(pieces.size() + 1, 0);  // 0 none, 1 rib, 2 sternum, 3 spine, 4 shoulder
-  std::vector<long> column_voxels(pieces.size() + 1, 0), cortical_voxels(pieces.size() + 1, 0);
-  const double cortex_hu = ct.hounsfield ? o.cortical_hu : HUGE_VAL;
-  for (long v = 0; v < static_cast<long>(region.size()); ++v) {
-    if (parts.labels[v] != 0 && region[v] == 2) ++column_voxels[parts.labels[v]];
-    if (parts.labels[v] != 0 && ct.values[v] > cortex_hu) ++cortical_voxels[parts.labels[v]];
-  }
-  Release(&thick_bone.inside);
-  Release(&region);
-  // The body's front and back along the midline, per slice (±2 cm of the spine's line): the
-  // sternum lies in the front wall.
-  std::vector<double> wall_front(slices.count, HUGE_VAL), wall_back(slices.count, -HUGE_VAL);
-  {
-    const Eigen::Vector3d step_i = ct.index_to_P.col(0);
-    for (int k = 0; k < ct.size.z(); ++k) {
-      for (int j = 0; j < ct.size.y(); ++j) {
-        const std::uint8_t* row = &seg->body.inside[ct.Index(0, j, k)];
-        Eigen::Vector3d p = ct.PatientPoint(0, j, k);
-        for (int i = 0; i < ct.size.x(); ++i, p += step_i) {
-          if (!row[i]) continue;
-          const int s = slices.Of(p.z());
-          if (std::abs(p.x() - (axis.known[s] ? axis.x[s] : centre.x())) > 0.02) continue;
-          wall_front[s] = std::min(wall_front[s], p.y());
-          wall_back[s] = std::max(wall_back[s], p.y());
+    seg->axis_P = centre;
+    if (ct.hounsfield && !o.plain_bone_hu.empty() &&
+        o.plain_bone_hu.front() < seg->bone_threshold) {
+      // Contrast: a blood pool thick and bright enough to be found at all, beside the bone. Without
+      // it, the plain threshold keeps thin ribs and coarse slices' partial-volume bone.
+      long blood = 0, other = 0;
+      const double t = o.plain_bone_hu.front();
+      for (long v = 0; v < static_cast<long>(bone.inside.size()); ++v) {
+        if (seg->vessels.inside[v]) {
+          ++blood;
+        } else if (seg->body.inside[v] && ct.values[v] > t) {
+          ++other;
         }
       }
-    }
-  }
-  double calcified_volume = 0.0, mediastinal_volume = 0.0;
-  for (const Component& c : pieces) {
-    if (c.volume < min_bone_volume) continue;
-    // A fragment: the stubs the column leaves of a rib's neck or a process' tip.
-    if ((c.volume < o.min_rib_volume || (c.max_P - c.min_P).norm() < o.min_rib_length) &&
-        column_voxels[c.label] == 0) {
-      continue;
-    }
-    const int s = slices.Of(c.centroid_P.z());
-    if (column_voxels[c.label] > 0) {
-      // A small piece of the column, detached and wholly in front of the vertebral bodies' back
-      // wall (a centimetre ahead of the axis), is no vertebra: a calcified vessel wall (the
-      // aorta lies against the vertebral bodies' front and left), kept out of the bone's
-      // structures.
-      // So is a larger one without a cortex (under `cortical_fraction` above `cortical_hu`) in an
-      // enhanced scan: the contrast in an aorta too narrow to be found as a pool, pressed against
-      // the vertebrae (in a plain one, coarse voxels blur a vertebral body's cortex below it).
-      const bool ahead = axis.known[s] && c.max_P.y() < axis.y[s] - o.calcification_ahead;
-      const bool shell = !ct.hounsfield || cortical_voxels[c.label] >
-                                               o.cortical_fraction * static_cast<double>(c.voxels);
-      kind[c.label] = ahead && (c.volume < o.min_rib_volume || (!plain && !shell)) ? 0 : 3;
-      if (kind[c.label] == 0) calcified_volume += c.volume;
-      continue;
-    }
-    const double front = axis.known[s] ? axis.y[s] - o.spine_front : centre.y();
-    const double mid_x = axis.known[s] ? axis.x[s] : centre.x();
-    const bool midline = (c.min_P.x() < mid_x && c.max_P.x() > mid_x) ||
-                         std::abs(c.centroid_P.x() - mid_x) < o.sternum_lateral * half_width;
-    if (midline) {
-      kind[c.label] = c.centroid_P.y() < front ? 2 : 3;
-      // In front of the spine but behind the front wall: the mediastinum, where bright means
-      // contrast in a vessel too narrow to be found as a pool (a narrow stretch of a dissected
-      // aorta) or a calcification, never the sternum.
-      if (kind[c.label] == 2 && wall_front[s] < wall_back[s] &&
-          c.centroid_P.y() > wall_front[s] + o.sternum_wall * (wall_back[s] - wall_front[s])) {
-        kind[c.label] = 0;
-        mediastinal_volume += c.volume;
+      seg->contrast = blood >= std::max<double>(voxels_min_vessel, o.contrast_bone_ratio * other);
+      if (!seg->contrast) {
+        std::ostringstream s;
+        s << "no contrast-filled blood pool (" << Ml(blood * voxel_volume)
+          << " of bright blobs off the bone): bone threshold " << t << " HU";
+        seg->anatomy.push_back(s.str());
+        seg->bone_threshold = t;
+        bone = Above(ct, seg->body, t);
       }
     } else {
-      kind[c.label] = 1;
+      seg->contrast = seg->vessels.count() >= voxels_min_vessel;
     }
+    seg->shoulder.size = ct.size;
+    seg->shoulder.inside.assign(bone.inside.size(), 0);
+    {
+      long count = 0;
+      for (long v = 0; v < static_cast<long>(bone.inside.size()); ++v) {
+        if (!seg->vessels.inside[v]) continue;
+        bone.inside[v] = 0;
+        ++count;
+      }
+      if (count > 0) {
+        seg->anatomy.push_back(
+            "contrast-filled heart or vessels brighter than the bone threshold: " +
+            Ml(count * voxel_volume) + ", kept out of the bone");
+      }
+      seg->contrast_volume = count * voxel_volume;
+    }
+
+    // Enhanced or not (bone grows differently; bright pieces without a cortex can be contrast).
+    plain = ct.hounsfield && !seg->contrast &&
+            Unenhanced(ct, seg->body, seg->bone_threshold, o, &seg->anatomy);
   }
 
-  if (mediastinal_volume > 0.0) {
-    seg->anatomy.push_back(
-        "bright pieces in the mediastinum, behind the front wall and ahead of the spine (narrow "
-        "contrast-filled vessels, calcifications): " +
-        Ml(mediastinal_volume) + ", not sternum");
-  }
-  if (calcified_volume > 0.0) {
-    seg->anatomy.push_back(
-        "bone-bright pieces in front of the vertebral bodies, apart from them (vessel-wall "
-        "calcifications, small or without a cortex: contrast in a narrow aorta): " +
-        Ml(calcified_volume) + ", kept out of the spine");
-  }
-
-  // 3. Along the rays from the body's axis the rib cage is one layer: bone inside it (vessel-wall
-  //    calcifications, bits beside the spine) is not rib, and bone outside it (shoulder blades
-  //    behind the ribs, arms beside them, collarbones in front of the first ribs) is the shoulder
-  //    girdle. Inner pieces are taken out first, so they cannot make the ribs look outside.
-  {
-    constexpr int kBins = 120;  // 3° each
-    const int cells = slices.count * kBins;
-    auto cell_of = [&](const Eigen::Vector3d& p, double* r) {
-      const Eigen::Vector2d d = p.head<2>() - centre;
-      *r = d.norm();
-      const double angle = std::atan2(d.y(), d.x()) + M_PI;
-      const int b = std::min(kBins - 1, static_cast<int>(angle / (2 * M_PI) * kBins));
-      return slices.Of(p.z()) * kBins + b;
-    };
-    // The rib candidates' voxels with their cell and radius, gathered once (a few per mille of
-    // the scan): the passes below run over them, not over the whole grid.
-    struct RayVoxel {
-      int label, cell;
-      float r;
-    };
-    std::vector<RayVoxel> ray_voxels;
+  void SortPieces() {
+    // 2. Pieces: the spine's column and the rest, never joined (ribs are cut from the vertebrae at
+    //    the column's edge).
+    std::vector<std::uint8_t> region(bone.inside.size(), 0);
     for (int k = 0; k < ct.size.z(); ++k) {
       for (int j = 0; j < ct.size.y(); ++j) {
-        const long row = ct.Index(0, j, k);
         for (int i = 0; i < ct.size.x(); ++i) {
-          const int l = parts.labels[row + i];
-          if (l == 0 || kind[l] != 1) continue;
-          double r;
-          const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
-          ray_voxels.push_back({l, cell, static_cast<float>(r)});
+          const long v = ct.Index(i, j, k);
+          if (!bone.inside[v]) continue;
+          const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+          region[v] = InColumn(axis, slices.Of(p.z()), p, o) ? 2 : 1;
         }
       }
     }
-    // Calls f(label, cell, r) for every voxel of a piece that is still a rib candidate.
-    auto for_each_candidate = [&](const auto& f) {
-      for (const RayVoxel& rv : ray_voxels) {
-        if (kind[rv.label] == 1) f(rv.label, rv.cell, static_cast<double>(rv.r));
-      }
-    };
-    // Per piece: the share of its voxels with another candidate beyond it by the gap along the
-    // same ray (inner) or before it (outer), of all its voxels (`fraction`) and of those whose
-    // ray meets another candidate first (`shared`, outer only).
-    struct Layer {
-      std::vector<double> fraction, shared, of_shared;
-    };
-    auto layer_fractions = [&](bool outer) {
-      std::vector<float> r_ext(cells, outer ? HUGE_VALF : -HUGE_VALF);
-      std::vector<int> owner(cells, 0);
-      for_each_candidate([&](int l, int cell, double r) {
-        if (outer ? r < r_ext[cell] : r > r_ext[cell]) {
-          r_ext[cell] = static_cast<float>(r);
-          owner[cell] = l;
-        }
-      });
-      Layer layer;
-      layer.fraction.assign(pieces.size() + 1, 0.0);
-      layer.shared.assign(pieces.size() + 1, 0.0);
-      layer.of_shared.assign(pieces.size() + 1, 0.0);
-      for_each_candidate([&](int l, int cell, double r) {
-        if (owner[cell] == l) return;
-        layer.shared[l] += 1.0;
-        if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap)
-          layer.fraction[l] += 1.0;
-      });
-      for (const Component& c : pieces) {
-        layer.of_shared[c.label] =
-            layer.shared[c.label] > 0.0 ? layer.fraction[c.label] / layer.shared[c.label] : 0.0;
-        layer.fraction[c.label] /= static_cast<double>(c.voxels);
-        layer.shared[c.label] /= static_cast<double>(c.voxels);
-      }
-      return layer;
-    };
-    auto take_inner = [&](int as_kind) {
-      const Layer inner = layer_fractions(false);
-      bool any = false;
-      for (const Component& c : pieces) {
-        if (kind[c.label] == 1 && inner.fraction[c.label] > o.inner_fraction) {
-          kind[c.label] = as_kind;
-          any = true;
-        }
-      }
-      return any;
-    };
-    // Until no piece moves: a piece taken out leaves the pieces behind it to be judged against
-    // the ribs. An arm's cortex broken into strips along its length (a scan resampled, nearest
-    // voxel, 20 degrees turned) has its strips in each other's shadow by less than the gap where
-    // no rib crosses their rays; judged once, one 1-voxel strip through the whole scan stayed a
-    // "rib" and the side lost its numbers.
-    auto take_outer = [&] {
-      for (bool moved = true; moved;) {
-        moved = false;
-        const Layer outer = layer_fractions(true);
-        for (const Component& c : pieces) {
-          // Outside: much of it behind other bone; or, where its rays meet other bone at all (a
-          // long arm bone beside the chest meets ribs only in the slices they cross), mostly
-          // behind it.
-          const bool behind = outer.fraction[c.label] > o.shoulder_fraction ||
-                              (outer.shared[c.label] >= o.shoulder_shared_min &&
-                               outer.of_shared[c.label] >= o.shoulder_of_shared);
-          if (kind[c.label] == 1 && behind) {
-            kind[c.label] = 4;
-            moved = true;
+    pieces = ConnectedComponents(ct, bone, &parts.labels, &region);
+    kind.assign(pieces.size() + 1, 0);
+    std::vector<long> column_voxels(pieces.size() + 1, 0), cortical_voxels(pieces.size() + 1, 0);
+    const double cortex_hu = ct.hounsfield ? o.cortical_hu : HUGE_VAL;
+    for (long v = 0; v < static_cast<long>(region.size()); ++v) {
+      if (parts.labels[v] != 0 && region[v] == 2) ++column_voxels[parts.labels[v]];
+      if (parts.labels[v] != 0 && ct.values[v] > cortex_hu) ++cortical_voxels[parts.labels[v]];
+    }
+    Release(&thick_bone.inside);
+    Release(&region);
+    // The body's front and back along the midline, per slice (±2 cm of the spine's line): the
+    // sternum lies in the front wall.
+    std::vector<double> wall_front(slices.count, HUGE_VAL), wall_back(slices.count, -HUGE_VAL);
+    {
+      const Eigen::Vector3d step_i = ct.index_to_P.col(0);
+      for (int k = 0; k < ct.size.z(); ++k) {
+        for (int j = 0; j < ct.size.y(); ++j) {
+          const std::uint8_t* row = &seg->body.inside[ct.Index(0, j, k)];
+          Eigen::Vector3d p = ct.PatientPoint(0, j, k);
+          for (int i = 0; i < ct.size.x(); ++i, p += step_i) {
+            if (!row[i]) continue;
+            const int s = slices.Of(p.z());
+            if (std::abs(p.x() - (axis.known[s] ? axis.x[s] : centre.x())) > 0.02) continue;
+            wall_front[s] = std::min(wall_front[s], p.y());
+            wall_back[s] = std::max(wall_back[s], p.y());
           }
         }
       }
-    };
-    // Inside means inside the ribs, not inside the shoulder girdle: a first rib under its
-    // collarbone and shoulder blade is taken out as "inside" at first (kind 5), and put back
-    // once the girdle is known; the girdle is then looked for again with it in place.
-    constexpr int kTentative = 5;
-    if (take_inner(kTentative)) {
-      take_outer();
-      for (int& k : kind) k = k == kTentative ? 1 : k;
     }
-    take_inner(kTentative);
-    take_outer();
-    double inner_volume = 0.0, shoulder_volume = 0.0;
+    double calcified_volume = 0.0, mediastinal_volume = 0.0;
     for (const Component& c : pieces) {
-      if (kind[c.label] == kTentative) {
-        kind[c.label] = 0;
-        inner_volume += c.volume;
+      if (c.volume < min_bone_volume) continue;
+      // A fragment: the stubs the column leaves of a rib's neck or a process' tip.
+      if ((c.volume < o.min_rib_volume || (c.max_P - c.min_P).norm() < o.min_rib_length) &&
+          column_voxels[c.label] == 0) {
+        continue;
       }
-      if (kind[c.label] == 4) shoulder_volume += c.volume;
+      const int s = slices.Of(c.centroid_P.z());
+      if (column_voxels[c.label] > 0) {
+        // A small piece of the column, detached and wholly in front of the vertebral bodies' back
+        // wall (a centimetre ahead of the axis), is no vertebra: a calcified vessel wall (the
+        // aorta lies against the vertebral bodies' front and left), kept out of the bone's
+        // structures.
+        // So is a larger one without a cortex (under `cortical_fraction` above `cortical_hu`) in an
+        // enhanced scan: the contrast in an aorta too narrow to be found as a pool, pressed against
+        // the vertebrae (in a plain one, coarse voxels blur a vertebral body's cortex below it).
+        const bool ahead = axis.known[s] && c.max_P.y() < axis.y[s] - o.calcification_ahead;
+        const bool shell =
+            !ct.hounsfield ||
+            cortical_voxels[c.label] > o.cortical_fraction * static_cast<double>(c.voxels);
+        kind[c.label] = ahead && (c.volume < o.min_rib_volume || (!plain && !shell)) ? 0 : 3;
+        if (kind[c.label] == 0) calcified_volume += c.volume;
+        continue;
+      }
+      const double front = axis.known[s] ? axis.y[s] - o.spine_front : centre.y();
+      const double mid_x = axis.known[s] ? axis.x[s] : centre.x();
+      const bool midline = (c.min_P.x() < mid_x && c.max_P.x() > mid_x) ||
+                           std::abs(c.centroid_P.x() - mid_x) < o.sternum_lateral * half_width;
+      if (midline) {
+        kind[c.label] = c.centroid_P.y() < front ? 2 : 3;
+        // In front of the spine but behind the front wall: the mediastinum, where bright means
+        // contrast in a vessel too narrow to be found as a pool (a narrow stretch of a dissected
+        // aorta) or a calcification, never the sternum.
+        if (kind[c.label] == 2 && wall_front[s] < wall_back[s] &&
+            c.centroid_P.y() > wall_front[s] + o.sternum_wall * (wall_back[s] - wall_front[s])) {
+          kind[c.label] = 0;
+          mediastinal_volume += c.volume;
+        }
+      } else {
+        kind[c.label] = 1;
+      }
     }
-    if (inner_volume > 0.0) {
+
+    if (mediastinal_volume > 0.0) {
       seg->anatomy.push_back(
-          "bone inside the rib cage (not rib; calcifications, bits beside the spine): " +
-          Ml(inner_volume));
+          "bright pieces in the mediastinum, behind the front wall and ahead of the spine (narrow "
+          "contrast-filled vessels, calcifications): " +
+          Ml(mediastinal_volume) + ", not sternum");
     }
-    if (shoulder_volume > 0.0) {
-      seg->anatomy.push_back("bone outside the rib cage (shoulder girdle, arms): " +
-                             Ml(shoulder_volume) + ", kept out of the ribs");
-    }
-  }
-
-  // 4. Grow ribs, sternum and spine from their bright cortex into the marrow and rim.
-  const double grow = !ct.hounsfield ? o.raw_grow : plain ? o.unenhanced_max_hu : o.grow_hu;
-  const double grow_distance = plain ? o.plain_grow_distance : o.grow_distance;
-  if (grow > 0.0 && grow_distance > 0.0) {
-    for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
-      const int l = parts.labels[v];
-      if (l != 0 && (kind[l] == 0 || kind[l] == 4)) {
-        if (kind[l] == 4) seg->shoulder.inside[v] = 1;
-        parts.labels[v] = -l;  // kept, not grown from
-      }
-    }
-    const int steps =
-        std::max(1, static_cast<int>(std::lround(grow_distance / InPlaneSpacing(ct).mean())));
-    std::vector<int> grown = parts.labels;
-    for (int& l : grown) l = l > 0 ? l : 0;
-    Grow(ct, &grown, steps, [&](long n) {
-      return parts.labels[n] == 0 && seg->body.inside[n] && !seg->vessels.inside[n] &&
-             ct.values[n] > grow;
-    });
-    for (long v = 0; v < static_cast<long>(grown.size()); ++v) {
-      if (parts.labels[v] == 0 && grown[v] != 0) {
-        parts.labels[v] = grown[v];
-        bone.inside[v] = 1;
-      }
-      if (parts.labels[v] < 0) parts.labels[v] = -parts.labels[v];
-    }
-  } else {
-    for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
-      const int l = parts.labels[v];
-      if (l != 0 && kind[l] == 4) seg->shoulder.inside[v] = 1;
+    if (calcified_volume > 0.0) {
+      seg->anatomy.push_back(
+          "bone-bright pieces in front of the vertebral bodies, apart from them (vessel-wall "
+          "calcifications, small or without a cortex: contrast in a narrow aorta): " +
+          Ml(calcified_volume) + ", kept out of the spine");
     }
   }
 
-  // 4b. Marrow: the holes each rib's cross-section encloses in a slice are the rib's.
-  if (ct.hounsfield && o.marrow_max_area > 0.0) {
-    std::vector<std::uint8_t> is_rib(pieces.size() + 1, 0);
-    for (const Component& c : pieces) is_rib[c.label] = kind[c.label] == 1;
-    const long filled = FillRibMarrow(ct, seg->body, is_rib, o.marrow_floor_hu, o.marrow_max_area,
-                                      &parts.labels, &bone);
-    if (filled > 0)
-      seg->anatomy.push_back("rib marrow enclosed by the cortex: " + Ml(filled * voxel_volume) +
-                             ", taken into the ribs");
-  }
-
-  // Component statistics after growth.
-  std::vector<Component> stats(pieces.begin(), pieces.end());
-  {
-    std::vector<long> n(pieces.size() + 1, 0);
-    std::vector<Eigen::Vector3d> sum(pieces.size() + 1, Eigen::Vector3d::Zero());
-    std::vector<Eigen::Vector3d> lo(pieces.size() + 1, Eigen::Vector3d::Constant(HUGE_VAL)),
-        hi(pieces.size() + 1, Eigen::Vector3d::Constant(-HUGE_VAL));
-    for (int k = 0; k < ct.size.z(); ++k) {
-      for (int j = 0; j < ct.size.y(); ++j) {
-        for (int i = 0; i < ct.size.x(); ++i) {
-          const int l = parts.labels[ct.Index(i, j, k)];
-          if (l == 0) continue;
-          const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
-          ++n[l];
-          sum[l] += p;
-          lo[l] = lo[l].cwiseMin(p);
-          hi[l] = hi[l].cwiseMax(p);
+  void KeepToTheLayer() {
+    // 3. Along the rays from the body's axis the rib cage is one layer: bone inside it (vessel-wall
+    //    calcifications, bits beside the spine) is not rib, and bone outside it (shoulder blades
+    //    behind the ribs, arms beside them, collarbones in front of the first ribs) is the shoulder
+    //    girdle. Inner pieces are taken out first, so they cannot make the ribs look outside.
+    {
+      constexpr int kBins = 120;  // 3° each
+      const int cells = slices.count * kBins;
+      auto cell_of = [&](const Eigen::Vector3d& p, double* r) {
+        const Eigen::Vector2d d = p.head<2>() - centre;
+        *r = d.norm();
+        const double angle = std::atan2(d.y(), d.x()) + M_PI;
+        const int b = std::min(kBins - 1, static_cast<int>(angle / (2 * M_PI) * kBins));
+        return slices.Of(p.z()) * kBins + b;
+      };
+      // The rib candidates' voxels with their cell and radius, gathered once (a few per mille of
+      // the scan): the passes below run over them, not over the whole grid.
+      struct RayVoxel {
+        int label, cell;
+        float r;
+      };
+      std::vector<RayVoxel> ray_voxels;
+      for (int k = 0; k < ct.size.z(); ++k) {
+        for (int j = 0; j < ct.size.y(); ++j) {
+          const long row = ct.Index(0, j, k);
+          for (int i = 0; i < ct.size.x(); ++i) {
+            const int l = parts.labels[row + i];
+            if (l == 0 || kind[l] != 1) continue;
+            double r;
+            const int cell = cell_of(ct.PatientPoint(i, j, k), &r);
+            ray_voxels.push_back({l, cell, static_cast<float>(r)});
+          }
         }
       }
-    }
-    for (Component& c : stats) {
-      if (n[c.label] == 0) continue;
-      c.voxels = n[c.label];
-      c.volume = n[c.label] * voxel_volume;
-      c.centroid_P = sum[c.label] / static_cast<double>(n[c.label]);
-      c.min_P = lo[c.label];
-      c.max_P = hi[c.label];
+      // Calls f(label, cell, r) for every voxel of a piece that is still a rib candidate.
+      auto for_each_candidate = [&](const auto& f) {
+        for (const RayVoxel& rv : ray_voxels) {
+          if (kind[rv.label] == 1) f(rv.label, rv.cell, static_cast<double>(rv.r));
+        }
+      };
+      // Per piece: the share of its voxels with another candidate beyond it by the gap along the
+      // same ray (inner) or before it (outer), of all its voxels (`fraction`) and of those whose
+      // ray meets another candidate first (`shared`, outer only).
+      struct Layer {
+        std::vector<double> fraction, shared, of_shared;
+      };
+      auto layer_fractions = [&](bool outer) {
+        std::vector<float> r_ext(cells, outer ? HUGE_VALF : -HUGE_VALF);
+        std::vector<int> owner(cells, 0);
+        for_each_candidate([&](int l, int cell, double r) {
+          if (outer ? r < r_ext[cell] : r > r_ext[cell]) {
+            r_ext[cell] = static_cast<float>(r);
+            owner[cell] = l;
+          }
+        });
+        Layer layer;
+        layer.fraction.assign(pieces.size() + 1, 0.0);
+        layer.shared.assign(pieces.size() + 1, 0.0);
+        layer.of_shared.assign(pieces.size() + 1, 0.0);
+        for_each_candidate([&](int l, int cell, double r) {
+          if (owner[cell] == l) return;
+          layer.shared[l] += 1.0;
+          if (outer ? r > r_ext[cell] + o.shoulder_gap : r < r_ext[cell] - o.shoulder_gap)
+            layer.fraction[l] += 1.0;
+        });
+        for (const Component& c : pieces) {
+          layer.of_shared[c.label] =
+              layer.shared[c.label] > 0.0 ? layer.fraction[c.label] / layer.shared[c.label] : 0.0;
+          layer.fraction[c.label] /= static_cast<double>(c.voxels);
+          layer.shared[c.label] /= static_cast<double>(c.voxels);
+        }
+        return layer;
+      };
+      auto take_inner = [&](int as_kind) {
+        const Layer inner = layer_fractions(false);
+        bool any = false;
+        for (const Component& c : pieces) {
+          if (kind[c.label] == 1 && inner.fraction[c.label] > o.inner_fraction) {
+            kind[c.label] = as_kind;
+            any = true;
+          }
+        }
+        return any;
+      };
+      // Until no piece moves: a piece taken out leaves the pieces behind it to be judged against
+      // the ribs. An arm's cortex broken into strips along its length (a scan resampled, nearest
+      // voxel, 20 degrees turned) has its strips in each other's shadow by less than the gap where
+      // no rib crosses their rays; judged once, one 1-voxel strip through the whole scan stayed a
+      // "rib" and the side lost its numbers.
+      auto take_outer = [&] {
+        for (bool moved = true; moved;) {
+          moved = false;
+          const Layer outer = layer_fractions(true);
+          for (const Component& c : pieces) {
+            // Outside: much of it behind other bone; or, where its rays meet other bone at all (a
+            // long arm bone beside the chest meets ribs only in the slices they cross), mostly
+            // behind it.
+            const bool behind = outer.fraction[c.label] > o.shoulder_fraction ||
+                                (outer.shared[c.label] >= o.shoulder_shared_min &&
+                                 outer.of_shared[c.label] >= o.shoulder_of_shared);
+            if (kind[c.label] == 1 && behind) {
+              kind[c.label] = 4;
+              moved = true;
+            }
+          }
+        }
+      };
+      // Inside means inside the ribs, not inside the shoulder girdle: a first rib under its
+      // collarbone and shoulder blade is taken out as "inside" at first (kind 5), and put back
+      // once the girdle is known; the girdle is then looked for again with it in place.
+      constexpr int kTentative = 5;
+      if (take_inner(kTentative)) {
+        take_outer();
+        for (int& k : kind) k = k == kTentative ? 1 : k;
+      }
+      take_inner(kTentative);
+      take_outer();
+      double inner_volume = 0.0, shoulder_volume = 0.0;
+      for (const Component& c : pieces) {
+        if (kind[c.label] == kTentative) {
+          kind[c.label] = 0;
+          inner_volume += c.volume;
+        }
+        if (kind[c.label] == 4) shoulder_volume += c.volume;
+      }
+      if (inner_volume > 0.0) {
+        seg->anatomy.push_back(
+            "bone inside the rib cage (not rib; calcifications, bits beside the spine): " +
+            Ml(inner_volume));
+      }
+      if (shoulder_volume > 0.0) {
+        seg->anatomy.push_back("bone outside the rib cage (shoulder girdle, arms): " +
+                               Ml(shoulder_volume) + ", kept out of the ribs");
+      }
     }
   }
-  double lump_volume = 0.0;
-  for (const Component& c : stats) {
-    switch (kind[c.label]) {
-      case 1: {
-        // A rib is long and slender: a lump (a sacral wing, a transverse process) is not.
-        const double length = (c.max_P - c.min_P).norm();
-        if (c.volume > o.lump_volume &&
-            length * length * length < o.min_rib_elongation * c.volume) {
-          lump_volume += c.volume;
+
+  void GrowAndMeasure() {
+    // 4. Grow ribs, sternum and spine from their bright cortex into the marrow and rim.
+    const double grow = !ct.hounsfield ? o.raw_grow : plain ? o.unenhanced_max_hu : o.grow_hu;
+    const double grow_distance = plain ? o.plain_grow_distance : o.grow_distance;
+    if (grow > 0.0 && grow_distance > 0.0) {
+      for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
+        const int l = parts.labels[v];
+        if (l != 0 && (kind[l] == 0 || kind[l] == 4)) {
+          if (kind[l] == 4) seg->shoulder.inside[v] = 1;
+          parts.labels[v] = -l;  // kept, not grown from
+        }
+      }
+      const int steps =
+          std::max(1, static_cast<int>(std::lround(grow_distance / InPlaneSpacing(ct).mean())));
+      std::vector<int> grown = parts.labels;
+      for (int& l : grown) l = l > 0 ? l : 0;
+      Grow(ct, &grown, steps, [&](long n) {
+        return parts.labels[n] == 0 && seg->body.inside[n] && !seg->vessels.inside[n] &&
+               ct.values[n] > grow;
+      });
+      for (long v = 0; v < static_cast<long>(grown.size()); ++v) {
+        if (parts.labels[v] == 0 && grown[v] != 0) {
+          parts.labels[v] = grown[v];
+          bone.inside[v] = 1;
+        }
+        if (parts.labels[v] < 0) parts.labels[v] = -parts.labels[v];
+      }
+    } else {
+      for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
+        const int l = parts.labels[v];
+        if (l != 0 && kind[l] == 4) seg->shoulder.inside[v] = 1;
+      }
+    }
+
+    // 4b. Marrow: the holes each rib's cross-section encloses in a slice are the rib's.
+    if (ct.hounsfield && o.marrow_max_area > 0.0) {
+      std::vector<std::uint8_t> is_rib(pieces.size() + 1, 0);
+      for (const Component& c : pieces) is_rib[c.label] = kind[c.label] == 1;
+      const long filled = FillRibMarrow(ct, seg->body, is_rib, o.marrow_floor_hu, o.marrow_max_area,
+                                        &parts.labels, &bone);
+      if (filled > 0)
+        seg->anatomy.push_back("rib marrow enclosed by the cortex: " + Ml(filled * voxel_volume) +
+                               ", taken into the ribs");
+    }
+
+    // Component statistics after growth.
+    std::vector<Component> stats(pieces.begin(), pieces.end());
+    {
+      std::vector<long> n(pieces.size() + 1, 0);
+      std::vector<Eigen::Vector3d> sum(pieces.size() + 1, Eigen::Vector3d::Zero());
+      std::vector<Eigen::Vector3d> lo(pieces.size() + 1, Eigen::Vector3d::Constant(HUGE_VAL)),
+          hi(pieces.size() + 1, Eigen::Vector3d::Constant(-HUGE_VAL));
+      for (int k = 0; k < ct.size.z(); ++k) {
+        for (int j = 0; j < ct.size.y(); ++j) {
+          for (int i = 0; i < ct.size.x(); ++i) {
+            const int l = parts.labels[ct.Index(i, j, k)];
+            if (l == 0) continue;
+            const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+            ++n[l];
+            sum[l] += p;
+            lo[l] = lo[l].cwiseMin(p);
+            hi[l] = hi[l].cwiseMax(p);
+          }
+        }
+      }
+      for (Component& c : stats) {
+        if (n[c.label] == 0) continue;
+        c.voxels = n[c.label];
+        c.volume = n[c.label] * voxel_volume;
+        c.centroid_P = sum[c.label] / static_cast<double>(n[c.label]);
+        c.min_P = lo[c.label];
+        c.max_P = hi[c.label];
+      }
+    }
+    double lump_volume = 0.0;
+    for (const Component& c : stats) {
+      switch (kind[c.label]) {
+        case 1: {
+          // A rib is long and slender: a lump (a sacral wing, a transverse process) is not.
+          const double length = (c.max_P - c.min_P).norm();
+          if (c.volume > o.lump_volume &&
+              length * length * length < o.min_rib_elongation * c.volume) {
+            lump_volume += c.volume;
+            break;
+          }
+          (c.centroid_P.x() > (axis.any ? axis.x[slices.Of(c.centroid_P.z())] : centre.x())
+               ? parts.ribs_left
+               : parts.ribs_right)
+              .push_back(c);
           break;
         }
-        (c.centroid_P.x() > (axis.any ? axis.x[slices.Of(c.centroid_P.z())] : centre.x())
-             ? parts.ribs_left
-             : parts.ribs_right)
-            .push_back(c);
-        break;
+        case 2:
+          parts.sternum.push_back(c);
+          break;
+        case 3:
+          parts.spine.push_back(c);
+          break;
+        default:
+          break;
       }
-      case 2:
-        parts.sternum.push_back(c);
-        break;
-      case 3:
-        parts.spine.push_back(c);
-        break;
-      default:
-        break;
+    }
+    if (lump_volume > 0.0) {
+      seg->anatomy.push_back(
+          "bone lumps off the midline, not slender like a rib (transverse processes, the sacrum's "
+          "wings, a scapula's edge): " +
+          Ml(lump_volume));
     }
   }
-  if (lump_volume > 0.0) {
-    seg->anatomy.push_back(
-        "bone lumps off the midline, not slender like a rib (transverse processes, the sacrum's "
-        "wings, a scapula's edge): " +
-        Ml(lump_volume));
-  }
-  // 5. Pieces of one rib (cut by a crop face, or broken) joined.
-  JoinRibPieces(ct, centre, o, &parts.labels, &parts.ribs_left, &parts.ribs_right, &seg->anatomy);
-  // 5b. One stack of ribs: pieces far above or below the stack of most ribs are not ribs.
-  {
-    struct Span {
-      double lo, hi, volume;
-      int pieces;
-    };
-    std::vector<Span> spans;
-    for (const auto* ribs : {&parts.ribs_left, &parts.ribs_right}) {
-      for (const Component& c : *ribs) spans.push_back({c.min_P.z(), c.max_P.z(), c.volume, 1});
-    }
-    std::sort(spans.begin(), spans.end(), [](const Span& a, const Span& b) { return a.lo < b.lo; });
-    Span best{0.0, 0.0, -1.0, 0};
-    for (std::size_t a = 0; a < spans.size();) {
-      Span stack = spans[a];
-      std::size_t b = a + 1;
-      for (; b < spans.size() && spans[b].lo <= stack.hi + o.rib_stack_gap; ++b) {
-        stack.hi = std::max(stack.hi, spans[b].hi);
-        stack.volume += spans[b].volume;
-        ++stack.pieces;
-      }
-      if (std::make_pair(stack.pieces, stack.volume) > std::make_pair(best.pieces, best.volume))
-        best = stack;
-      a = b;
-    }
-    double apart = 0.0;
-    for (auto* ribs : {&parts.ribs_left, &parts.ribs_right}) {
-      ribs->erase(std::remove_if(ribs->begin(), ribs->end(),
-                                 [&](const Component& c) {
-                                   const bool out =
-                                       c.max_P.z() < best.lo - 1e-9 || c.min_P.z() > best.hi + 1e-9;
-                                   if (out) apart += c.volume;
-                                   return out;
-                                 }),
-                  ribs->end());
-    }
-    if (apart > 0.0) {
-      seg->anatomy.push_back("rib-like bone apart from the stack of ribs (more than " +
-                             std::to_string(static_cast<int>(std::lround(o.rib_stack_gap * 1e3))) +
-                             " mm above or below it: a femur, the sacrum, lumbar processes): " +
-                             Ml(apart) + ", not ribs");
-    }
-  }
-  auto by_height = [](const Component& a, const Component& b) {
-    return a.centroid_P.z() > b.centroid_P.z();
-  };
-  std::sort(parts.ribs_left.begin(), parts.ribs_left.end(), by_height);
-  std::sort(parts.ribs_right.begin(), parts.ribs_right.end(), by_height);
 
-  // 6. Numbering, per side: from rib 1 when the top of the rib cage is in view, from rib 12 when
-  //    its bottom is (the spine going on below the lowest rib); both must agree.
-  double scan_top = -HUGE_VAL, scan_bottom = HUGE_VAL;
-  for (int corner = 0; corner < 8; ++corner) {
-    const double z =
-        ct.PatientPoint(corner & 1 ? ct.size.x() - 1 : 0, corner & 2 ? ct.size.y() - 1 : 0,
-                        corner & 4 ? ct.size.z() - 1 : 0)
-            .z();
-    scan_top = std::max(scan_top, z);
-    scan_bottom = std::min(scan_bottom, z);
-  }
-  double spine_bottom = HUGE_VAL;
-  for (const Component& c : parts.spine) spine_bottom = std::min(spine_bottom, c.min_P.z());
-  double sternum_top = -HUGE_VAL;
-  for (const Component& c : parts.sternum) sternum_top = std::max(sternum_top, c.max_P.z());
-  for (int side : {+1, -1}) {
-    auto& ribs = side > 0 ? parts.ribs_left : parts.ribs_right;
-    RibNumbering& n = side > 0 ? seg->numbering_left : seg->numbering_right;
-    const std::string name = side > 0 ? "left" : "right";
-    if (ribs.empty()) {
-      n.basis = "no " + name + " rib found";
-      continue;
-    }
-    const int count = static_cast<int>(ribs.size());
-    const Component& top = ribs.front();
-    const Component& bottom = ribs.back();
-    // In view: no rib of this side reaches the scan's face there.
-    double rib_top = -HUGE_VAL, rib_bottom = HUGE_VAL;
-    for (const Component& c : ribs) {
-      rib_top = std::max(rib_top, c.max_P.z());
-      rib_bottom = std::min(rib_bottom, c.min_P.z());
-    }
-    const bool top_in_view = scan_top - rib_top >= o.top_margin;
-    const bool bottom_in_view = rib_bottom - scan_bottom >= o.bottom_spine &&
-                                spine_bottom <= rib_bottom - o.bottom_spine &&
-                                bottom.min_P.z() <= rib_bottom + 1e-9;
-    // Rib 1 meets the manubrium: the top rib's front end reaches the sternum's top.
-    const bool meets_manubrium = !parts.sternum.empty() && top.min_P.z() <= sternum_top + 0.01 &&
-                                 std::abs(top.max_P.z() - sternum_top) < 0.04;
-    std::ostringstream why;
-    int first = 0;  // number of ribs.front()
-    if (top_in_view && bottom_in_view) {
-      if (count == 12) {
-        first = 1;
-        n.confidence = 0.95;
-        why << "12 " << name << " ribs between the top of the rib cage and the lumbar spine";
-      } else {
-        why << count << " " << name
-            << " rib pieces between the top of the rib cage and the lumbar spine, not 12 "
-            << "(ribs broken into pieces or joined): not numbered";
+  void JoinRibs() {
+    // 5. Pieces of one rib (cut by a crop face, or broken) joined.
+    JoinRibPieces(ct, centre, o, &parts.labels, &parts.ribs_left, &parts.ribs_right, &seg->anatomy);
+    // 5b. One stack of ribs: pieces far above or below the stack of most ribs are not ribs.
+    {
+      struct Span {
+        double lo, hi, volume;
+        int pieces;
+      };
+      std::vector<Span> spans;
+      for (const auto* ribs : {&parts.ribs_left, &parts.ribs_right}) {
+        for (const Component& c : *ribs) spans.push_back({c.min_P.z(), c.max_P.z(), c.volume, 1});
       }
-    } else if (top_in_view && meets_manubrium) {
-      first = 1;
-      n.confidence = 0.8;
-      why << "from the top of the rib cage (the highest " << name
-          << " rib is rib 1, meeting the manubrium)";
-    } else if (top_in_view) {
-      why << "the top of the rib cage is in the scan but the highest " << name
-          << " rib does not meet the manubrium (rib 1 not confirmed): not numbered";
-    } else if (bottom_in_view) {
-      why << "only the bottom of the rib cage is in the scan: counting up from the lowest " << name
-          << " piece is not trusted (transverse processes and the pelvis can pass for ribs, and 11 "
-             "pairs occur): "
-             "not numbered";
-    } else {
-      why << "neither the top of the rib cage nor its bottom (with the lumbar spine) is in the "
-             "scan: "
-             "the "
-          << name << " ribs are not numbered";
+      std::sort(spans.begin(), spans.end(),
+                [](const Span& a, const Span& b) { return a.lo < b.lo; });
+      Span best{0.0, 0.0, -1.0, 0};
+      for (std::size_t a = 0; a < spans.size();) {
+        Span stack = spans[a];
+        std::size_t b = a + 1;
+        for (; b < spans.size() && spans[b].lo <= stack.hi + o.rib_stack_gap; ++b) {
+          stack.hi = std::max(stack.hi, spans[b].hi);
+          stack.volume += spans[b].volume;
+          ++stack.pieces;
+        }
+        if (std::make_pair(stack.pieces, stack.volume) > std::make_pair(best.pieces, best.volume))
+          best = stack;
+        a = b;
+      }
+      double apart = 0.0;
+      for (auto* ribs : {&parts.ribs_left, &parts.ribs_right}) {
+        ribs->erase(std::remove_if(ribs->begin(), ribs->end(),
+                                   [&](const Component& c) {
+                                     const bool out = c.max_P.z() < best.lo - 1e-9 ||
+                                                      c.min_P.z() > best.hi + 1e-9;
+                                     if (out) apart += c.volume;
+                                     return out;
+                                   }),
+                    ribs->end());
+      }
+      if (apart > 0.0) {
+        seg->anatomy.push_back(
+            "rib-like bone apart from the stack of ribs (more than " +
+            std::to_string(static_cast<int>(std::lround(o.rib_stack_gap * 1e3))) +
+            " mm above or below it: a femur, the sacrum, lumbar processes): " + Ml(apart) +
+            ", not ribs");
+      }
     }
-    n.basis = why.str();
-    n.numbered = first >= 1 && n.confidence >= 0.5 && first + count - 1 <= 12;
-    if (n.numbered) {
-      for (int r = 0; r < count; ++r) ribs[r].number = first + r;
-    } else {
-      n.confidence = 0.0;
-    }
+    auto by_height = [](const Component& a, const Component& b) {
+      return a.centroid_P.z() > b.centroid_P.z();
+    };
+    std::sort(parts.ribs_left.begin(), parts.ribs_left.end(), by_height);
+    std::sort(parts.ribs_right.begin(), parts.ribs_right.end(), by_height);
   }
-  parts.numbered = seg->numbering_left.numbered || seg->numbering_right.numbered;
+
+  void NumberRibs() {
+    // 6. Numbering, per side: from rib 1 when the top of the rib cage is in view, from rib 12 when
+    //    its bottom is (the spine going on below the lowest rib); both must agree.
+    double scan_top = -HUGE_VAL, scan_bottom = HUGE_VAL;
+    for (int corner = 0; corner < 8; ++corner) {
+      const double z =
+          ct.PatientPoint(corner & 1 ? ct.size.x() - 1 : 0, corner & 2 ? ct.size.y() - 1 : 0,
+                          corner & 4 ? ct.size.z() - 1 : 0)
+              .z();
+      scan_top = std::max(scan_top, z);
+      scan_bottom = std::min(scan_bottom, z);
+    }
+    double spine_bottom = HUGE_VAL;
+    for (const Component& c : parts.spine) spine_bottom = std::min(spine_bottom, c.min_P.z());
+    double sternum_top = -HUGE_VAL;
+    for (const Component& c : parts.sternum) sternum_top = std::max(sternum_top, c.max_P.z());
+    for (int side : {+1, -1}) {
+      auto& ribs = side > 0 ? parts.ribs_left : parts.ribs_right;
+      RibNumbering& n = side > 0 ? seg->numbering_left : seg->numbering_right;
+      const std::string name = side > 0 ? "left" : "right";
+      if (ribs.empty()) {
+        n.basis = "no " + name + " rib found";
+        continue;
+      }
+      const int count = static_cast<int>(ribs.size());
+      const Component& top = ribs.front();
+      const Component& bottom = ribs.back();
+      // In view: no rib of this side reaches the scan's face there.
+      double rib_top = -HUGE_VAL, rib_bottom = HUGE_VAL;
+      for (const Component& c : ribs) {
+        rib_top = std::max(rib_top, c.max_P.z());
+        rib_bottom = std::min(rib_bottom, c.min_P.z());
+      }
+      const bool top_in_view = scan_top - rib_top >= o.top_margin;
+      const bool bottom_in_view = rib_bottom - scan_bottom >= o.bottom_spine &&
+                                  spine_bottom <= rib_bottom - o.bottom_spine &&
+                                  bottom.min_P.z() <= rib_bottom + 1e-9;
+      // Rib 1 meets the manubrium: the top rib's front end reaches the sternum's top.
+      const bool meets_manubrium = !parts.sternum.empty() && top.min_P.z() <= sternum_top + 0.01 &&
+                                   std::abs(top.max_P.z() - sternum_top) < 0.04;
+      std::ostringstream why;
+      int first = 0;  // number of ribs.front()
+      if (top_in_view && bottom_in_view) {
+        if (count == 12) {
+          first = 1;
+          n.confidence = 0.95;
+          why << "12 " << name << " ribs between the top of the rib cage and the lumbar spine";
+        } else {
+          why << count << " " << name
+              << " rib pieces between the top of the rib cage and the lumbar spine, not 12 "
+              << "(ribs broken into pieces or joined): not numbered";
+        }
+      } else if (top_in_view && meets_manubrium) {
+        first = 1;
+        n.confidence = 0.8;
+        why << "from the top of the rib cage (the highest " << name
+            << " rib is rib 1, meeting the manubrium)";
+      } else if (top_in_view) {
+        why << "the top of the rib cage is in the scan but the highest " << name
+            << " rib does not meet the manubrium (rib 1 not confirmed): not numbered";
+      } else if (bottom_in_view) {
+        why << "only the bottom of the rib cage is in the scan: counting up from the lowest "
+            << name
+            << " piece is not trusted (transverse processes and the pelvis can pass for ribs, and "
+               "11 "
+               "pairs occur): "
+               "not numbered";
+      } else {
+        why << "neither the top of the rib cage nor its bottom (with the lumbar spine) is in the "
+               "scan: "
+               "the "
+            << name << " ribs are not numbered";
+      }
+      n.basis = why.str();
+      n.numbered = first >= 1 && n.confidence >= 0.5 && first + count - 1 <= 12;
+      if (n.numbered) {
+        for (int r = 0; r < count; ++r) ribs[r].number = first + r;
+      } else {
+        n.confidence = 0.0;
+      }
+    }
+    parts.numbered = seg->numbering_left.numbered || seg->numbering_right.numbered;
+  }
+
+  const Volume& ct;
+  Segmentation* seg;
+  const AnatomyOptions& o;
+  const double min_bone_volume;
+  const Slices slices;
+  Eigen::Vector2d centre;  // the body's axis (x at the spine's midline when the box is off it)
+  const double half_width;
+  const double voxel_volume;
+  Mask& bone;
+  BoneParts& parts;
+  SpineAxis axis;
+  Mask thick_bone;
+  bool plain = false;             // an unenhanced scan in HU
+  std::vector<Component> pieces;  // of the bone, the column's apart
+  std::vector<int> kind;          // per piece label: 0 none, 1 rib, 2 sternum, 3 spine, 4 shoulder
+};
+
+// One sorting of the bone (ClassifyBones: with the vessel core of `o`).
+void ClassifyBonesOnce(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
+                       double min_bone_volume) {
+  BoneSorting(ct, seg, o, min_bone_volume).Run();
 }
 
 }  // namespace
