@@ -4,11 +4,13 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <iomanip>
 #include <iostream>
 #include <memory>
 #include <optional>
 #include <sstream>
+#include <utility>
 
 #include "apps/trocar/commands.hpp"
 #include "apps/trocar/progress.hpp"
@@ -56,217 +58,263 @@ std::string DefaultRobot() {
   return file;
 }
 
-int RunPlan(PlanOptions o) {
-  using Clock = std::chrono::steady_clock;
-  const auto t0 = Clock::now();
-  // Everything the command line says is checked before any work.
-  WithFlags({{"top_k", "--top"}}, [&] { planners::ValidateOptions(o.optimizer); });
-  if (!o.no_verify) WithFlags(MotionFlags(), [&] { planners::ValidateMotionOptions(o.motion); });
-  TROCAR_THROW_UNLESS(!o.out.empty(), "--out: an output folder is required");
-  TROCAR_THROW_UNLESS(std::filesystem::is_directory(o.case_dir),
-                      o.case_dir << ": not a case folder (expected a folder with patient.yaml)");
-  if (o.robot.empty()) o.robot = DefaultRobot();
-  TROCAR_THROW_UNLESS(IsRegularFile(o.robot), "--robot: " << o.robot << ": no such file");
-  TROCAR_THROW_UNLESS(o.ports == "optimise" || o.ports == "template" || IsRegularFile(o.ports),
-                      "--ports: '" << o.ports
-                                   << "' is neither 'optimise', 'template' nor a ports file "
-                                      "(3D Slicer point list .mrk.json) that exists");
-  TROCAR_THROW_UNLESS(o.baseline == "none" || o.baseline == "template" || IsRegularFile(o.baseline),
-                      "--baseline: '" << o.baseline
-                                      << "' is neither 'template', 'none' nor a ports file "
-                                         "(3D Slicer point list .mrk.json) that exists");
-  planners::ProblemOptions problem_options;
-  planners::ReadPlanConfig(o.case_dir, &problem_options);
-  if (!o.arms.empty()) problem_options.arms = o.arms;
-  for (const auto& r : o.roles) problem_options.roles.push_back(r);
-  if (o.samples > 0) problem_options.samples_per_target = o.samples;
-  problem_options.seed = o.optimizer.seed;
-  if (o.no_robustness) o.optimizer.robustness_shift = 0.0;
-  // The verdict says what would reach each unserved stretch (about 10 evaluations a stretch).
-  o.optimizer.remedies = !o.no_remedies;
-  auto robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(o.robot));
-  // Arms and roles checked against the robot before the patient is imported.
-  {
-    auto arms = planners::FindArms(*robot, problem_options.roles);
-    if (!problem_options.arms.empty()) planners::SelectArms(arms, problem_options.arms);
+// `trocar plan` as stages: the options checked, the inputs loaded (robot, patient, problem), the
+// baseline placed, the search (or the given ports placed), the verified motions, the anatomical
+// criteria, the plan folder written, the report printed.
+class PlanCommand {
+ public:
+  explicit PlanCommand(PlanOptions o) : o_(std::move(o)), t0_(Clock::now()), bar_(o_.quiet) {}
+
+  int Run() {
+    const planners::ProblemOptions problem_options = CheckOptions();
+    LoadInputs(problem_options);
+    PrintHeader();
+    PlaceBaseline();
+    Search();
+    Verify();
+    MeasureCriteria();
+    Write();
+    return Report();
   }
-  TerminalProgress bar(o.quiet);
-  patient::ImportOptions import_options;
-  import_options.progress = [&bar](const std::string& stage) { bar.Update(-1.0, "importing: " + stage); };
-  const patient::ImportedPatient imported = patient::ImportCase(o.case_dir, import_options);
-  bar.Clear();
-  const std::shared_ptr<const patient::PatientModel> patient = imported.model;
-  const planners::PortPlacementProblem problem(patient, robot, problem_options);
-  if (!o.quiet) {
-    std::cout << "planned in " << patient->operation.Describe() << "\n";
-    std::cout << "patient " << patient->name << (imported.report.from_cache ? " (cached model)" : "")
-              << ": " << patient->targets.size() << " targets, " << problem.samples().size()
-              << " target samples, " << patient->port_candidates.size()
+
+ private:
+  using Clock = std::chrono::steady_clock;
+
+  // Everything the command line says is checked before any work; the problem's options.
+  planners::ProblemOptions CheckOptions() {
+    WithFlags({{"top_k", "--top"}}, [&] { planners::ValidateOptions(o_.optimizer); });
+    if (!o_.no_verify)
+      WithFlags(MotionFlags(), [&] { planners::ValidateMotionOptions(o_.motion); });
+    TROCAR_THROW_UNLESS(!o_.out.empty(), "--out: an output folder is required");
+    TROCAR_THROW_UNLESS(std::filesystem::is_directory(o_.case_dir),
+                        o_.case_dir << ": not a case folder (expected a folder with patient.yaml)");
+    if (o_.robot.empty()) o_.robot = DefaultRobot();
+    TROCAR_THROW_UNLESS(IsRegularFile(o_.robot), "--robot: " << o_.robot << ": no such file");
+    TROCAR_THROW_UNLESS(o_.ports == "optimise" || o_.ports == "template" || IsRegularFile(o_.ports),
+                        "--ports: '" << o_.ports
+                                     << "' is neither 'optimise', 'template' nor a ports file "
+                                        "(3D Slicer point list .mrk.json) that exists");
+    TROCAR_THROW_UNLESS(
+        o_.baseline == "none" || o_.baseline == "template" || IsRegularFile(o_.baseline),
+        "--baseline: '" << o_.baseline
+                        << "' is neither 'template', 'none' nor a ports file "
+                           "(3D Slicer point list .mrk.json) that exists");
+    planners::ProblemOptions problem_options;
+    planners::ReadPlanConfig(o_.case_dir, &problem_options);
+    if (!o_.arms.empty()) problem_options.arms = o_.arms;
+    for (const auto& r : o_.roles) problem_options.roles.push_back(r);
+    if (o_.samples > 0) problem_options.samples_per_target = o_.samples;
+    problem_options.seed = o_.optimizer.seed;
+    if (o_.no_robustness) o_.optimizer.robustness_shift = 0.0;
+    // The verdict says what would reach each unserved stretch (about 10 evaluations a stretch).
+    o_.optimizer.remedies = !o_.no_remedies;
+    return problem_options;
+  }
+
+  // The robot (its arms and roles checked before the patient is imported), the patient, the
+  // problem.
+  void LoadInputs(const planners::ProblemOptions& problem_options) {
+    robot_ = std::make_shared<const robot::RobotModel>(robot::LoadRobot(o_.robot));
+    {
+      auto arms = planners::FindArms(*robot_, problem_options.roles);
+      if (!problem_options.arms.empty()) planners::SelectArms(arms, problem_options.arms);
+    }
+    patient::ImportOptions import_options;
+    import_options.progress = [this](const std::string& stage) {
+      bar_.Update(-1.0, "importing: " + stage);
+    };
+    imported_ = patient::ImportCase(o_.case_dir, import_options);
+    bar_.Clear();
+    patient_ = imported_.model;
+    problem_ =
+        std::make_unique<const planners::PortPlacementProblem>(patient_, robot_, problem_options);
+  }
+
+  void PrintHeader() const {
+    if (o_.quiet) return;
+    const planners::PortPlacementProblem& problem = *problem_;
+    std::cout << "planned in " << patient_->operation.Describe() << "\n";
+    std::cout << "patient " << patient_->name
+              << (imported_.report.from_cache ? " (cached model)" : "") << ": "
+              << patient_->targets.size() << " targets, " << problem.samples().size()
+              << " target samples, " << patient_->port_candidates.size()
               << " port candidate curves\n";
     // What the import could not find matters to the plan (a missing sternum moves the midline
     // and the LIMA; issue #42 item 3): said before planning, cached loads included.
-    for (const auto& w : imported.report.warnings) std::cout << "  warning: " << w << "\n";
-    std::cout << "robot " << robot->name() << ": arms";
+    for (const auto& w : imported_.report.warnings) std::cout << "  warning: " << w << "\n";
+    std::cout << "robot " << robot_->name() << ": arms";
     for (const auto& a : problem.arms())
       std::cout << " " << a.name << " (" << planners::ToString(a.role) << ")";
-    std::cout << "\noptimiser: " << o.optimizer.algorithm << " then " << o.optimizer.local << ", "
-              << o.optimizer.evaluations << " evaluations in " << o.optimizer.starts
-              << " starts, seed " << o.optimizer.seed << "\n"
+    std::cout << "\noptimiser: " << o_.optimizer.algorithm << " then " << o_.optimizer.local << ", "
+              << o_.optimizer.evaluations << " evaluations in " << o_.optimizer.starts
+              << " starts, seed " << o_.optimizer.seed << "\n"
               << std::flush;
   }
+
+  // A progress callback drawing `prefix` and the stage over [lo, hi] of the command's bar.
+  std::function<void(double, const std::string&)> Span(double lo, double hi,
+                                                       const std::string& prefix) {
+    return [this, lo, hi, prefix](double f, const std::string& stage) {
+      bar_.Update(lo + (hi - lo) * f, prefix + stage);
+    };
+  }
+
   // The command's share of time, roughly: the baseline's cart 10 %, the search to 80 %, the
   // verified motions the rest (the search to 100 % without them).
-  const double search_end = o.no_verify ? 1.0 : 0.8;
-  auto span = [&bar](double lo, double hi, const std::string& prefix) {
-    return std::function<void(double, const std::string&)>(
-        [&bar, lo, hi, prefix](double f, const std::string& stage) {
-          bar.Update(lo + (hi - lo) * f, prefix + stage);
-        });
-  };
-  if (bar.enabled()) o.optimizer.progress = span(0.0, 0.1, "the baseline's cart: ");
-  // The plans: the optimiser's, or the ports given (placed before any search: a template that
-  // cannot be placed or a bad ports file is an error, nothing written).
-  const std::vector<planners::FixedPorts> given =
-      o.ports == "optimise" ? std::vector<planners::FixedPorts>{} : GivenPorts(problem, o.ports);
-  // A surgeon's ports file as the baseline is read before the search too (its errors are the
-  // user's); the template, when it cannot be placed, says why in the plan file instead.
-  std::vector<planners::FixedPorts> baseline_ports;
-  std::string baseline_why_not;
-  if (given.empty() && o.baseline != "none") {
+  double SearchEnd() const { return o_.no_verify ? 1.0 : 0.8; }
+
+  // The ports given (placed before any search: a template that cannot be placed or a bad ports
+  // file is an error, nothing written); beside optimised plans, the baseline a surgeon would
+  // compare them with: the template placed on this patient (when its spaces are named:
+  // otherwise why not, in the plan file), or the surgeon's own ports. Placed before the search,
+  // which starts from it (PortPlacementOptions::initial): the best plan then scores at least as
+  // well as what a surgeon would have done.
+  void PlaceBaseline() {
+    const planners::PortPlacementProblem& problem = *problem_;
+    if (bar_.enabled()) o_.optimizer.progress = Span(0.0, 0.1, "the baseline's cart: ");
+    if (o_.ports != "optimise") given_ = GivenPorts(problem, o_.ports);
+    if (!given_.empty() || o_.baseline == "none") return;
+    // A surgeon's ports file as the baseline is read before the search too (its errors are the
+    // user's); the template, when it cannot be placed, says why in the plan file instead.
+    std::vector<planners::FixedPorts> baseline_ports;
+    std::string baseline_why_not;
     try {
-      baseline_ports = GivenPorts(problem, o.baseline);
+      baseline_ports = GivenPorts(problem, o_.baseline);
     } catch (const Error& e) {
-      if (o.baseline != "template") throw;
+      if (o_.baseline != "template") throw;
       baseline_why_not = e.what();
     }
-  }
-  // Beside optimised plans, the baseline a surgeon would compare them with: the template placed
-  // on this patient (when its spaces are named: otherwise why not, in the plan file), or the
-  // surgeon's own ports.
-  // Placed before the search, which starts from it (PortPlacementOptions::initial): the best
-  // plan then scores at least as well as what a surgeon would have done.
-  std::vector<planners::Baseline> baselines;
-  if (given.empty() && o.baseline != "none") {
     planners::Baseline b;
-    b.kind = o.baseline == "template" ? "template" : "surgeon";
-    b.name = o.baseline == "template" ? planners::TecabTemplate().title : o.baseline;
+    b.kind = o_.baseline == "template" ? "template" : "surgeon";
+    b.name = o_.baseline == "template" ? planners::TecabTemplate().title : o_.baseline;
     if (baseline_ports.empty()) {
       b.why_not = baseline_why_not;
     } else {
-      b.fixed = planners::PlanFixedPorts(problem, baseline_ports, o.optimizer);
+      b.fixed = planners::PlanFixedPorts(problem, baseline_ports, o_.optimizer);
       b.placed = true;
-      o.optimizer.initial.push_back(b.fixed.plan.placement);
+      o_.optimizer.initial.push_back(b.fixed.plan.placement);
     }
-    baselines.push_back(std::move(b));
+    baselines_.push_back(std::move(b));
   }
-  planners::PortPlacementResult result;
-  if (bar.enabled()) o.optimizer.progress = span(given.empty() ? 0.1 : 0.0, search_end, "");
-  if (given.empty()) {
-    result = planners::OptimizePorts(problem, o.optimizer);
-  } else {
-    planners::FixedPortsPlan f = planners::PlanFixedPorts(problem, given, o.optimizer);
-    result.algorithm = "fixed ports";
-    result.local = o.optimizer.local;
-    result.evaluations = result.global_evaluations = f.evaluations;
-    result.best_global_score = f.plan.evaluation.score;
-    result.threads = f.threads;
-    result.grid = f.search;
-    result.ports_given = f.ports.kind + ": " + f.ports.name;
-    result.ports_where = f.ports.where;
-    result.verdict = f.verdict;
-    result.plans.push_back(std::move(f.plan));
-    for (const auto& n : f.ports.notes) std::cout << "note: " << n << "\n";
+
+  // The optimiser's plans, or the given ports' plan; the baselines beside them.
+  void Search() {
+    const planners::PortPlacementProblem& problem = *problem_;
+    if (bar_.enabled()) o_.optimizer.progress = Span(given_.empty() ? 0.1 : 0.0, SearchEnd(), "");
+    if (given_.empty()) {
+      result_ = planners::OptimizePorts(problem, o_.optimizer);
+    } else {
+      planners::FixedPortsPlan f = planners::PlanFixedPorts(problem, given_, o_.optimizer);
+      result_.algorithm = "fixed ports";
+      result_.local = o_.optimizer.local;
+      result_.evaluations = result_.global_evaluations = f.evaluations;
+      result_.best_global_score = f.plan.evaluation.score;
+      result_.threads = f.threads;
+      result_.grid = f.search;
+      result_.ports_given = f.ports.kind + ": " + f.ports.name;
+      result_.ports_where = f.ports.where;
+      result_.verdict = f.verdict;
+      result_.plans.push_back(std::move(f.plan));
+      for (const auto& n : f.ports.notes) std::cout << "note: " << n << "\n";
+    }
+    for (auto& b : baselines_) {
+      if (b.placed) result_.evaluations += b.fixed.evaluations;
+      result_.baselines.push_back(std::move(b));
+    }
   }
-  for (auto& b : baselines) {
-    if (b.placed) result.evaluations += b.fixed.evaluations;
-    result.baselines.push_back(std::move(b));
-  }
+
   // Verified motions for every ranked plan (unless --no-verify), then the plans re-ranked with
-  // the verified coverage in place of the claimed one.
-  std::vector<planners::PlanVerification> verifications;
-  if (!o.no_verify) {
-    for (std::size_t k = 0; k < result.plans.size(); ++k) {
-      const double n = static_cast<double>(result.plans.size());
-      verifications.push_back(planners::VerifyPlan(
-          problem, result.plans[k], o.motion, o.optimizer.suitable_fraction, o.motion_threads,
+  // the verified coverage in place of the claimed one; the baselines' too.
+  void Verify() {
+    if (o_.no_verify) {
+      bar_.Clear();
+      return;
+    }
+    const planners::PortPlacementProblem& problem = *problem_;
+    for (std::size_t k = 0; k < result_.plans.size(); ++k) {
+      const double n = static_cast<double>(result_.plans.size());
+      verifications_.push_back(planners::VerifyPlan(
+          problem, result_.plans[k], o_.motion, o_.optimizer.suitable_fraction, o_.motion_threads,
           [&](int done, int of) {
-            bar.Update(0.8 + 0.19 * (k + static_cast<double>(done) / of) / n,
-                       "verifying motions: plan " + std::to_string(k + 1) + ", " +
-                           std::to_string(done) + " of " + std::to_string(of));
+            bar_.Update(0.8 + 0.19 * (k + static_cast<double>(done) / of) / n,
+                        "verifying motions: plan " + std::to_string(k + 1) + ", " +
+                            std::to_string(done) + " of " + std::to_string(of));
           }));
     }
-    planners::RankByVerification(&result, &verifications);
-  }
-  std::vector<planners::PlanVerification> baseline_verifications;
-  if (!o.no_verify) {
-    for (const auto& b : result.baselines) {
+    planners::RankByVerification(&result_, &verifications_);
+    for (const auto& b : result_.baselines) {
       if (!b.placed) continue;
-      baseline_verifications.push_back(planners::VerifyPlan(
-          problem, b.fixed.plan, o.motion, o.optimizer.suitable_fraction, o.motion_threads,
+      baseline_verifications_.push_back(planners::VerifyPlan(
+          problem, b.fixed.plan, o_.motion, o_.optimizer.suitable_fraction, o_.motion_threads,
           [&](int done, int of) {
-            bar.Update(0.99, "verifying motions: the baseline, " + std::to_string(done) + " of " +
-                                 std::to_string(of));
+            bar_.Update(0.99, "verifying motions: the baseline, " + std::to_string(done) + " of " +
+                                  std::to_string(of));
           }));
     }
+    bar_.Clear();
   }
-  bar.Clear();
+
   // The anatomical selection criteria, on the CT (as published), at the best plan's camera port,
   // compared with the verdict that counts (the verified one unless --no-verify).
-  {
-    const patient::PatientModel& ct = imported.ct_model ? *imported.ct_model : *patient;
+  void MeasureCriteria() {
+    const patient::PatientModel& ct = imported_.ct_model ? *imported_.ct_model : *patient_;
     std::optional<Eigen::Vector3d> camera_P;
-    if (!result.plans.empty()) {
-      for (std::size_t a = 0; a < problem.arms().size(); ++a) {
-        if (problem.arms()[a].role == planners::ArmRole::kEndoscope) {
-          camera_P = patient->X_WP.inverse() * result.plans.front().placement.sites[a].p_rcm_W;
+    if (!result_.plans.empty()) {
+      for (std::size_t a = 0; a < problem_->arms().size(); ++a) {
+        if (problem_->arms()[a].role == planners::ArmRole::kEndoscope) {
+          camera_P = patient_->X_WP.inverse() * result_.plans.front().placement.sites[a].p_rcm_W;
           break;
         }
       }
     }
-    result.criteria = planners::MeasureSelectionCriteria(ct, camera_P ? &*camera_P : nullptr);
-    const bool counts = verifications.empty() ? result.verdict.suitable : verifications.front().suitable;
-    result.criteria_comparison = result.criteria.Compare(counts);
+    result_.criteria = planners::MeasureSelectionCriteria(ct, camera_P ? &*camera_P : nullptr);
+    const bool counts =
+        verifications_.empty() ? result_.verdict.suitable : verifications_.front().suitable;
+    result_.criteria_comparison = result_.criteria.Compare(counts);
   }
 
-  planners::PlanInputs inputs;
-  inputs.case_dir = o.case_dir;
-  inputs.robot_file = o.robot;
-  inputs.case_hash = planners::HashFile(JoinPath(o.case_dir, "patient.yaml"));
-  inputs.robot_hash = planners::HashFile(o.robot);
-  inputs.model_hash = planners::HashPatientModel(*patient);
-  planners::WritePlanFolder(o.out, problem, result, o.optimizer, inputs,
-                            [&](planners::PlanFile* file) {
-                              if (!verifications.empty())
-                                planners::AddVerification(file, problem, verifications,
-                                                          baseline_verifications);
-                            });
+  void Write() const {
+    planners::PlanInputs inputs;
+    inputs.case_dir = o_.case_dir;
+    inputs.robot_file = o_.robot;
+    inputs.case_hash = planners::HashFile(JoinPath(o_.case_dir, "patient.yaml"));
+    inputs.robot_hash = planners::HashFile(o_.robot);
+    inputs.model_hash = planners::HashPatientModel(*patient_);
+    planners::WritePlanFolder(
+        o_.out, *problem_, result_, o_.optimizer, inputs, [&](planners::PlanFile* file) {
+          if (!verifications_.empty())
+            planners::AddVerification(file, *problem_, verifications_, baseline_verifications_);
+        });
+  }
 
-  std::cout << std::fixed;
-  // What the robustness score is the mean over (optimizer.cpp): the heart over its operative range,
-  // or, in the CT's state, the targets moved along each axis.
-  std::string robustness = "not re-scored";
-  if (o.optimizer.robustness_shift > 0) {
+  // What the robustness score is the mean over (optimizer.cpp): the heart over its operative
+  // range, or, in the CT's state, the targets moved along each axis.
+  std::string Robustness() const {
+    if (o_.optimizer.robustness_shift <= 0) return "not re-scored";
     std::ostringstream r;
-    const patient::OperativeState& op = patient->operation;
+    const patient::OperativeState& op = patient_->operation;
     if (op.moves()) {
       r << std::fixed << std::setprecision(1) << "heart " << op.heart_shift_min * 1e3 << "-"
         << op.heart_shift_max * 1e3 << " mm";
     } else {
-      r << std::fixed << std::setprecision(0) << "targets moved " << o.optimizer.robustness_shift * 1e3 << " mm";
+      r << std::fixed << std::setprecision(0) << "targets moved "
+        << o_.optimizer.robustness_shift * 1e3 << " mm";
     }
-    robustness = r.str();
+    return r.str();
   }
-  auto print_plan = [&](const std::string& title, const planners::RankedPlan& plan,
-                        const planners::PlanVerification* verification) {
+
+  void PrintPlan(const std::string& title, const planners::RankedPlan& plan,
+                 const planners::PlanVerification* verification) const {
     const auto& ev = plan.evaluation;
-    std::cout << "\n" << title << ": score " << std::setprecision(3) << ev.score << " (rank "
-              << plan.rank_score << ", " << robustness << ": " << plan.robust_score << "), "
+    std::cout << "\n"
+              << title << ": score " << std::setprecision(3) << ev.score << " (rank "
+              << plan.rank_score << ", " << Robustness() << ": " << plan.robust_score << "), "
               << planners::ToString(ev.status) << "\n";
     for (std::size_t a = 0; a < plan.placement.sites.size(); ++a) {
       const auto& site = plan.placement.sites[a];
       const Eigen::Vector3d p = site.p_P * 1e3;
-      std::cout << "  " << std::left << std::setw(6) << problem.arms()[a].name << std::right
-                << " port on " << planners::DescribePort(*patient, site) << std::setprecision(0)
+      std::cout << "  " << std::left << std::setw(6) << problem_->arms()[a].name << std::right
+                << " port on " << planners::DescribePort(*patient_, site) << std::setprecision(0)
                 << "; LPS mm " << p.x() << ", " << p.y() << ", " << p.z() << "\n";
     }
     std::cout << "  cart at (" << std::setprecision(2) << plan.placement.cart_x << ", "
@@ -279,76 +327,105 @@ int RunPlan(PlanOptions o) {
                 << std::setprecision(2) << t.weight << "\n";
     }
     if (verification) PrintVerification(*verification, std::cout);
-  };
-  if (!result.ports_given.empty()) {
-    std::cout << "\nports given: " << result.ports_given << "\n";
-    for (std::size_t a = 0; a < result.ports_where.size(); ++a)
-      std::cout << "  " << std::left << std::setw(6) << problem.arms()[a].name << std::right << " "
-                << result.ports_where[a] << "\n";
   }
-  for (std::size_t k = 0; k < result.plans.size(); ++k)
-    print_plan("plan " + std::to_string(k + 1), result.plans[k],
-               k < verifications.size() ? &verifications[k] : nullptr);
-  std::size_t next_baseline = 0;
-  for (const auto& b : result.baselines) {
-    if (!b.placed) {
-      std::cout << "\nbaseline (" << b.kind << "): not placed: " << b.why_not << "\n";
-      continue;
-    }
-    const planners::PlanVerification* v = next_baseline < baseline_verifications.size()
-                                              ? &baseline_verifications[next_baseline++]
-                                              : nullptr;
-    std::cout << "\nbaseline: " << b.name << "\n";
-    for (std::size_t a = 0; a < b.fixed.ports.where.size(); ++a)
-      std::cout << "  " << std::left << std::setw(6) << problem.arms()[a].name << std::right << " "
-                << b.fixed.ports.where[a] << "\n";
-    for (const auto& n : b.fixed.ports.notes) std::cout << "  note: " << n << "\n";
-    print_plan("baseline " + b.kind, b.fixed.plan, v);
-    if (!result.plans.empty()) {
-      const auto& best = result.plans.front();
-      std::cout << "  plan 1 against the " << b.kind << ": score " << std::setprecision(3)
-                << best.evaluation.score << " vs " << b.fixed.plan.evaluation.score;
-      if (v && !verifications.empty())
-        std::cout << std::setprecision(0) << ", verified motions "
-                  << verifications.front().verified_coverage * 100 << " % vs "
-                  << v->verified_coverage * 100 << " %, samples served "
-                  << verifications.front().served_fraction * 100 << " % vs "
-                  << v->served_fraction * 100 << " %";
-      std::cout << "\n";
+
+  void PrintBaselines() const {
+    std::size_t next_baseline = 0;
+    for (const auto& b : result_.baselines) {
+      if (!b.placed) {
+        std::cout << "\nbaseline (" << b.kind << "): not placed: " << b.why_not << "\n";
+        continue;
+      }
+      const planners::PlanVerification* v = next_baseline < baseline_verifications_.size()
+                                                ? &baseline_verifications_[next_baseline++]
+                                                : nullptr;
+      std::cout << "\nbaseline: " << b.name << "\n";
+      for (std::size_t a = 0; a < b.fixed.ports.where.size(); ++a)
+        std::cout << "  " << std::left << std::setw(6) << problem_->arms()[a].name << std::right
+                  << " " << b.fixed.ports.where[a] << "\n";
+      for (const auto& n : b.fixed.ports.notes) std::cout << "  note: " << n << "\n";
+      PrintPlan("baseline " + b.kind, b.fixed.plan, v);
+      if (!result_.plans.empty()) {
+        const auto& best = result_.plans.front();
+        std::cout << "  plan 1 against the " << b.kind << ": score " << std::setprecision(3)
+                  << best.evaluation.score << " vs " << b.fixed.plan.evaluation.score;
+        if (v && !verifications_.empty())
+          std::cout << std::setprecision(0) << ", verified motions "
+                    << verifications_.front().verified_coverage * 100 << " % vs "
+                    << v->verified_coverage * 100 << " %, samples served "
+                    << verifications_.front().served_fraction * 100 << " % vs "
+                    << v->served_fraction * 100 << " %";
+        std::cout << "\n";
+      }
     }
   }
-  std::cout << "\nverdict: " << result.verdict.summary << "\n";
-  for (const auto& r : result.verdict.reasons) std::cout << "  " << r << "\n";
-  bool suitable = result.verdict.suitable;
-  if (!verifications.empty()) {
-    // The verdict that counts is the one from verified motions.
-    suitable = verifications.front().suitable;
-    std::cout << "verified verdict: " << (suitable ? "suitable" : "not suitable")
-              << " (plan 1: " << std::setprecision(0)
-              << verifications.front().verified_coverage * 100
-              << " % of instrument motions verified)\n";
-    for (const auto& r : verifications.front().reasons) std::cout << "  " << r << "\n";
-  }
-  std::cout << "anatomical criteria (on the CT; docs/selection-criteria.md):\n";
-  for (const auto& c : result.criteria.criteria) {
-    std::cout << "  " << std::left << std::setw(44) << c.title << std::right;
-    if (c.measured()) {
-      std::cout << std::setprecision(0) << std::setw(5) << c.value << " " << std::left << std::setw(3)
-                << c.unit << std::right << " (" << (c.at_least ? ">= " : "<= ") << c.threshold
-                << " " << c.unit << ": " << (c.favourable() ? "favourable" : "against") << ")\n";
-    } else {
-      std::cout << "  " << c.how << "\n";
+
+  void PrintCriteria() const {
+    std::cout << "anatomical criteria (on the CT; docs/selection-criteria.md):\n";
+    for (const auto& c : result_.criteria.criteria) {
+      std::cout << "  " << std::left << std::setw(44) << c.title << std::right;
+      if (c.measured()) {
+        std::cout << std::setprecision(0) << std::setw(5) << c.value << " " << std::left
+                  << std::setw(3) << c.unit << std::right << " (" << (c.at_least ? ">= " : "<= ")
+                  << c.threshold << " " << c.unit << ": "
+                  << (c.favourable() ? "favourable" : "against") << ")\n";
+      } else {
+        std::cout << "  " << c.how << "\n";
+      }
     }
+    std::cout << "  " << result_.criteria_comparison << "\n";
   }
-  std::cout << "  " << result.criteria_comparison << "\n";
-  std::cout << std::setprecision(1) << "evaluations: " << result.evaluations << " in "
-            << std::chrono::duration<double>(Clock::now() - t0).count() << " s on "
-            << result.threads << " thread" << (result.threads == 1 ? "" : "s")
-            << (result.time_limit_hit ? " (time limit reached)" : "") << "\n";
-  std::cout << "written: " << JoinPath(o.out, "plan.json") << ", "
-            << JoinPath(o.out, "ports.mrk.json") << "\n";
-  return suitable ? 0 : 4;
-}
+
+  // The plans, the baselines, the verdicts (the verified one counts), the criteria, the totals.
+  // @return the exit status: 0 suitable, 4 not.
+  int Report() const {
+    std::cout << std::fixed;
+    if (!result_.ports_given.empty()) {
+      std::cout << "\nports given: " << result_.ports_given << "\n";
+      for (std::size_t a = 0; a < result_.ports_where.size(); ++a)
+        std::cout << "  " << std::left << std::setw(6) << problem_->arms()[a].name << std::right
+                  << " " << result_.ports_where[a] << "\n";
+    }
+    for (std::size_t k = 0; k < result_.plans.size(); ++k)
+      PrintPlan("plan " + std::to_string(k + 1), result_.plans[k],
+                k < verifications_.size() ? &verifications_[k] : nullptr);
+    PrintBaselines();
+    std::cout << "\nverdict: " << result_.verdict.summary << "\n";
+    for (const auto& r : result_.verdict.reasons) std::cout << "  " << r << "\n";
+    bool suitable = result_.verdict.suitable;
+    if (!verifications_.empty()) {
+      // The verdict that counts is the one from verified motions.
+      suitable = verifications_.front().suitable;
+      std::cout << "verified verdict: " << (suitable ? "suitable" : "not suitable")
+                << " (plan 1: " << std::setprecision(0)
+                << verifications_.front().verified_coverage * 100
+                << " % of instrument motions verified)\n";
+      for (const auto& r : verifications_.front().reasons) std::cout << "  " << r << "\n";
+    }
+    PrintCriteria();
+    std::cout << std::setprecision(1) << "evaluations: " << result_.evaluations << " in "
+              << std::chrono::duration<double>(Clock::now() - t0_).count() << " s on "
+              << result_.threads << " thread" << (result_.threads == 1 ? "" : "s")
+              << (result_.time_limit_hit ? " (time limit reached)" : "") << "\n";
+    std::cout << "written: " << JoinPath(o_.out, "plan.json") << ", "
+              << JoinPath(o_.out, "ports.mrk.json") << "\n";
+    return suitable ? 0 : 4;
+  }
+
+  PlanOptions o_;
+  const Clock::time_point t0_;
+  TerminalProgress bar_;
+  std::shared_ptr<const robot::RobotModel> robot_;
+  patient::ImportedPatient imported_;
+  std::shared_ptr<const patient::PatientModel> patient_;
+  std::unique_ptr<const planners::PortPlacementProblem> problem_;
+  std::vector<planners::FixedPorts> given_;  // --ports: the ports given instead of a search
+  std::vector<planners::Baseline> baselines_;
+  planners::PortPlacementResult result_;
+  std::vector<planners::PlanVerification> verifications_, baseline_verifications_;
+};
+
+int RunPlan(PlanOptions o) { return PlanCommand(std::move(o)).Run(); }
 
 }  // namespace
 
