@@ -40,8 +40,10 @@ std::string TerminalProgress::Line(double fraction, const std::string& stage, do
 void TerminalProgress::Update(double fraction, const std::string& stage) {
   if (!enabled_) return;
   const Clock::time_point now = Clock::now();
-  if (drawn_ && now - last_ < std::chrono::milliseconds(100)) return;
+  const std::string name = stage.substr(0, stage.find(':'));
+  if (drawn_ && name == last_stage_ && now - last_ < std::chrono::milliseconds(100)) return;
   last_ = now;
+  last_stage_ = name;
   const double elapsed = std::chrono::duration<double>(now - start_).count();
   // Carriage return, the line, then clear to the end of the line (ANSI EL).
   std::cerr << "\r" << Line(fraction, stage, elapsed) << "\x1b[K" << std::flush;

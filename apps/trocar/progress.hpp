@@ -21,6 +21,8 @@ class TerminalProgress {
 
   bool enabled() const { return enabled_; }
   /// `fraction` of the whole command done (0..1; negative: unknown, no bar or time left).
+  /// Drawn at most every 100 ms, except that a new stage (the text before its first ':') is
+  /// drawn at once: a short stage is still seen, on a fast machine or a loaded one.
   void Update(double fraction, const std::string& stage);
   /// Removes the line (drawn again by the next Update).
   void Clear();
@@ -35,6 +37,7 @@ class TerminalProgress {
   bool enabled_ = false;
   bool drawn_ = false;
   Clock::time_point start_ = Clock::now(), last_{};
+  std::string last_stage_;  // the stage (before its first ':') drawn last
 };
 
 }  // namespace trocar::apps
