@@ -112,22 +112,13 @@ void ReadOperation(const YamlReader& y, const YAML::Node& o, OperativeState* sta
 
 }  // namespace
 
-CaseSpec ReadCase(const std::string& case_dir) {
-  CaseSpec c;
-  c.dir = case_dir;
-  c.file = JoinPath(case_dir, "patient.yaml");
-  TROCAR_THROW_UNLESS(IsRegularFile(c.file),
-                      case_dir << ": no patient.yaml (a case folder holds patient.yaml, see "
-                                  "patients/README.md)");
-  const YamlReader y = YamlReader::Load(c.file);
-  const YAML::Node& root = y.root();
-  y.ExpectMap(root, "patient.yaml",
-              {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
-               "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation",
-               "bones", "vessels", "operation"});  // plan: read by trocar plan
-  c.name = root["name"] ? y.String(root["name"], "name")
-                        : std::filesystem::path(case_dir).filename().string();
-  c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
+namespace {
+
+// The phantom a case generates on first use (`phantom:`).
+void ReadPhantom(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
+                 CaseSpec* spec) {
+  CaseSpec& c = *spec;
+  (void)case_dir;
   if (root["phantom"]) {
     const YAML::Node ph = root["phantom"];
     y.ExpectMap(ph, "phantom",
@@ -165,6 +156,13 @@ CaseSpec ReadCase(const std::string& case_dir) {
     if (ph["shoulders"]) p.shoulders = y.Bool(ph["shoulders"], "phantom.shoulders");
     if (ph["table_gap"]) p.table_gap = y.NumberOr(ph, "table_gap", "phantom", p.table_gap);
   }
+}
+
+// The CT's units, the segmentation's thresholds, the heart's; soft tissue, blood and bone in
+// order.
+void ReadThresholds(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
+                    CaseSpec* spec) {
+  CaseSpec& c = *spec;
   if (root["units"]) {
     const std::string u = y.String(root["units"], "units");
     TROCAR_THROW_UNLESS(u == "hounsfield" || u == "raw", y.Where(root["units"], "units")
@@ -243,6 +241,12 @@ CaseSpec ReadCase(const std::string& case_dir) {
                                << soft << ", heart.blood " << blood << ", thresholds.bone " << bone
                                << " (expected soft < blood < bone)");
   }
+}
+
+// The label map, the orientation check, the pose, the operation, the table.
+void ReadLabelsAndPose(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
+                       CaseSpec* spec) {
+  CaseSpec& c = *spec;
   if (root["labels"]) {
     // A label map: `labels: seg.nii.gz`, or `labels: {file: seg.nii.gz, names: seg.json}`.
     const YAML::Node l = root["labels"];
@@ -286,6 +290,12 @@ CaseSpec ReadCase(const std::string& case_dir) {
             c.table.width < 2.0 && c.table.length > 0.5 && c.table.length < 4.0,
         y.Where(t, "table") << ": table height 0.3-1.5 m, width 0.2-2 m, length 0.5-4 m expected");
   }
+}
+
+// The targets and the port candidates (annotated curves, or the intercostal spaces to find).
+void ReadTargetsAndPorts(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
+                         CaseSpec* spec) {
+  CaseSpec& c = *spec;
   if (root["targets"]) {
     y.ExpectSequence(root["targets"], "targets");
     for (std::size_t i = 0; i < root["targets"].size(); ++i) {
@@ -353,6 +363,13 @@ CaseSpec ReadCase(const std::string& case_dir) {
       c.intercostal.count_from = static_cast<int>(n);
     }
   }
+}
+
+// The surfaces' triangle budgets and smoothing.
+void ReadSurfaces(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
+                  CaseSpec* spec) {
+  CaseSpec& c = *spec;
+  (void)case_dir;
   if (root["surfaces"]) {
     const YAML::Node s = root["surfaces"];
     y.ExpectMap(s, "surfaces", {"skin", "ribs", "sternum", "spine", "heart", "vessels", "smoothing"});
@@ -378,6 +395,31 @@ CaseSpec ReadCase(const std::string& case_dir) {
       c.surface.smoothing_iterations = static_cast<int>(n);
     }
   }
+}
+
+}  // namespace
+
+CaseSpec ReadCase(const std::string& case_dir) {
+  CaseSpec c;
+  c.dir = case_dir;
+  c.file = JoinPath(case_dir, "patient.yaml");
+  TROCAR_THROW_UNLESS(IsRegularFile(c.file),
+                      case_dir << ": no patient.yaml (a case folder holds patient.yaml, see "
+                                  "patients/README.md)");
+  const YamlReader y = YamlReader::Load(c.file);
+  const YAML::Node& root = y.root();
+  y.ExpectMap(root, "patient.yaml",
+              {"name", "ct", "phantom", "units", "thresholds", "heart", "pose", "table", "targets",
+               "port_candidates", "intercostal", "surfaces", "plan", "labels", "orientation",
+               "bones", "vessels", "operation"});  // plan: read by trocar plan
+  c.name = root["name"] ? y.String(root["name"], "name")
+                        : std::filesystem::path(case_dir).filename().string();
+  c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
+  ReadPhantom(y, root, case_dir, &c);
+  ReadThresholds(y, root, case_dir, &c);
+  ReadLabelsAndPose(y, root, case_dir, &c);
+  ReadTargetsAndPorts(y, root, case_dir, &c);
+  ReadSurfaces(y, root, case_dir, &c);
   return c;
 }
 
