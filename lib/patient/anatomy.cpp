@@ -25,6 +25,7 @@ void Release(std::vector<T>* v) {
 // Axial slices binned by the patient's z (the scan's slices whatever its index order).
 struct Slices {
   double z0 = 0.0, dz = 1.0;
+  double z_top = 0.0;  // the scan's highest z (z0 its lowest)
   int count = 0;
   explicit Slices(const Volume& v) {
     double lo = HUGE_VAL, hi = -HUGE_VAL;
@@ -43,6 +44,7 @@ struct Slices {
     }
     if (!std::isfinite(dz)) dz = 1.0;
     z0 = lo;
+    z_top = hi;
     count = static_cast<int>(std::floor((hi - lo) / dz + 1.5));
   }
   int Of(double z) const {
@@ -1298,15 +1300,7 @@ struct BoneSorting {
   void NumberRibs() {
     // 6. Numbering, per side: from rib 1 when the top of the rib cage is in view, from rib 12 when
     //    its bottom is (the spine going on below the lowest rib); both must agree.
-    double scan_top = -HUGE_VAL, scan_bottom = HUGE_VAL;
-    for (int corner = 0; corner < 8; ++corner) {
-      const double z =
-          ct.PatientPoint(corner & 1 ? ct.size.x() - 1 : 0, corner & 2 ? ct.size.y() - 1 : 0,
-                          corner & 4 ? ct.size.z() - 1 : 0)
-              .z();
-      scan_top = std::max(scan_top, z);
-      scan_bottom = std::min(scan_bottom, z);
-    }
+    const double scan_top = slices.z_top, scan_bottom = slices.z0;
     double spine_bottom = HUGE_VAL;
     for (const Component& c : parts.spine) spine_bottom = std::min(spine_bottom, c.min_P.z());
     double sternum_top = -HUGE_VAL;
