@@ -217,6 +217,95 @@ class ArmValidityChecker : public ob::StateValidityChecker {
   mutable std::mutex mutex_;
 };
 
+// One query's OMPL objects: the arm's joint space (scaled), its validity checker (the context's
+// collision checks), the start and the goal states, the planner and a path simplifier.
+struct OmplQuery {
+  ob::SpaceInformationPtr si;
+  ob::ProblemDefinitionPtr pdef;
+  ob::PlannerPtr planner;
+  std::unique_ptr<og::PathSimplifier> simplifier;
+};
+
+// Made while the process-wide seed sequence restarts from the query's seed (OmplMutex), so that
+// the same seed gives the same objects on any thread.
+OmplQuery MakeOmplQuery(MotionContext* context, const PlanArm& arm, const ArmSpace& space,
+                        const Eigen::VectorXd& q_start, const Eigen::VectorXd& start,
+                        const std::vector<Eigen::VectorXd>& goals, const Allocator& make_planner,
+                        const MotionOptions& options, std::uint32_t seed) {
+  const int n = space.size();
+  OmplQuery q;
+  std::lock_guard<std::recursive_mutex> lock(OmplMutex());
+  ompl::RNG::setSeed(seed);
+  auto ompl_space = std::make_shared<ob::RealVectorStateSpace>(n);
+  ob::RealVectorBounds bounds(n);
+  for (int c = 0; c < n; ++c) {
+    bounds.setLow(c, space.lower(c) * space.scale(c));
+    bounds.setHigh(c, space.upper(c) * space.scale(c));
+  }
+  ompl_space->setBounds(bounds);
+  auto sampler_count = std::make_shared<std::atomic<std::uint32_t>>(0);
+  ompl_space->setStateSamplerAllocator([seed, sampler_count](const ob::StateSpace* s) {
+    std::lock_guard<std::recursive_mutex> lock(OmplMutex());
+    return std::make_shared<SeededSampler>(s, seed + 7919u * ++*sampler_count);
+  });
+  q.si = std::make_shared<ob::SpaceInformation>(ompl_space);
+  q.si->setStateValidityChecker(
+      std::make_shared<ArmValidityChecker>(q.si, context, arm, space, q_start));
+  q.si->setStateValidityCheckingResolution(
+      std::min(1.0, options.check_step / ompl_space->getMaximumExtent()));
+  q.si->setup();
+  q.pdef = std::make_shared<ob::ProblemDefinition>(q.si);
+  auto to_state = [&](const Eigen::VectorXd& v, ob::State* s) {
+    auto* rv = s->as<ob::RealVectorStateSpace::StateType>();
+    for (int c = 0; c < n; ++c) rv->values[c] = v[c] * space.scale(c);
+  };
+  ob::ScopedState<> s(q.si);
+  to_state(start, s.get());
+  q.pdef->addStartState(s);
+  auto goal_states = std::make_shared<ob::GoalStates>(q.si);
+  for (const auto& g : goals) {
+    ob::ScopedState<> gs(q.si);
+    to_state(g, gs.get());
+    goal_states->addState(gs);
+  }
+  q.pdef->setGoal(goal_states);
+  q.planner = make_planner(q.si);
+  q.planner->setProblemDefinition(q.pdef);
+  q.planner->setup();
+  q.simplifier = std::make_unique<og::PathSimplifier>(q.si);
+  return q;
+}
+
+// A solved query's path into `out`: simplified (options.simplify), its lengths, segments and
+// waypoints (the arm's joint values, unscaled).
+void StorePath(og::PathGeometric* path, og::PathSimplifier* simplifier, const ArmSpace& space,
+               const MotionOptions& options, TargetMotion* out) {
+  const int n = space.size();
+  out->raw_path_length = path->length();
+  if (options.simplify) {
+    // A fixed sequence of OMPL's steps, each bounded by the path's states, not by a clock: the
+    // same path from the same seed on any machine (a timed simplify stopped by its limit is not),
+    // and no B-spline smoothing (it multiplies the states, each checked along its motion: it took
+    // most of a verification's time, measured in docs/decisions.md).
+    const auto t1 = std::chrono::steady_clock::now();
+    simplifier->reduceVertices(*path);
+    simplifier->collapseCloseVertices(*path);
+    for (int round = 0; round < 5 && simplifier->shortcutPath(*path); ++round) {
+    }
+    simplifier->reduceVertices(*path);
+    out->simplification_time =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  }
+  out->path_length = path->length();
+  out->segments = static_cast<int>(path->getStateCount()) - 1;
+  for (std::size_t k = 0; k < path->getStateCount(); ++k) {
+    const auto* rv = path->getState(k)->as<ob::RealVectorStateSpace::StateType>();
+    Eigen::VectorXd v(n);
+    for (int c = 0; c < n; ++c) v[c] = rv->values[c] / space.scale(c);
+    out->path.push_back(v);
+  }
+}
+
 double WeightedStep(const ArmSpace& space, const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
   double largest = 0.0;
   for (int c = 0; c < space.size(); ++c)
@@ -523,51 +612,12 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
   }
 
   // OMPL's objects, made while the process-wide seed sequence restarts from this query's seed.
-  ob::PlannerPtr planner;
-  ob::ProblemDefinitionPtr pdef;
-  ob::SpaceInformationPtr si;
-  std::unique_ptr<og::PathSimplifier> simplifier;
-  {
-    std::lock_guard<std::recursive_mutex> lock(OmplMutex());
-    ompl::RNG::setSeed(seed);
-    auto ompl_space = std::make_shared<ob::RealVectorStateSpace>(n);
-    ob::RealVectorBounds bounds(n);
-    for (int c = 0; c < n; ++c) {
-      bounds.setLow(c, space.lower(c) * space.scale(c));
-      bounds.setHigh(c, space.upper(c) * space.scale(c));
-    }
-    ompl_space->setBounds(bounds);
-    auto sampler_count = std::make_shared<std::atomic<std::uint32_t>>(0);
-    ompl_space->setStateSamplerAllocator([seed, sampler_count](const ob::StateSpace* s) {
-      std::lock_guard<std::recursive_mutex> lock(OmplMutex());
-      return std::make_shared<SeededSampler>(s, seed + 7919u * ++*sampler_count);
-    });
-    si = std::make_shared<ob::SpaceInformation>(ompl_space);
-    si->setStateValidityChecker(
-        std::make_shared<ArmValidityChecker>(si, this, arm, space, problem_.q_start()));
-    si->setStateValidityCheckingResolution(
-        std::min(1.0, options.check_step / ompl_space->getMaximumExtent()));
-    si->setup();
-    pdef = std::make_shared<ob::ProblemDefinition>(si);
-    auto to_state = [&](const Eigen::VectorXd& v, ob::State* s) {
-      auto* rv = s->as<ob::RealVectorStateSpace::StateType>();
-      for (int c = 0; c < n; ++c) rv->values[c] = v[c] * space.scale(c);
-    };
-    ob::ScopedState<> s(si);
-    to_state(start, s.get());
-    pdef->addStartState(s);
-    auto goal_states = std::make_shared<ob::GoalStates>(si);
-    for (const auto& g : goals) {
-      ob::ScopedState<> gs(si);
-      to_state(g, gs.get());
-      goal_states->addState(gs);
-    }
-    pdef->setGoal(goal_states);
-    planner = entry.second(si);
-    planner->setProblemDefinition(pdef);
-    planner->setup();
-    simplifier = std::make_unique<og::PathSimplifier>(si);
-  }
+  const OmplQuery query = MakeOmplQuery(this, arm, space, problem_.q_start(), start, goals,
+                                        entry.second, options, seed);
+  const ob::PlannerPtr& planner = query.planner;
+  const ob::ProblemDefinitionPtr& pdef = query.pdef;
+  const ob::SpaceInformationPtr& si = query.si;
+  og::PathSimplifier* simplifier = query.simplifier.get();
 
   const auto t0 = Clock::now();
   const ob::PlannerStatus status = planner->solve(ob::timedPlannerTerminationCondition(options.time_limit));
@@ -590,29 +640,7 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
     out.reason = why.str();
     return out;
   }
-  auto* path = pdef->getSolutionPath()->as<og::PathGeometric>();
-  out.raw_path_length = path->length();
-  if (options.simplify) {
-    // A fixed sequence of OMPL's steps, each bounded by the path's states, not by a clock: the
-    // same path from the same seed on any machine (a timed simplify stopped by its limit is not),
-    // and no B-spline smoothing (it multiplies the states, each checked along its motion: it took
-    // most of a verification's time, measured in docs/decisions.md).
-    const auto t1 = Clock::now();
-    simplifier->reduceVertices(*path);
-    simplifier->collapseCloseVertices(*path);
-    for (int round = 0; round < 5 && simplifier->shortcutPath(*path); ++round) {
-    }
-    simplifier->reduceVertices(*path);
-    out.simplification_time = std::chrono::duration<double>(Clock::now() - t1).count();
-  }
-  out.path_length = path->length();
-  out.segments = static_cast<int>(path->getStateCount()) - 1;
-  for (std::size_t k = 0; k < path->getStateCount(); ++k) {
-    const auto* rv = path->getState(k)->as<ob::RealVectorStateSpace::StateType>();
-    Eigen::VectorXd v(n);
-    for (int c = 0; c < n; ++c) v[c] = rv->values[c] / space.scale(c);
-    out.path.push_back(v);
-  }
+  StorePath(pdef->getSolutionPath()->as<og::PathGeometric>(), simplifier, space, options, &out);
   const std::string failure = Recheck(arm_index, out.path, options.recheck_step,
                                       &out.rechecked_states, &out.min_clearance,
                                       &out.tip_path_length);
