@@ -115,10 +115,8 @@ void ReadOperation(const YamlReader& y, const YAML::Node& o, OperativeState* sta
 namespace {
 
 // The phantom a case generates on first use (`phantom:`).
-void ReadPhantom(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
-                 CaseSpec* spec) {
+void ReadPhantom(const YamlReader& y, const YAML::Node& root, CaseSpec* spec) {
   CaseSpec& c = *spec;
-  (void)case_dir;
   if (root["phantom"]) {
     const YAML::Node ph = root["phantom"];
     y.ExpectMap(ph, "phantom",
@@ -160,9 +158,9 @@ void ReadPhantom(const YamlReader& y, const YAML::Node& root, const std::string&
 
 // The CT's units, the segmentation's thresholds, the heart's; soft tissue, blood and bone in
 // order.
-void ReadThresholds(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
-                    CaseSpec* spec) {
+void ReadThresholds(const YamlReader& y, const YAML::Node& root, CaseSpec* spec) {
   CaseSpec& c = *spec;
+  const std::string& case_dir = c.dir;
   if (root["units"]) {
     const std::string u = y.String(root["units"], "units");
     TROCAR_THROW_UNLESS(u == "hounsfield" || u == "raw", y.Where(root["units"], "units")
@@ -244,9 +242,9 @@ void ReadThresholds(const YamlReader& y, const YAML::Node& root, const std::stri
 }
 
 // The label map, the orientation check, the pose, the operation, the table.
-void ReadLabelsAndPose(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
-                       CaseSpec* spec) {
+void ReadLabelsAndPose(const YamlReader& y, const YAML::Node& root, CaseSpec* spec) {
   CaseSpec& c = *spec;
+  const std::string& case_dir = c.dir;
   if (root["labels"]) {
     // A label map: `labels: seg.nii.gz`, or `labels: {file: seg.nii.gz, names: seg.json}`.
     const YAML::Node l = root["labels"];
@@ -293,9 +291,9 @@ void ReadLabelsAndPose(const YamlReader& y, const YAML::Node& root, const std::s
 }
 
 // The targets and the port candidates (annotated curves, or the intercostal spaces to find).
-void ReadTargetsAndPorts(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
-                         CaseSpec* spec) {
+void ReadTargetsAndPorts(const YamlReader& y, const YAML::Node& root, CaseSpec* spec) {
   CaseSpec& c = *spec;
+  const std::string& case_dir = c.dir;
   if (root["targets"]) {
     y.ExpectSequence(root["targets"], "targets");
     for (std::size_t i = 0; i < root["targets"].size(); ++i) {
@@ -366,10 +364,8 @@ void ReadTargetsAndPorts(const YamlReader& y, const YAML::Node& root, const std:
 }
 
 // The surfaces' triangle budgets and smoothing.
-void ReadSurfaces(const YamlReader& y, const YAML::Node& root, const std::string& case_dir,
-                  CaseSpec* spec) {
+void ReadSurfaces(const YamlReader& y, const YAML::Node& root, CaseSpec* spec) {
   CaseSpec& c = *spec;
-  (void)case_dir;
   if (root["surfaces"]) {
     const YAML::Node s = root["surfaces"];
     y.ExpectMap(s, "surfaces", {"skin", "ribs", "sternum", "spine", "heart", "vessels", "smoothing"});
@@ -415,11 +411,11 @@ CaseSpec ReadCase(const std::string& case_dir) {
   c.name = root["name"] ? y.String(root["name"], "name")
                         : std::filesystem::path(case_dir).filename().string();
   c.ct = JoinPath(case_dir, y.String(y.Require(root, "ct", ""), "ct"));
-  ReadPhantom(y, root, case_dir, &c);
-  ReadThresholds(y, root, case_dir, &c);
-  ReadLabelsAndPose(y, root, case_dir, &c);
-  ReadTargetsAndPorts(y, root, case_dir, &c);
-  ReadSurfaces(y, root, case_dir, &c);
+  ReadPhantom(y, root, &c);
+  ReadThresholds(y, root, &c);
+  ReadLabelsAndPose(y, root, &c);
+  ReadTargetsAndPorts(y, root, &c);
+  ReadSurfaces(y, root, &c);
   return c;
 }
 
