@@ -68,7 +68,10 @@ void StampTube(const Curve& curve, double radius, float value, Volume* v) {
 
 }  // namespace
 
-Phantom GeneratePhantom(const PhantomParameters& in) {
+namespace {
+
+// GeneratePhantom's checks of its parameters, each naming the parameter and its range.
+void CheckParameters(const PhantomParameters& in) {
   Check(in.body_width, 0.20, 0.60, "body_width");
   Check(in.body_depth, 0.14, 0.45, "body_depth");
   Check(in.length, 0.15, 0.60, "length");
@@ -94,234 +97,327 @@ Phantom GeneratePhantom(const PhantomParameters& in) {
   TROCAR_THROW_UNLESS(in.rib_spacing * 1.04 * (in.ribs_per_side - 1) + in.rib_drop + 0.05 <= in.length,
                       "phantom: " << in.ribs_per_side << " ribs " << in.rib_spacing
                                   << " m apart do not fit in a length of " << in.length << " m");
-  Phantom out;
-  out.parameters = in;
-  std::mt19937 rng(in.seed);
-  std::uniform_real_distribution<double> jitter(-1.0, 1.0);
-  // Small seeded variation: body ±3 %, rib spacing ±4 %, heart position ±5 mm.
-  const double a = 0.5 * in.body_width * (1.0 + 0.03 * jitter(rng));
-  const double b = 0.5 * in.body_depth * (1.0 + 0.03 * jitter(rng));
-  const double spacing = in.rib_spacing * (1.0 + 0.04 * jitter(rng));
-  const Eigen::Vector3d heart_jitter(0.005 * jitter(rng), 0.005 * jitter(rng), 0.005 * jitter(rng));
+}
 
-  RibLayout ribs;
-  ribs.a_r = a - in.fat_thickness - in.wall_thickness - in.rib_radius;
-  ribs.b_r = b - in.fat_thickness - in.wall_thickness - in.rib_radius;
-  ribs.phi0 = 0.28;
-  ribs.phi1 = M_PI - 0.42;
-  ribs.z_top = in.length - 0.03;
-  ribs.spacing = spacing;
-  ribs.drop = in.rib_drop;
-  const double a_p = ribs.a_r - in.rib_radius - 0.004;  // pleura
-  const double b_p = ribs.b_r - in.rib_radius - 0.004;
+// The LAD on the heart's surface in the heart's unit coordinates, base (t = -0.7) to apex
+// (t = 0.9) along the long axis, a little toward the left ventricle (u).
+Eigen::Vector3d LadUnit(double t) {
+  const double u = 0.15;
+  return Eigen::Vector3d(t, u, std::sqrt(std::max(0.0, 1.0 - t * t - u * u)));
+}
+
+// GeneratePhantom's stages: the body's layout (seeded), the grid, each voxel's tissue, then the
+// truth's curves and the tubes stamped along them.
+class PhantomBuilder {
+ public:
+  explicit PhantomBuilder(const PhantomParameters& in) : in_(in) {
+    out_.parameters = in;
+    Layout();
+    PlaceHeart();
+  }
+
+  Phantom Build() {
+    Grid();
+    FillVoxels();
+    RibAndSpaceTruth();
+    ArteryTruth();
+    StampTubes();
+    return std::move(out_);
+  }
+
+ private:
+  // Small seeded variation: body ±3 %, rib spacing ±4 %, heart position ±5 mm.
+  void Layout() {
+    std::mt19937 rng(in_.seed);
+    std::uniform_real_distribution<double> jitter(-1.0, 1.0);
+    a_ = 0.5 * in_.body_width * (1.0 + 0.03 * jitter(rng));
+    b_ = 0.5 * in_.body_depth * (1.0 + 0.03 * jitter(rng));
+    spacing_ = in_.rib_spacing * (1.0 + 0.04 * jitter(rng));
+    // Drawn z, y, x: the order g++ evaluated the three arguments of one constructor call in
+    // before stop 64 (an order C++ leaves unspecified, so clang's builds drew another heart),
+    // kept so that the phantoms stay as they were.
+    const double jz = 0.005 * jitter(rng);
+    const double jy = 0.005 * jitter(rng);
+    const double jx = 0.005 * jitter(rng);
+    heart_jitter_ = Eigen::Vector3d(jx, jy, jz);
+    ribs_.a_r = a_ - in_.fat_thickness - in_.wall_thickness - in_.rib_radius;
+    ribs_.b_r = b_ - in_.fat_thickness - in_.wall_thickness - in_.rib_radius;
+    ribs_.phi0 = 0.28;
+    ribs_.phi1 = M_PI - 0.42;
+    ribs_.z_top = in_.length - 0.03;
+    ribs_.spacing = spacing_;
+    ribs_.drop = in_.rib_drop;
+    a_p_ = ribs_.a_r - in_.rib_radius - 0.004;  // pleura
+    b_p_ = ribs_.b_r - in_.rib_radius - 0.004;
+    vertebra_y_ = b_p_ - 0.018;
+  }
 
   // Heart: an ellipsoid turned as real hearts lie (docs/phantom.md: the principal axes of the
   // heart masks of two real CTs), its front 8 mm behind the anterior pleura, left of the
   // midline, its apex (the LAD's end) in the 5th intercostal space at the front of the chest,
   // where a surgeon finds it (docs/phantom.md).
-  const Eigen::Vector3d e_long = Eigen::Vector3d(0.677, -0.486, -0.548).normalized();
-  Eigen::Vector3d e_short = Eigen::Vector3d(0.092, -0.668, 0.724);
-  e_short = (e_short - e_short.dot(e_long) * e_long).normalized();
-  Eigen::Matrix3d heart_axes;
-  heart_axes << e_long, e_short.cross(e_long), e_short;
-  const Eigen::Vector3d semi = Eigen::Vector3d(0.074, 0.053, 0.043) * in.heart_scale;
-  out.truth.heart_semi_axes = semi;
-  out.truth.heart_axes = heart_axes;
-  const double front_reach = out.truth.HeartReach(Eigen::Vector3d(0, -1, 0));
-  // The LAD on the heart's surface, base (t = -0.7) to apex (t = 0.9) along the long axis, a
-  // little toward the left ventricle (u), relative to the heart's centre.
-  const auto lad_unit = [](double t) {
-    const double u = 0.15;
-    return Eigen::Vector3d(t, u, std::sqrt(std::max(0.0, 1.0 - t * t - u * u)));
-  };
-  const double lad_apex_z = (heart_axes * lad_unit(0.9).cwiseProduct(semi)).z();
-  const double fifth_space_front = 0.5 * (ribs.Z(4, ribs.phi1) + ribs.Z(5, ribs.phi1));
-  Eigen::Vector3d heart(0.03, -b_p + front_reach + 0.008, fifth_space_front - lad_apex_z);
-  heart += in.heart_offset + heart_jitter;
-  out.truth.heart_centre = heart;
+  void PlaceHeart() {
+    const Eigen::Vector3d e_long = Eigen::Vector3d(0.677, -0.486, -0.548).normalized();
+    Eigen::Vector3d e_short = Eigen::Vector3d(0.092, -0.668, 0.724);
+    e_short = (e_short - e_short.dot(e_long) * e_long).normalized();
+    heart_axes_ << e_long, e_short.cross(e_long), e_short;
+    semi_ = Eigen::Vector3d(0.074, 0.053, 0.043) * in_.heart_scale;
+    out_.truth.heart_semi_axes = semi_;
+    out_.truth.heart_axes = heart_axes_;
+    const double front_reach = out_.truth.HeartReach(Eigen::Vector3d(0, -1, 0));
+    const double lad_apex_z = (heart_axes_ * LadUnit(0.9).cwiseProduct(semi_)).z();
+    const double fifth_space_front = 0.5 * (ribs_.Z(4, ribs_.phi1) + ribs_.Z(5, ribs_.phi1));
+    heart_ = Eigen::Vector3d(0.03, -b_p_ + front_reach + 0.008, fifth_space_front - lad_apex_z);
+    heart_ += in_.heart_offset + heart_jitter_;
+    out_.truth.heart_centre = heart_;
+  }
 
-  Volume& v = out.ct;
-  const double h = in.voxel_size;
-  const double hz = in.slice_spacing > 0.0 ? in.slice_spacing : h;
-  const double margin = 0.02;
-  TROCAR_THROW_UNLESS(in.field_of_view == 0.0 ||
-                          (std::isfinite(in.field_of_view) && in.field_of_view >= 2 * a + 0.01 &&
-                           in.field_of_view >= 2 * b + 0.01 && in.field_of_view <= 1.0),
-                      "phantom: field_of_view " << in.field_of_view << " m must hold the body ("
-                                                << 2 * a << " x " << 2 * b << " m) and be at most 1 m");
-  // Upper arms beside the chest: soft tissue round the humerus, touching the body.
-  const double arm_r = 0.045, arm_x = a + arm_r - 0.005, humerus_r = 0.011;
-  const double half_x = in.shoulders ? arm_x + arm_r : a;
-  TROCAR_THROW_UNLESS(in.field_of_view == 0.0 || in.field_of_view >= 2 * half_x + 0.01,
-                      "phantom: field_of_view " << in.field_of_view << " m must hold the arms (" << 2 * half_x << " m)");
-  const double fov_x = in.field_of_view > 0.0 ? in.field_of_view : 2 * half_x + 2 * margin;
-  // The table: its top's middle `table_gap` behind the back, rising 1 m's cradle to the sides.
-  const bool table = !std::isnan(in.table_gap);
-  const double table_top = b + (table ? in.table_gap : 0.0), table_shell = 0.002,
-               table_core = 0.030, table_half_width = 0.23, cradle_radius = 1.0;
-  const double half_y = table ? std::max(b, table_top + 2 * table_shell + table_core) : b;
-  const double fov_y = in.field_of_view > 0.0 ? in.field_of_view : 2 * half_y + 2 * margin;
-  v.size = Eigen::Vector3i(static_cast<int>(std::ceil(fov_x / h - 1e-9)), static_cast<int>(std::ceil(fov_y / h - 1e-9)),
-                           static_cast<int>(std::ceil(in.length / hz)));
-  v.index_to_P = Eigen::Vector3d(h, h, hz).asDiagonal();
-  v.origin_P = Eigen::Vector3d(-0.5 * fov_x, -0.5 * fov_y, 0.0);
-  // Bounded before anything is allocated: the finest voxels over the widest field of view
-  // would need tens of GB.
-  v.values.assign(static_cast<std::size_t>(CheckedVoxelCount(
-                      v.size, "phantom: voxel_size " + std::to_string(h) + " m, slice spacing " +
-                                  std::to_string(hz) + " m")),
-                  PhantomHu::kAir);
-  v.hounsfield = true;
-  v.source = "phantom seed " + std::to_string(in.seed);
+  // The volume's grid: the body, the arms beside it and the table under it, with a margin (or
+  // the field of view asked for).
+  void Grid() {
+    Volume& v = out_.ct;
+    const double h = in_.voxel_size;
+    const double hz = in_.slice_spacing > 0.0 ? in_.slice_spacing : h;
+    const double margin = 0.02;
+    TROCAR_THROW_UNLESS(
+        in_.field_of_view == 0.0 ||
+            (std::isfinite(in_.field_of_view) && in_.field_of_view >= 2 * a_ + 0.01 &&
+             in_.field_of_view >= 2 * b_ + 0.01 && in_.field_of_view <= 1.0),
+        "phantom: field_of_view " << in_.field_of_view << " m must hold the body (" << 2 * a_
+                                  << " x " << 2 * b_ << " m) and be at most 1 m");
+    // Upper arms beside the chest: soft tissue round the humerus, touching the body.
+    arm_x_ = a_ + kArmR - 0.005;
+    const double half_x = in_.shoulders ? arm_x_ + kArmR : a_;
+    TROCAR_THROW_UNLESS(in_.field_of_view == 0.0 || in_.field_of_view >= 2 * half_x + 0.01,
+                        "phantom: field_of_view " << in_.field_of_view << " m must hold the arms ("
+                                                  << 2 * half_x << " m)");
+    const double fov_x = in_.field_of_view > 0.0 ? in_.field_of_view : 2 * half_x + 2 * margin;
+    // The table: its top's middle `table_gap` behind the back, rising 1 m's cradle to the sides.
+    table_ = !std::isnan(in_.table_gap);
+    table_top_ = b_ + (table_ ? in_.table_gap : 0.0);
+    const double half_y = table_ ? std::max(b_, table_top_ + 2 * kTableShell + kTableCore) : b_;
+    const double fov_y = in_.field_of_view > 0.0 ? in_.field_of_view : 2 * half_y + 2 * margin;
+    v.size = Eigen::Vector3i(static_cast<int>(std::ceil(fov_x / h - 1e-9)),
+                             static_cast<int>(std::ceil(fov_y / h - 1e-9)),
+                             static_cast<int>(std::ceil(in_.length / hz)));
+    v.index_to_P = Eigen::Vector3d(h, h, hz).asDiagonal();
+    v.origin_P = Eigen::Vector3d(-0.5 * fov_x, -0.5 * fov_y, 0.0);
+    // Bounded before anything is allocated: the finest voxels over the widest field of view
+    // would need tens of GB.
+    v.values.assign(static_cast<std::size_t>(CheckedVoxelCount(
+                        v.size, "phantom: voxel_size " + std::to_string(h) + " m, slice spacing " +
+                                    std::to_string(hz) + " m")),
+                    PhantomHu::kAir);
+    v.hounsfield = true;
+    v.source = "phantom seed " + std::to_string(in_.seed);
+  }
 
-  const double vertebra_y = b_p - 0.018, vertebra_r = 0.02;
+  void FillVoxels() {
+    Volume& v = out_.ct;
+    heart_sphere2_ = semi_.maxCoeff() * semi_.maxCoeff() * (1.0 + 1e-6);
+    for (int k = 0; k < v.size.z(); ++k) {
+      for (int j = 0; j < v.size.y(); ++j) {
+        for (int i = 0; i < v.size.x(); ++i)
+          v.values[v.Index(i, j, k)] = Tissue(v.PatientPoint(i, j, k));
+      }
+    }
+  }
+
+  // The tissue at a point of the patient frame, each structure drawn over the ones before it.
+  float Tissue(const Eigen::Vector3d& p) const {
+    const double x = p.x(), y = p.y(), z = p.z();
+    auto inside = [&](double ea, double eb) {
+      return (x * x) / (ea * ea) + (y * y) / (eb * eb) <= 1.0;
+    };
+    float hu = PhantomHu::kAir;
+    if (inside(a_, b_)) hu = PhantomHu::kFat;
+    if (inside(a_ - in_.fat_thickness, b_ - in_.fat_thickness)) hu = PhantomHu::kMuscle;
+    if (in_.shoulders && std::hypot(std::abs(x) - arm_x_, y) <= kArmR) {
+      const double rh = std::hypot(std::abs(x) - arm_x_, y);
+      hu = rh > kHumerusR ? PhantomHu::kMuscle
+                          : (rh > kHumerusR - 0.003 ? PhantomHu::kBone : PhantomHu::kMarrow);
+    }
+    if (table_ && std::abs(x) <= kTableHalfWidth) {
+      // Over the fat, muscle and arms: the back pressed onto it is flat whatever its fat.
+      // Depth below the table top's surface (positive: into the table).
+      const double t = y - (table_top_ - x * x / (2.0 * kCradleRadius));
+      if (t >= 0.0 && t <= 2 * kTableShell + kTableCore)
+        hu = (t <= kTableShell || t >= kTableShell + kTableCore) ? PhantomHu::kCarbon
+                                                                 : PhantomHu::kFoam;
+    }
+    if (inside(a_p_, b_p_)) {
+      hu = PhantomHu::kLung;
+      // Mediastinum between the lungs, in front of the spine.
+      if ((x * x) / (0.05 * 0.05) + ((y - 0.01) * (y - 0.01)) / (b_p_ * b_p_) <= 1.0)
+        hu = PhantomHu::kMuscle;
+    }
+    // Beyond the sphere round the heart's longest semi-axis the heart coordinates' norm
+    // exceeds 1 (the axes are a rotation): the same answer without the rotation.
+    const double r =
+        (p - heart_).squaredNorm() > heart_sphere2_ ? 2.0 : out_.truth.HeartCoordinates(p).norm();
+    if (r <= 1.0)
+      hu = r <= 1.0 - 0.008 / semi_.minCoeff() ? PhantomHu::kBlood : PhantomHu::kMyocardium;
+    hu = Spine(x, y, z, hu);
+    return RibCage(x, y, z, hu);
+  }
+
   // The spine: vertebral bodies (a cortical shell round cancellous bone; a disc between each two,
   // at the level midway between rib heads), the neural arch round the spinal canal behind them,
   // the spinous process behind the arch and the transverse processes beside it.
-  const double canal_y = vertebra_y + vertebra_r + 0.008, canal_r = 0.008, arch = 0.0035;
-  const double spinous_end = std::min(canal_y + 0.03, b - in.fat_thickness);
-  const double disc_z0 = ribs.z_top - 0.5 * spacing;
-  const double heart_sphere2 = semi.maxCoeff() * semi.maxCoeff() * (1.0 + 1e-6);
-  for (int k = 0; k < v.size.z(); ++k) {
-    for (int j = 0; j < v.size.y(); ++j) {
-      for (int i = 0; i < v.size.x(); ++i) {
-        const Eigen::Vector3d p = v.PatientPoint(i, j, k);
-        const double x = p.x(), y = p.y(), z = p.z();
-        auto inside = [&](double ea, double eb) { return (x * x) / (ea * ea) + (y * y) / (eb * eb) <= 1.0; };
-        float hu = PhantomHu::kAir;
-        if (inside(a, b)) hu = PhantomHu::kFat;
-        if (inside(a - in.fat_thickness, b - in.fat_thickness)) hu = PhantomHu::kMuscle;
-        if (in.shoulders && std::hypot(std::abs(x) - arm_x, y) <= arm_r) {
-          const double rh = std::hypot(std::abs(x) - arm_x, y);
-          hu = rh > humerus_r ? PhantomHu::kMuscle
-                              : (rh > humerus_r - 0.003 ? PhantomHu::kBone : PhantomHu::kMarrow);
+  float Spine(double x, double y, double z, float hu) const {
+    const double canal_y = vertebra_y_ + kVertebraR + 0.008, canal_r = 0.008, arch = 0.0035;
+    const double spinous_end = std::min(canal_y + 0.03, b_ - in_.fat_thickness);
+    const double disc_z0 = ribs_.z_top - 0.5 * spacing_;
+    const double rv = std::hypot(x, y - vertebra_y_);
+    if (rv <= kVertebraR) {
+      const bool disc = std::abs(std::remainder(z - disc_z0, spacing_)) < 0.002;
+      hu = disc ? PhantomHu::kDisc
+                : (rv > kVertebraR - 0.0025 ? PhantomHu::kBone : PhantomHu::kCancellous);
+    }
+    // Each vertebra's arch and processes span 70 % of its height about the rib heads' level;
+    // between them the spinal canal is closed by ligament only.
+    if (std::abs(std::remainder(z - ribs_.z_top, spacing_)) < 0.35 * spacing_) {
+      const double rc = std::hypot(x, y - canal_y);
+      if (rc >= canal_r && rc <= canal_r + arch && y > vertebra_y_ + 0.5 * kVertebraR)
+        hu = PhantomHu::kBone;
+      if (std::abs(x) <= 0.003 && y >= canal_y + canal_r && y <= spinous_end) hu = PhantomHu::kBone;
+      if (std::abs(y - canal_y) <= 0.004 && std::abs(x) >= canal_r && std::abs(x) <= 0.03)
+        hu = PhantomHu::kBone;
+    }
+    return hu;
+  }
+
+  // The ribs, the shoulder blades over them and the sternum between the ribs' front ends.
+  float RibCage(double x, double y, double z, float hu) const {
+    // Ribs: distance to the rib centreline at this voxel's angle about the body axis.
+    const double ex = std::abs(x) / ribs_.a_r, ey = y / ribs_.b_r;
+    const double rho = std::hypot(ex, ey);
+    const double phi = std::atan2(ex, ey);
+    if (phi >= ribs_.phi0 && phi <= ribs_.phi1 && rho > 0.5) {
+      const double local = std::hypot(ribs_.a_r * std::sin(phi), ribs_.b_r * std::cos(phi));
+      const double radial = (rho - 1.0) * local;
+      for (int rib = 0; rib < in_.ribs_per_side; ++rib) {
+        const double dz = z - ribs_.Z(rib, phi);
+        if (radial * radial + dz * dz <= in_.rib_radius * in_.rib_radius) hu = PhantomHu::kBone;
+      }
+    }
+    // Shoulder blades: plates in the back's muscle over ribs 2 to 8, 1 cm off the ribs.
+    if (in_.shoulders && phi >= 0.25 && phi <= 0.95 && z <= ribs_.z_top - spacing_ &&
+        z >= ribs_.z_top - 7.5 * spacing_) {
+      const double local = std::hypot(ribs_.a_r * std::sin(phi), ribs_.b_r * std::cos(phi));
+      const double radial = (rho - 1.0) * local;
+      if (radial >= 0.015 && radial <= 0.0195) hu = PhantomHu::kBone;
+    }
+    // Sternum: a plate at the front between the rib ends.
+    if (std::abs(x) <= 0.02 && std::abs(y + ribs_.b_r) <= 0.007 && z <= ribs_.z_top + 0.01 &&
+        z >= ribs_.Z(in_.ribs_per_side - 1, ribs_.phi1) - 0.01) {
+      hu = PhantomHu::kBone;
+    }
+    return hu;
+  }
+
+  // Truth: ribs and the intercostal spaces between them, on the skin.
+  void RibAndSpaceTruth() {
+    for (int side : {+1, -1}) {
+      for (int rib = 0; rib < in_.ribs_per_side; ++rib) {
+        PhantomTruth::Rib truth{side, rib, {}};
+        if (in_.ribs_reach_spine) {
+          // The rib's neck, from its head against the vertebral body out to where the rib bends.
+          const Eigen::Vector3d head(side * (kVertebraR + 0.001), vertebra_y_ + 0.004,
+                                     ribs_.Z(rib, ribs_.phi0));
+          const Eigen::Vector3d bend = ribs_.Point(side, rib, ribs_.phi0);
+          for (int s = 0; s < 8; ++s) truth.centreline.push_back(head + (bend - head) * (s / 8.0));
         }
-        if (table && std::abs(x) <= table_half_width) {
-          // Over the fat, muscle and arms: the back pressed onto it is flat whatever its fat.
-          // Depth below the table top's surface (positive: into the table).
-          const double t = y - (table_top - x * x / (2.0 * cradle_radius));
-          if (t >= 0.0 && t <= 2 * table_shell + table_core)
-            hu = (t <= table_shell || t >= table_shell + table_core) ? PhantomHu::kCarbon
-                                                                     : PhantomHu::kFoam;
+        for (int s = 0; s <= 60; ++s) {
+          truth.centreline.push_back(
+              ribs_.Point(side, rib, ribs_.phi0 + (ribs_.phi1 - ribs_.phi0) * s / 60.0));
         }
-        if (inside(a_p, b_p)) {
-          hu = PhantomHu::kLung;
-          // Mediastinum between the lungs, in front of the spine.
-          if ((x * x) / (0.05 * 0.05) + ((y - 0.01) * (y - 0.01)) / (b_p * b_p) <= 1.0) hu = PhantomHu::kMuscle;
+        out_.truth.ribs.push_back(truth);
+      }
+    }
+    for (int side : {+1, -1}) {
+      for (int rib = 0; rib + 1 < in_.ribs_per_side; ++rib) {
+        Curve space;
+        for (int s = 0; s <= 30; ++s) {  // from the side of the chest to the front
+          const double phi = 0.45 * M_PI + (ribs_.phi1 - 0.45 * M_PI) * s / 30.0;
+          const double z = 0.5 * (ribs_.Z(rib, phi) + ribs_.Z(rib + 1, phi));
+          space.emplace_back(side * a_ * std::sin(phi), b_ * std::cos(phi), z);
         }
-        // Beyond the sphere round the heart's longest semi-axis the heart coordinates' norm
-        // exceeds 1 (the axes are a rotation): the same answer without the rotation.
-        const double r =
-            (p - heart).squaredNorm() > heart_sphere2 ? 2.0 : out.truth.HeartCoordinates(p).norm();
-        if (r <= 1.0) hu = r <= 1.0 - 0.008 / semi.minCoeff() ? PhantomHu::kBlood : PhantomHu::kMyocardium;
-        const double rv = std::hypot(x, y - vertebra_y);
-        if (rv <= vertebra_r) {
-          const bool disc = std::abs(std::remainder(z - disc_z0, spacing)) < 0.002;
-          hu = disc ? PhantomHu::kDisc : (rv > vertebra_r - 0.0025 ? PhantomHu::kBone : PhantomHu::kCancellous);
-        }
-        // Each vertebra's arch and processes span 70 % of its height about the rib heads' level;
-        // between them the spinal canal is closed by ligament only.
-        if (std::abs(std::remainder(z - ribs.z_top, spacing)) < 0.35 * spacing) {
-          const double rc = std::hypot(x, y - canal_y);
-          if (rc >= canal_r && rc <= canal_r + arch && y > vertebra_y + 0.5 * vertebra_r) hu = PhantomHu::kBone;
-          if (std::abs(x) <= 0.003 && y >= canal_y + canal_r && y <= spinous_end) hu = PhantomHu::kBone;
-          if (std::abs(y - canal_y) <= 0.004 && std::abs(x) >= canal_r && std::abs(x) <= 0.03) hu = PhantomHu::kBone;
-        }
-        // Ribs: distance to the rib centreline at this voxel's angle about the body axis.
-        const double ex = std::abs(x) / ribs.a_r, ey = y / ribs.b_r;
-        const double rho = std::hypot(ex, ey);
-        const double phi = std::atan2(ex, ey);
-        if (phi >= ribs.phi0 && phi <= ribs.phi1 && rho > 0.5) {
-          const double local = std::hypot(ribs.a_r * std::sin(phi), ribs.b_r * std::cos(phi));
-          const double radial = (rho - 1.0) * local;
-          for (int rib = 0; rib < in.ribs_per_side; ++rib) {
-            const double dz = z - ribs.Z(rib, phi);
-            if (radial * radial + dz * dz <= in.rib_radius * in.rib_radius) hu = PhantomHu::kBone;
-          }
-        }
-        // Shoulder blades: plates in the back's muscle over ribs 2 to 8, 1 cm off the ribs.
-        if (in.shoulders && phi >= 0.25 && phi <= 0.95 && z <= ribs.z_top - spacing && z >= ribs.z_top - 7.5 * spacing) {
-          const double local = std::hypot(ribs.a_r * std::sin(phi), ribs.b_r * std::cos(phi));
-          const double radial = (rho - 1.0) * local;
-          if (radial >= 0.015 && radial <= 0.0195) hu = PhantomHu::kBone;
-        }
-        // Sternum: a plate at the front between the rib ends.
-        if (std::abs(x) <= 0.02 && std::abs(y + ribs.b_r) <= 0.007 &&
-            z <= ribs.z_top + 0.01 && z >= ribs.Z(in.ribs_per_side - 1, ribs.phi1) - 0.01) {
-          hu = PhantomHu::kBone;
-        }
-        v.values[v.Index(i, j, k)] = hu;
+        out_.truth.intercostal_spaces.push_back(space);
+        out_.truth.intercostal_side.push_back(side);
       }
     }
   }
 
-  // Truth: ribs and the intercostal spaces between them, on the skin.
-  for (int side : {+1, -1}) {
-    for (int rib = 0; rib < in.ribs_per_side; ++rib) {
-      PhantomTruth::Rib truth{side, rib, {}};
-      if (in.ribs_reach_spine) {
-        // The rib's neck, from its head against the vertebral body out to where the rib bends.
-        const Eigen::Vector3d head(side * (vertebra_r + 0.001), vertebra_y + 0.004, ribs.Z(rib, ribs.phi0));
-        const Eigen::Vector3d bend = ribs.Point(side, rib, ribs.phi0);
-        for (int s = 0; s < 8; ++s) truth.centreline.push_back(head + (bend - head) * (s / 8.0));
-      }
-      for (int s = 0; s <= 60; ++s) {
-        truth.centreline.push_back(ribs.Point(side, rib, ribs.phi0 + (ribs.phi1 - ribs.phi0) * s / 60.0));
-      }
-      out.truth.ribs.push_back(truth);
+  void ArteryTruth() {
+    // LAD: down the anterior interventricular groove on the sternocostal surface, from the base
+    // (behind the sternum's left edge) to the apex (left, forward, low), a little toward the left
+    // ventricle's side of the surface, on the epicardium.
+    for (int s = 0; s <= 24; ++s) {
+      const Eigen::Vector3d unit = LadUnit(-0.7 + 1.6 * s / 24.0);
+      const Eigen::Vector3d surface = heart_ + heart_axes_ * unit.cwiseProduct(semi_);
+      const Eigen::Vector3d normal = (heart_axes_ * unit.cwiseQuotient(semi_)).normalized();
+      out_.truth.lad.push_back(surface + 0.0015 * normal);
+      out_.truth.lad_normals.push_back(normal);
+    }
+    // LIMA: inside the anterior chest wall, 3 cm left of the midline, over the stretch a harvest
+    // takes down: from the first rib's front end to the 6th intercostal space, where the artery
+    // divides (docs/phantom.md); with fewer ribs, to the lowest space.
+    const int lowest_space = std::min(5, in_.ribs_per_side - 2);
+    const double lima_top = ribs_.Z(0, ribs_.phi1);
+    const double lima_bottom =
+        0.5 * (ribs_.Z(lowest_space, ribs_.phi1) + ribs_.Z(lowest_space + 1, ribs_.phi1));
+    for (int s = 0; s <= 20; ++s) {
+      const double z = lima_top + (lima_bottom - lima_top) * s / 20.0;
+      out_.truth.lima.emplace_back(0.03, -b_p_ - 0.002, z);
     }
   }
-  for (int side : {+1, -1}) {
-    for (int rib = 0; rib + 1 < in.ribs_per_side; ++rib) {
-      Curve space;
-      for (int s = 0; s <= 30; ++s) {  // from the side of the chest to the front
-        const double phi = 0.45 * M_PI + (ribs.phi1 - 0.45 * M_PI) * s / 30.0;
-        const double z = 0.5 * (ribs.Z(rib, phi) + ribs.Z(rib + 1, phi));
-        space.emplace_back(side * a * std::sin(phi), b * std::cos(phi), z);
-      }
-      out.truth.intercostal_spaces.push_back(space);
-      out.truth.intercostal_side.push_back(side);
+
+  // Tubes that the voxel rule does not draw: the ribs' necks, the collarbones, the arteries.
+  void StampTubes() {
+    Volume& v = out_.ct;
+    for (const auto& rib : out_.truth.ribs) {
+      if (in_.ribs_reach_spine)
+        StampTube(Curve(rib.centreline.begin(), rib.centreline.begin() + 9), in_.rib_radius,
+                  PhantomHu::kBone, &v);
     }
-  }
-  // LAD: down the anterior interventricular groove on the sternocostal surface, from the base
-  // (behind the sternum's left edge) to the apex (left, forward, low), a little toward the left
-  // ventricle's side of the surface, on the epicardium.
-  for (int s = 0; s <= 24; ++s) {
-    const Eigen::Vector3d unit = lad_unit(-0.7 + 1.6 * s / 24.0);
-    const Eigen::Vector3d surface = heart + heart_axes * unit.cwiseProduct(semi);
-    const Eigen::Vector3d normal = (heart_axes * unit.cwiseQuotient(semi)).normalized();
-    out.truth.lad.push_back(surface + 0.0015 * normal);
-    out.truth.lad_normals.push_back(normal);
-  }
-  // LIMA: inside the anterior chest wall, 3 cm left of the midline, over the stretch a harvest
-  // takes down: from the first rib's front end to the 6th intercostal space, where the artery
-  // divides (docs/phantom.md); with fewer ribs, to the lowest space.
-  const int lowest_space = std::min(5, in.ribs_per_side - 2);
-  const double lima_top = ribs.Z(0, ribs.phi1);
-  const double lima_bottom =
-      0.5 * (ribs.Z(lowest_space, ribs.phi1) + ribs.Z(lowest_space + 1, ribs.phi1));
-  for (int s = 0; s <= 20; ++s) {
-    const double z = lima_top + (lima_bottom - lima_top) * s / 20.0;
-    out.truth.lima.emplace_back(0.03, -b_p - 0.002, z);
-  }
-  for (const auto& rib : out.truth.ribs) {
-    if (in.ribs_reach_spine) StampTube(Curve(rib.centreline.begin(), rib.centreline.begin() + 9), in.rib_radius, PhantomHu::kBone, &v);
-  }
-  if (in.shoulders) {
-    // Collarbones: over the first ribs' front half, 16 mm outside them and 4 mm higher.
-    for (int side : {+1, -1}) {
-      Curve clavicle;
-      for (int s = 0; s <= 20; ++s) {
-        const double phi = ribs.phi1 - 0.05 - (ribs.phi1 - 0.05 - 1.35) * s / 20.0;
-        clavicle.emplace_back(side * (ribs.a_r + 0.016) * std::sin(phi), (ribs.b_r + 0.016) * std::cos(phi),
-                              ribs.Z(0, phi) + 0.004);
+    if (in_.shoulders) {
+      // Collarbones: over the first ribs' front half, 16 mm outside them and 4 mm higher.
+      for (int side : {+1, -1}) {
+        Curve clavicle;
+        for (int s = 0; s <= 20; ++s) {
+          const double phi = ribs_.phi1 - 0.05 - (ribs_.phi1 - 0.05 - 1.35) * s / 20.0;
+          clavicle.emplace_back(side * (ribs_.a_r + 0.016) * std::sin(phi),
+                                (ribs_.b_r + 0.016) * std::cos(phi), ribs_.Z(0, phi) + 0.004);
+        }
+        StampTube(clavicle, 0.006, PhantomHu::kBone, &v);
       }
-      StampTube(clavicle, 0.006, PhantomHu::kBone, &v);
     }
+    StampTube(out_.truth.lad, 0.0016, PhantomHu::kArtery, &v);
+    StampTube(out_.truth.lima, 0.0015, PhantomHu::kArtery, &v);
   }
-  StampTube(out.truth.lad, 0.0016, PhantomHu::kArtery, &v);
-  StampTube(out.truth.lima, 0.0015, PhantomHu::kArtery, &v);
-  return out;
+
+  static constexpr double kArmR = 0.045, kHumerusR = 0.011;
+  static constexpr double kTableShell = 0.002, kTableCore = 0.030, kTableHalfWidth = 0.23,
+                          kCradleRadius = 1.0;
+  static constexpr double kVertebraR = 0.02;
+
+  const PhantomParameters& in_;
+  Phantom out_;
+  double a_ = 0.0, b_ = 0.0, spacing_ = 0.0, a_p_ = 0.0, b_p_ = 0.0, vertebra_y_ = 0.0;
+  Eigen::Vector3d heart_jitter_ = Eigen::Vector3d::Zero();
+  RibLayout ribs_{};
+  Eigen::Matrix3d heart_axes_ = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d semi_ = Eigen::Vector3d::Zero(), heart_ = Eigen::Vector3d::Zero();
+  double arm_x_ = 0.0, table_top_ = 0.0, heart_sphere2_ = 0.0;
+  bool table_ = false;
+};
+
+}  // namespace
+
+Phantom GeneratePhantom(const PhantomParameters& in) {
+  CheckParameters(in);
+  return PhantomBuilder(in).Build();
 }
 
 namespace {
