@@ -137,12 +137,23 @@ double Median(std::vector<double>* v) {
   return (*v)[v->size() / 2];
 }
 
-SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, const Mask& exclude,
-                        const Slices& slices, const AnatomyOptions& o) {
-  // The body's front-back extent in each slice: the spine lies in its back 40 %.
-  std::vector<double> y_lo(slices.count, HUGE_VAL), y_hi(slices.count, -HUGE_VAL),
-      x_sum(slices.count, 0.0);
-  std::vector<long> x_n(slices.count, 0);
+// The body in each slice: its front-back extent (the spine lies in its back 40 %) and its
+// left-right centre.
+struct BodyPerSlice {
+  std::vector<double> y_lo, y_hi, x_sum;
+  std::vector<long> x_n;
+  double Back(int s) const {
+    return y_lo[s] + 0.6 * (y_hi[s] - y_lo[s]);
+  }  // the back 40 % from here
+  double Centre(int s) const { return x_n[s] ? x_sum[s] / x_n[s] : 0.0; }
+};
+
+BodyPerSlice MeasureBodyPerSlice(const Volume& ct, const Mask& body, const Slices& slices) {
+  BodyPerSlice b;
+  b.y_lo.assign(slices.count, HUGE_VAL);
+  b.y_hi.assign(slices.count, -HUGE_VAL);
+  b.x_sum.assign(slices.count, 0.0);
+  b.x_n.assign(slices.count, 0);
   const Eigen::Vector3d step_i = ct.index_to_P.col(0);
   for (int k = 0; k < ct.size.z(); ++k) {
     for (int j = 0; j < ct.size.y(); ++j) {
@@ -152,15 +163,23 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
         if (!body.inside[row + i]) continue;
         const Eigen::Vector3d p = row_P + i * step_i;
         const int s = slices.Of(p.z());
-        y_lo[s] = std::min(y_lo[s], p.y());
-        y_hi[s] = std::max(y_hi[s], p.y());
-        x_sum[s] += p.x();
-        ++x_n[s];
+        b.y_lo[s] = std::min(b.y_lo[s], p.y());
+        b.y_hi[s] = std::max(b.y_hi[s], p.y());
+        b.x_sum[s] += p.x();
+        ++b.x_n[s];
       }
     }
   }
-  // Thin bone first (the posterior arches, the bodies' cortex); in slices without any, the thick
-  // (a solid vertebral body).
+  return b;
+}
+
+// The bone in each slice's back 40 %, within `spine_search` of its centre left-right: thin bone
+// first (the posterior arches, the bodies' cortex); in slices without any, the thick (a solid
+// vertebral body).
+std::vector<std::vector<Eigen::Vector2d>> BackBone(const Volume& ct, const Mask& bone,
+                                                   const Mask& exclude, const Slices& slices,
+                                                   const BodyPerSlice& body,
+                                                   const AnatomyOptions& o) {
   std::vector<std::vector<Eigen::Vector2d>> candidates(slices.count), thick(slices.count);
   for (int k = 0; k < ct.size.z(); ++k) {
     for (int j = 0; j < ct.size.y(); ++j) {
@@ -169,8 +188,8 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
         if (!bone.inside[v]) continue;
         const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
         const int s = slices.Of(p.z());
-        if (p.y() < y_lo[s] + 0.6 * (y_hi[s] - y_lo[s])) continue;
-        if (std::abs(p.x() - x_sum[s] / x_n[s]) > o.spine_search) continue;
+        if (p.y() < body.Back(s)) continue;
+        if (std::abs(p.x() - body.x_sum[s] / body.x_n[s]) > o.spine_search) continue;
         (exclude.inside[v] ? thick : candidates)[s].push_back(p.head<2>());
       }
     }
@@ -179,87 +198,120 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
   for (int s = 0; s < slices.count; ++s) {
     if (candidates[s].size() * area < 20e-6) candidates[s].swap(thick[s]);
   }
-  Release(&thick);
-  // The midline in each slice: the left-right mirror line of the back's thin bone (vertebrae,
-  // their processes, the ribs' heads and necks), where bone on one side answers bone on the
-  // other at the same height front-back, over a slab of slices. A band of densest bone was pulled
-  // aside by one side's rib necks by up to 2 cm on a real slab; the spine is symmetric where no
-  // single band is. Only pairs between `kPairGap` and `kPairReach` either side of the line count:
-  // no dense piece scores by mirroring onto itself, and the ribs' shafts further out, which pair
-  // across any line on a crop off the body's centre, do not. The axis' front-back place is the
-  // median of the midline band's bone.
-  constexpr double kPairGap = 0.008, kPairReach = 0.045, kRowHeight = 0.002;
-  const double bin = std::max(InPlaneSpacing(ct).mean(), 1e-3);
-  const int search = static_cast<int>(std::floor(o.spine_search / bin));
-  const int gap = static_cast<int>(std::ceil(kPairGap / bin));
-  const int reach = static_cast<int>(std::floor(kPairReach / bin));
-  const int half_bins = search + reach + 1;
-  const int bins = 2 * half_bins + 1;  // x about each slice's body centre
-  double y_min = HUGE_VAL, y_max = -HUGE_VAL;
-  for (int s = 0; s < slices.count; ++s) {
-    if (y_hi[s] < y_lo[s]) continue;
-    y_min = std::min(y_min, y_lo[s] + 0.6 * (y_hi[s] - y_lo[s]));
-    y_max = std::max(y_max, y_hi[s]);
+  return candidates;
+}
+
+// The midline in each slice: the left-right mirror line of the back's thin bone (vertebrae,
+// their processes, the ribs' heads and necks), where bone on one side answers bone on the
+// other at the same height front-back, over a slab of slices. A band of densest bone was pulled
+// aside by one side's rib necks by up to 2 cm on a real slab; the spine is symmetric where no
+// single band is. Only pairs between `kPairGap` and `kPairReach` either side of the line count:
+// no dense piece scores by mirroring onto itself, and the ribs' shafts further out, which pair
+// across any line on a crop off the body's centre, do not.
+class MirrorSearch {
+ public:
+  MirrorSearch(const Volume& ct, const Slices& slices, const BodyPerSlice& body,
+               const AnatomyOptions& o)
+      : ct_(ct), slices_(slices), body_(body) {
+    bin_ = std::max(InPlaneSpacing(ct).mean(), 1e-3);
+    search_ = static_cast<int>(std::floor(o.spine_search / bin_));
+    gap_ = static_cast<int>(std::ceil(kPairGap / bin_));
+    reach_ = static_cast<int>(std::floor(kPairReach / bin_));
+    half_bins_ = search_ + reach_ + 1;
+    bins_ = 2 * half_bins_ + 1;  // x about each slice's body centre
+    double y_max = -HUGE_VAL;
+    for (int s = 0; s < slices.count; ++s) {
+      if (body.y_hi[s] < body.y_lo[s]) continue;
+      y_min_ = std::min(y_min_, body.Back(s));
+      y_max = std::max(y_max, body.y_hi[s]);
+    }
+    rows_ = y_max >= y_min_ ? static_cast<int>(std::floor((y_max - y_min_) / kRowHeight)) + 1 : 0;
+    centre_.assign(slices.count, 0.0);
+    for (int s = 0; s < slices.count; ++s) centre_[s] = body.Centre(s);
   }
-  const int rows =
-      y_max >= y_min ? static_cast<int>(std::floor((y_max - y_min) / kRowHeight)) + 1 : 0;
-  std::vector<double> centre(slices.count, 0.0);
-  for (int s = 0; s < slices.count; ++s) centre[s] = x_n[s] ? x_sum[s] / x_n[s] : 0.0;
-  // Thin bone counts per slice, row (front-back) and column (left-right).
-  std::vector<std::vector<float>> grid(slices.count);
-  for (int k = 0; k < ct.size.z(); ++k) {
-    for (int j = 0; j < ct.size.y(); ++j) {
-      const long row = ct.Index(0, j, k);
-      const Eigen::Vector3d row_P = ct.PatientPoint(0, j, k);
-      for (int i = 0; i < ct.size.x(); ++i) {
-        if (!bone.inside[row + i] || exclude.inside[row + i]) continue;  // thin bone, no vessel
-        const Eigen::Vector3d p = row_P + i * step_i;
-        const int s = slices.Of(p.z());
-        if (p.y() < y_lo[s] + 0.6 * (y_hi[s] - y_lo[s])) continue;
-        const int b = static_cast<int>(std::lround((p.x() - centre[s]) / bin)) + half_bins;
-        const int r = static_cast<int>(std::floor((p.y() - y_min) / kRowHeight));
-        if (b < 0 || b >= bins || r < 0 || r >= rows) continue;
-        if (grid[s].empty()) grid[s].assign(static_cast<std::size_t>(rows) * bins, 0.f);
-        grid[s][static_cast<std::size_t>(r) * bins + b] += 1.f;
-      }
+
+  /// Per slice with candidates, the mirror line's x (`mirrored` set where one was found).
+  void Find(const Mask& bone, const Mask& exclude,
+            const std::vector<std::vector<Eigen::Vector2d>>& candidates,
+            std::vector<double>* mirror_x, std::vector<std::uint8_t>* mirrored) const {
+    std::vector<std::vector<float>> grid = ThinBoneCounts(bone, exclude);
+    const int slab = std::max(0, static_cast<int>(std::lround(0.01 / slices_.dz)));  // ±1 cm
+    mirror_x->assign(slices_.count, 0.0);
+    mirrored->assign(slices_.count, 0);
+    std::vector<float> h(static_cast<std::size_t>(rows_) * bins_);
+    for (int s = 0; s < slices_.count; ++s) {
+      if (candidates[s].empty()) continue;
+      SumSlab(grid, s, slab, &h);
+      const int best_m = BestMirror(h);
+      if (best_m < 0) continue;
+      (*mirror_x)[s] = centre_[s] + (0.5 * best_m - half_bins_) * bin_;
+      (*mirrored)[s] = 1;
     }
   }
-  const int slab = std::max(0, static_cast<int>(std::lround(0.01 / slices.dz)));  // ±1 cm
-  std::vector<double> mirror_x(slices.count, 0.0);
-  std::vector<std::uint8_t> mirrored(slices.count, 0);
-  std::vector<float> h(static_cast<std::size_t>(rows) * bins);
-  std::vector<int> busy_rows;
-  for (int s = 0; s < slices.count; ++s) {
-    if (candidates[s].empty()) continue;
-    std::fill(h.begin(), h.end(), 0.f);
-    for (int t = std::max(0, s - slab); t <= std::min(slices.count - 1, s + slab); ++t) {
+
+ private:
+  static constexpr double kPairGap = 0.008, kPairReach = 0.045, kRowHeight = 0.002;
+
+  // Thin bone counts per slice, row (front-back) and column (left-right).
+  std::vector<std::vector<float>> ThinBoneCounts(const Mask& bone, const Mask& exclude) const {
+    const Volume& ct = ct_;
+    const Eigen::Vector3d step_i = ct.index_to_P.col(0);
+    std::vector<std::vector<float>> grid(slices_.count);
+    for (int k = 0; k < ct.size.z(); ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        const long row = ct.Index(0, j, k);
+        const Eigen::Vector3d row_P = ct.PatientPoint(0, j, k);
+        for (int i = 0; i < ct.size.x(); ++i) {
+          if (!bone.inside[row + i] || exclude.inside[row + i]) continue;  // thin bone, no vessel
+          const Eigen::Vector3d p = row_P + i * step_i;
+          const int s = slices_.Of(p.z());
+          if (p.y() < body_.Back(s)) continue;
+          const int b = static_cast<int>(std::lround((p.x() - centre_[s]) / bin_)) + half_bins_;
+          const int r = static_cast<int>(std::floor((p.y() - y_min_) / kRowHeight));
+          if (b < 0 || b >= bins_ || r < 0 || r >= rows_) continue;
+          if (grid[s].empty()) grid[s].assign(static_cast<std::size_t>(rows_) * bins_, 0.f);
+          grid[s][static_cast<std::size_t>(r) * bins_ + b] += 1.f;
+        }
+      }
+    }
+    return grid;
+  }
+
+  // The counts of the slab of slices about s, each slice's columns about its own body centre
+  // re-centred on this slice's.
+  void SumSlab(const std::vector<std::vector<float>>& grid, int s, int slab,
+               std::vector<float>* h) const {
+    std::fill(h->begin(), h->end(), 0.f);
+    for (int t = std::max(0, s - slab); t <= std::min(slices_.count - 1, s + slab); ++t) {
       if (grid[t].empty()) continue;
-      // Each slice's columns about its own body centre, re-centred on this slice's.
-      const int shift = static_cast<int>(std::lround((centre[t] - centre[s]) / bin));
-      for (int r = 0; r < rows; ++r) {
-        const float* from = &grid[t][static_cast<std::size_t>(r) * bins];
-        float* to = &h[static_cast<std::size_t>(r) * bins];
-        for (int b = std::max(0, -shift); b < std::min(bins, bins - shift); ++b)
+      const int shift = static_cast<int>(std::lround((centre_[t] - centre_[s]) / bin_));
+      for (int r = 0; r < rows_; ++r) {
+        const float* from = &grid[t][static_cast<std::size_t>(r) * bins_];
+        float* to = &(*h)[static_cast<std::size_t>(r) * bins_];
+        for (int b = std::max(0, -shift); b < std::min(bins_, bins_ - shift); ++b)
           to[b + shift] += from[b];
       }
     }
-    // Mirror about the half-bin position m/2: columns a and m − a meet (rows without bone skipped).
-    std::vector<int>& busy = busy_rows;
-    busy.clear();
-    for (int r = 0; r < rows; ++r) {
-      const float* row = &h[static_cast<std::size_t>(r) * bins];
-      if (std::any_of(row, row + bins, [](float x) { return x > 0.f; })) busy.push_back(r);
+  }
+
+  // Mirror about the half-bin position m/2: columns a and m − a meet (rows without bone
+  // skipped). The m of the highest score, -1 when no pair scores.
+  int BestMirror(const std::vector<float>& h) const {
+    std::vector<int> busy;
+    for (int r = 0; r < rows_; ++r) {
+      const float* row = &h[static_cast<std::size_t>(r) * bins_];
+      if (std::any_of(row, row + bins_, [](float x) { return x > 0.f; })) busy.push_back(r);
     }
     double best = 0.0;
     int best_m = -1;
-    for (int m = 2 * half_bins - 2 * search; m <= 2 * half_bins + 2 * search; ++m) {
+    for (int m = 2 * half_bins_ - 2 * search_; m <= 2 * half_bins_ + 2 * search_; ++m) {
       double score = 0.0;
       for (const int r : busy) {
-        const float* row = &h[static_cast<std::size_t>(r) * bins];
+        const float* row = &h[static_cast<std::size_t>(r) * bins_];
         // d = (m − a) − a, the pair's spread, of m's parity.
-        for (int d = 2 * gap + ((m - 2 * gap) & 1); d <= 2 * reach; d += 2) {
+        for (int d = 2 * gap_ + ((m - 2 * gap_) & 1); d <= 2 * reach_; d += 2) {
           const int a = (m - d) / 2;
-          if (a < 0 || m - a >= bins) continue;
+          if (a < 0 || m - a >= bins_) continue;
           score += static_cast<double>(row[a]) * row[m - a];
         }
       }
@@ -268,11 +320,67 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
         best_m = m;
       }
     }
-    if (best_m < 0) continue;
-    mirror_x[s] = centre[s] + (0.5 * best_m - half_bins) * bin;
-    mirrored[s] = 1;
+    return best_m;
   }
-  Release(&grid);
+
+  const Volume& ct_;
+  const Slices& slices_;
+  const BodyPerSlice& body_;
+  double bin_ = 0.0, y_min_ = HUGE_VAL;
+  int search_ = 0, gap_ = 0, reach_ = 0, half_bins_ = 0, bins_ = 0, rows_ = 0;
+  std::vector<double> centre_;
+};
+
+// A running median over more than a vertebra's height (`axis_smoothing` either side) smooths
+// out a slice caught on a disc or on one side's processes: the spine bends slowly.
+void SmoothAxis(const Slices& slices, const AnatomyOptions& o, SpineAxis* a) {
+  const int w = std::max(1, static_cast<int>(std::lround(o.axis_smoothing / slices.dz)));
+  std::vector<double> sx = a->x, sy = a->y;
+  for (int s = 0; s < slices.count; ++s) {
+    if (!a->known[s]) continue;
+    std::vector<double> nx, ny;
+    for (int t = std::max(0, s - w); t <= std::min(slices.count - 1, s + w); ++t) {
+      if (!a->known[t]) continue;
+      nx.push_back(a->x[t]);
+      ny.push_back(a->y[t]);
+    }
+    sx[s] = Median(&nx);
+    sy[s] = Median(&ny);
+  }
+  a->x = sx;
+  a->y = sy;
+}
+
+// Slices without midline bone (an intervertebral disc) take the nearest known slice's axis
+// within 2 cm.
+void FillAxisGaps(const Slices& slices, SpineAxis* a) {
+  const int fill_reach = static_cast<int>(std::lround(0.02 / slices.dz));
+  std::vector<std::uint8_t> filled = a->known;
+  for (int s = 0; s < slices.count; ++s) {
+    if (a->known[s]) continue;
+    for (int d = 1; d <= fill_reach; ++d) {
+      const int t = s - d >= 0 && a->known[s - d]
+                        ? s - d
+                        : (s + d < slices.count && a->known[s + d] ? s + d : -1);
+      if (t < 0) continue;
+      a->x[s] = a->x[t];
+      a->y[s] = a->y[t];
+      filled[s] = 1;
+      break;
+    }
+  }
+  a->known = filled;
+}
+
+SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, const Mask& exclude,
+                        const Slices& slices, const AnatomyOptions& o) {
+  const BodyPerSlice extent = MeasureBodyPerSlice(ct, body, slices);
+  std::vector<std::vector<Eigen::Vector2d>> candidates =
+      BackBone(ct, bone, exclude, slices, extent, o);
+  std::vector<double> mirror_x;
+  std::vector<std::uint8_t> mirrored;
+  MirrorSearch(ct, slices, extent, o).Find(bone, exclude, candidates, &mirror_x, &mirrored);
+  // The axis' front-back place is the median of the midline band's bone.
   std::vector<std::vector<double>> xs(slices.count), ys(slices.count);
   for (int s = 0; s < slices.count; ++s) {
     if (!mirrored[s]) continue;
@@ -295,41 +403,8 @@ SpineAxis FindSpineAxis(const Volume& ct, const Mask& body, const Mask& bone, co
     a.known[s] = 1;
     a.any = true;
   }
-  // A running median over more than a vertebra's height (`axis_smoothing` either side) smooths
-  // out a slice caught on a disc or on one side's processes: the spine bends slowly.
-  const int w = std::max(1, static_cast<int>(std::lround(o.axis_smoothing / slices.dz)));
-  std::vector<double> sx = a.x, sy = a.y;
-  for (int s = 0; s < slices.count; ++s) {
-    if (!a.known[s]) continue;
-    std::vector<double> nx, ny;
-    for (int t = std::max(0, s - w); t <= std::min(slices.count - 1, s + w); ++t) {
-      if (!a.known[t]) continue;
-      nx.push_back(a.x[t]);
-      ny.push_back(a.y[t]);
-    }
-    sx[s] = Median(&nx);
-    sy[s] = Median(&ny);
-  }
-  a.x = sx;
-  a.y = sy;
-  // Slices without midline bone (an intervertebral disc) take the nearest known slice's axis
-  // within 2 cm.
-  const int fill_reach = static_cast<int>(std::lround(0.02 / slices.dz));
-  std::vector<std::uint8_t> filled = a.known;
-  for (int s = 0; s < slices.count; ++s) {
-    if (a.known[s]) continue;
-    for (int d = 1; d <= fill_reach; ++d) {
-      const int t = s - d >= 0 && a.known[s - d]
-                        ? s - d
-                        : (s + d < slices.count && a.known[s + d] ? s + d : -1);
-      if (t < 0) continue;
-      a.x[s] = a.x[t];
-      a.y[s] = a.y[t];
-      filled[s] = 1;
-      break;
-    }
-  }
-  a.known = filled;
+  SmoothAxis(slices, o, &a);
+  FillAxisGaps(slices, &a);
   return a;
 }
 
