@@ -556,23 +556,22 @@ bool ReadFile(const std::string& file, IsolatedWorker* decoder, std::vector<Slic
   return DecodeIsolated(decoder, bytes_read, file, sniff, out);
 }
 
-// GDCM's part of reading one file: parse `bytes_read`, decode the pixels, fill the slices.
-bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Sniff sniff,
-                    std::vector<Slice>* out) {
-  std::istringstream stream(bytes_read);
-  gdcm::ImageReader reader;
-  reader.SetStream(stream);
-  const bool read = reader.Read();
-  const gdcm::File& f = reader.GetFile();
-  const gdcm::DataSet& ds = f.GetDataSet();
-  const gdcm::Tag kPixelData(0x7fe0, 0x0010), kRows(0x0028, 0x0010);
+// A file's transfer syntax in words, for messages: "transfer syntax UID (name)".
+std::string TransferSyntaxText(const gdcm::File& f) {
   const std::string ts_uid =
       f.GetHeader().GetDataSetTransferSyntax().IsValid()
           ? gdcm::TransferSyntax::GetTSString(f.GetHeader().GetDataSetTransferSyntax())
           : Text(f.GetHeader(), gdcm::Tag(0x0002, 0x0010));
-  const std::string ts_text =
-      "transfer syntax " + (ts_uid.empty() ? std::string("(none)") : ts_uid) + " (" +
-      TransferSyntaxName(ts_uid) + ")";
+  return "transfer syntax " + (ts_uid.empty() ? std::string("(none)") : ts_uid) + " (" +
+         TransferSyntaxName(ts_uid) + ")";
+}
+
+// Whether GDCM's reading gave an image to decode: false for what is skipped (a readable non-image
+// object, a bare file that is not DICOM, a file without pixel data); throws for a file that
+// looks like an image and fails.
+bool IsImageToDecode(bool read, const gdcm::File& f, const std::string& file, Sniff sniff) {
+  const gdcm::DataSet& ds = f.GetDataSet();
+  const gdcm::Tag kPixelData(0x7fe0, 0x0010), kRows(0x0028, 0x0010);
   if (!read) {
     gdcm::MediaStorage ms;
     ms.SetFromFile(f);
@@ -582,7 +581,7 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
     if (!image_like && (sniff == Sniff::kBare || (ms != gdcm::MediaStorage::MS_END && !gdcm::MediaStorage::IsImage(ms))))
       return false;
     TROCAR_THROW_UNLESS(image_like || sniff == Sniff::kDicom, file << ": not DICOM");
-    TROCAR_THROW(file << ": GDCM cannot read it (" << ts_text
+    TROCAR_THROW(file << ": GDCM cannot read it (" << TransferSyntaxText(f)
                       << "): truncated, damaged, or an encoding GDCM does not know");
   }
   if (!ds.FindDataElement(kPixelData)) {
@@ -590,7 +589,11 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
                         file << ": image with no pixel data (7FE0,0010) (truncated?)");
     return false;
   }
-  const gdcm::Image& image = reader.GetImage();
+  return true;
+}
+
+// The pixel format a grey-level CT has: one sample, monochrome, 8, 16 or 32 bits allocated.
+void CheckPixelFormat(const gdcm::Image& image, const std::string& file) {
   const gdcm::PixelFormat& pf = image.GetPixelFormat();
   TROCAR_THROW_UNLESS(pf.GetSamplesPerPixel() == 1,
                       file << ": samples per pixel (0028,0002) is " << pf.GetSamplesPerPixel()
@@ -607,6 +610,49 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
   TROCAR_THROW_UNLESS(bits_stored >= 1 && bits_stored <= bits_allocated,
                       file << ": bits stored (0028,0101) is " << bits_stored << ", expected 1 to "
                            << bits_allocated);
+}
+
+// A frame's fields: its own functional group first, then the shared functional groups, then the
+// top level (classic images). A multi-frame file may also carry a top-level value (e.g. the first
+// frame's position), which must not stand for every frame.
+class FrameFields {
+ public:
+  FrameFields(const gdcm::DataSet& ds, const std::string& file, int frames)
+      : ds_(ds),
+        file_(file),
+        frames_(frames),
+        shared_(SequenceItem(ds, gdcm::Tag(0x5200, 0x9229), 0)) {}
+  /// The frame's own functional group's value only.
+  std::string Own(const gdcm::Tag& tag, int frame) const {
+    return GroupText(SequenceItem(ds_, gdcm::Tag(0x5200, 0x9230), frame), tag);
+  }
+  std::string Field(const gdcm::Tag& tag, int frame) const {
+    std::string t = Own(tag, frame);
+    if (t.empty()) t = GroupText(shared_, tag);
+    if (t.empty()) t = Text(ds_, tag);
+    return t;
+  }
+  std::string Require(const gdcm::Tag& tag, int frame, const char* name) const {
+    const std::string t = Field(tag, frame);
+    TROCAR_THROW_UNLESS(
+        !t.empty(),
+        file_ << ": missing " << name << " " << TagName(tag)
+              << (frames_ > 1 ? " for frame " + std::to_string(frame + 1) : std::string()));
+    return t;
+  }
+
+ private:
+  const gdcm::DataSet& ds_;
+  const std::string& file_;
+  int frames_;
+  const gdcm::DataSet* shared_;
+};
+
+const gdcm::Tag kImagePosition(0x0020, 0x0032), kImageOrientation(0x0020, 0x0037),
+    kPixelSpacing(0x0028, 0x0030), kRescaleSlope(0x0028, 0x1053), kRescaleIntercept(0x0028, 0x1052);
+
+// The slice's identity (size, series, modality, instance) from the image and its data set.
+Slice DescribeSlice(const gdcm::Image& image, const gdcm::DataSet& ds, const std::string& file) {
   const unsigned* dims = image.GetDimensions();
   Slice s;
   s.file = file;
@@ -617,62 +663,50 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
                           s.columns <= 65535,
                       file << ": image is " << s.rows << " x " << s.columns << " pixels, "
                            << s.frames << " frame(s)");
-  s.is_signed = pf.GetPixelRepresentation() == 1;
+  s.is_signed = image.GetPixelFormat().GetPixelRepresentation() == 1;
   s.series_uid = Text(ds, gdcm::Tag(0x0020, 0x000e));
   s.modality = Text(ds, gdcm::Tag(0x0008, 0x0060));
   s.description = Text(ds, gdcm::Tag(0x0008, 0x103e));
   if (const std::string n = Text(ds, gdcm::Tag(0x0020, 0x0013)); !n.empty()) {
     s.instance = static_cast<int>(std::clamp(Numbers(n, 1, file, "instance number (0020,0013)")[0], -1e9, 1e9));
   }
+  return s;
+}
 
-  // Geometry and rescale: top level for classic images; the functional groups (per frame, then
-  // shared) for enhanced multi-frame images.
-  const gdcm::DataSet* shared = SequenceItem(ds, gdcm::Tag(0x5200, 0x9229), 0);
-  // A frame's own functional group first: a multi-frame file may also carry a top-level value
-  // (e.g. the first frame's position), which must not stand for every frame.
-  auto frame_text = [&](const gdcm::Tag& tag, int frame) {
-    return GroupText(SequenceItem(ds, gdcm::Tag(0x5200, 0x9230), frame), tag);
-  };
-  auto field = [&](const gdcm::Tag& tag, int frame) {
-    std::string t = frame_text(tag, frame);
-    if (t.empty()) t = GroupText(shared, tag);
-    if (t.empty()) t = Text(ds, tag);
-    return t;
-  };
-  auto require = [&](const gdcm::Tag& tag, int frame, const char* name) {
-    const std::string t = field(tag, frame);
-    TROCAR_THROW_UNLESS(!t.empty(), file << ": missing " << name << " " << TagName(tag)
-                                         << (s.frames > 1 ? " for frame " + std::to_string(frame + 1)
-                                                          : std::string()));
-    return t;
-  };
-  const gdcm::Tag kPosition(0x0020, 0x0032), kOrientation(0x0020, 0x0037),
-      kSpacing(0x0028, 0x0030), kSlope(0x0028, 0x1053), kIntercept(0x0028, 0x1052);
-  const std::string orientation = require(kOrientation, 0, "image orientation (patient)");
+// The rows' and columns' directions and the pixel spacing (the first frame's).
+void ReadPlaneGeometry(const FrameFields& fields, const std::string& file, Slice* s) {
+  const std::string orientation =
+      fields.Require(kImageOrientation, 0, "image orientation (patient)");
   const auto o = Numbers(orientation, 6, file, "image orientation (patient) (0020,0037)");
-  s.row_direction = Eigen::Vector3d(o[0], o[1], o[2]);
-  s.column_direction = Eigen::Vector3d(o[3], o[4], o[5]);
-  TROCAR_THROW_UNLESS(std::abs(s.row_direction.norm() - 1) < 1e-3 &&
-                          std::abs(s.column_direction.norm() - 1) < 1e-3 &&
-                          std::abs(s.row_direction.dot(s.column_direction)) < 1e-3,
+  s->row_direction = Eigen::Vector3d(o[0], o[1], o[2]);
+  s->column_direction = Eigen::Vector3d(o[3], o[4], o[5]);
+  TROCAR_THROW_UNLESS(std::abs(s->row_direction.norm() - 1) < 1e-3 &&
+                          std::abs(s->column_direction.norm() - 1) < 1e-3 &&
+                          std::abs(s->row_direction.dot(s->column_direction)) < 1e-3,
                       file << ": image orientation (patient) (0020,0037) '" << orientation
                            << "' is not two orthogonal unit vectors");
-  s.row_direction.normalize();
-  s.column_direction.normalize();
-  const std::string spacing = require(kSpacing, 0, "pixel spacing");
+  s->row_direction.normalize();
+  s->column_direction.normalize();
+  const std::string spacing = fields.Require(kPixelSpacing, 0, "pixel spacing");
   const auto sp = Numbers(spacing, 2, file, "pixel spacing (0028,0030)");
-  s.spacing_mm = Eigen::Vector2d(sp[0], sp[1]);
-  TROCAR_THROW_UNLESS((s.spacing_mm.array() > 0).all(),
+  s->spacing_mm = Eigen::Vector2d(sp[0], sp[1]);
+  TROCAR_THROW_UNLESS((s->spacing_mm.array() > 0).all(),
                       file << ": pixel spacing (0028,0030) '" << spacing << "' must be positive");
+}
 
-  // Pixels, decoded by GDCM whatever the transfer syntax.
+// Pixels, decoded by GDCM whatever the transfer syntax, and rescaled per frame.
+void DecodePixels(const gdcm::Image& image, const FrameFields& fields, const std::string& file,
+                  const std::string& ts_text, Slice* s) {
+  const gdcm::PixelFormat& pf = image.GetPixelFormat();
+  const int bits_allocated = pf.GetBitsAllocated(), bits_stored = pf.GetBitsStored();
   const std::size_t bytes_per = static_cast<std::size_t>(bits_allocated / 8);
-  const std::size_t per_frame = static_cast<std::size_t>(s.rows) * s.columns;
-  const std::size_t expected = per_frame * s.frames * bytes_per;
+  const std::size_t per_frame = static_cast<std::size_t>(s->rows) * s->columns;
+  const std::size_t expected = per_frame * s->frames * bytes_per;
   TROCAR_THROW_UNLESS(image.GetBufferLength() == expected,
-                      file << ": GDCM gives " << image.GetBufferLength() << " bytes of pixels, expected "
-                           << expected << " for " << s.frames << " frame(s) of " << s.rows << " x "
-                           << s.columns << " pixels of " << bits_allocated << " bits");
+                      file << ": GDCM gives " << image.GetBufferLength()
+                           << " bytes of pixels, expected " << expected << " for " << s->frames
+                           << " frame(s) of " << s->rows << " x " << s->columns << " pixels of "
+                           << bits_allocated << " bits");
   std::vector<char> raw(expected);
   TROCAR_THROW_UNLESS(
       image.GetBuffer(raw.data()),
@@ -680,20 +714,20 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
            << ": GDCM cannot decode its pixel data (damaged, or a codec this GDCM was built "
               "without). Convert the series to uncompressed DICOM with a tool that decodes it "
               "(e.g. dcmtk's dcmdjpeg, dcmdjpls or dcmdrle), or export it as NIfTI");
-  auto values = std::make_shared<std::vector<float>>(per_frame * s.frames);
+  auto values = std::make_shared<std::vector<float>>(per_frame * s->frames);
   const std::uint32_t mask = bits_stored == 32 ? 0xFFFFFFFFu : ((1u << bits_stored) - 1u);
   const std::uint32_t sign = 1u << (bits_stored - 1);
   long bad = 0;
-  for (int frame = 0; frame < s.frames; ++frame) {
+  for (int frame = 0; frame < s->frames; ++frame) {
     double slope = 1.0, intercept = 0.0;
-    if (const std::string t = field(kSlope, frame); !t.empty())
+    if (const std::string t = fields.Field(kRescaleSlope, frame); !t.empty())
       slope = Numbers(t, 1, file, "rescale slope (0028,1053)")[0];
-    if (const std::string t = field(kIntercept, frame); !t.empty())
+    if (const std::string t = fields.Field(kRescaleIntercept, frame); !t.empty())
       intercept = Numbers(t, 1, file, "rescale intercept (0028,1052)")[0];
     TROCAR_THROW_UNLESS(slope != 0.0, file << ": rescale slope (0028,1053) is 0");
     if (frame == 0) {
-      s.slope = slope;
-      s.intercept = intercept;
+      s->slope = slope;
+      s->intercept = intercept;
     }
     const auto* p = reinterpret_cast<const unsigned char*>(raw.data()) + per_frame * frame * bytes_per;
     float* v = values->data() + per_frame * frame;
@@ -701,7 +735,7 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
       std::uint32_t word = 0;  // GDCM hands the buffer over in the machine's (little-endian) order
       for (std::size_t b = 0; b < bytes_per; ++b) word |= static_cast<std::uint32_t>(p[b]) << (8 * b);
       word &= mask;
-      const double x = s.is_signed && (word & sign)
+      const double x = s->is_signed && (word & sign)
                            ? static_cast<double>(static_cast<std::int64_t>(word) -
                                                  (static_cast<std::int64_t>(mask) + 1))
                            : static_cast<double>(word);
@@ -711,12 +745,15 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
     }
   }
   TROCAR_THROW_UNLESS(bad == 0, file << ": " << bad << " voxels are not finite after rescaling");
-  s.values = values;
+  s->values = values;
+}
 
-  // One slice per frame, each at its own position.
+// One slice per frame, each at its own position.
+void SplitFrames(const Slice& s, const FrameFields& fields, const gdcm::DataSet& ds,
+                 const std::string& file, std::vector<Slice>* out) {
   const Eigen::Vector3d normal = s.row_direction.cross(s.column_direction);
   double between = 0.0;
-  if (s.frames > 1 && frame_text(kPosition, 1).empty()) {
+  if (s.frames > 1 && fields.Own(kImagePosition, 1).empty()) {
     // A multi-frame image without per-frame positions: frames evenly spaced along the normal.
     const std::string t = Text(ds, gdcm::Tag(0x0018, 0x0088));
     TROCAR_THROW_UNLESS(!t.empty(), file << ": " << s.frames
@@ -725,7 +762,7 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
                                             "slices (0018,0088)");
     between = Numbers(t, 1, file, "spacing between slices (0018,0088)")[0];
   }
-  const auto p0 = Numbers(require(kPosition, 0, "image position (patient)"), 3, file,
+  const auto p0 = Numbers(fields.Require(kImagePosition, 0, "image position (patient)"), 3, file,
                           "image position (patient) (0020,0032)");
   for (int frame = 0; frame < s.frames; ++frame) {
     Slice fs = s;
@@ -733,12 +770,31 @@ bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Snif
     if (frame == 0 || between != 0.0) {
       fs.position_mm = Eigen::Vector3d(p0[0], p0[1], p0[2]) + frame * between * normal;
     } else {
-      const auto p = Numbers(require(kPosition, frame, "image position (patient)"), 3, file,
-                             "image position (patient) (0020,0032)");
+      const auto p = Numbers(fields.Require(kImagePosition, frame, "image position (patient)"), 3,
+                             file, "image position (patient) (0020,0032)");
       fs.position_mm = Eigen::Vector3d(p[0], p[1], p[2]);
     }
     out->push_back(std::move(fs));
   }
+}
+
+// GDCM's part of reading one file: parse `bytes_read`, decode the pixels, fill the slices.
+bool DecodeWithGdcm(const std::string& bytes_read, const std::string& file, Sniff sniff,
+                    std::vector<Slice>* out) {
+  std::istringstream stream(bytes_read);
+  gdcm::ImageReader reader;
+  reader.SetStream(stream);
+  const bool read = reader.Read();
+  const gdcm::File& f = reader.GetFile();
+  if (!IsImageToDecode(read, f, file, sniff)) return false;
+  const gdcm::DataSet& ds = f.GetDataSet();
+  const gdcm::Image& image = reader.GetImage();
+  CheckPixelFormat(image, file);
+  Slice s = DescribeSlice(image, ds, file);
+  const FrameFields fields(ds, file, s.frames);
+  ReadPlaneGeometry(fields, file, &s);
+  DecodePixels(image, fields, file, TransferSyntaxText(f), &s);
+  SplitFrames(s, fields, ds, file, out);
   return true;
 }
 
