@@ -14,50 +14,50 @@ std::string Percent(double fraction) {
   return s.str();
 }
 
-}  // namespace
-
-OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, const Mask* heart) {
-  OrientationCheck out;
-  const Eigen::Vector3d centre = 0.5 * (seg.body_min_P + seg.body_max_P);
-  // The body's midline: its axis (Segmentation::axis_P), at the spine when a crop face or an arm
-  // pulls the body's box aside (a heart-centred cardiac field of view).
-  const double midline_x = seg.axis_P.x();
-  const Eigen::Vector3d half = 0.5 * (seg.body_max_P - seg.body_min_P);
-
-  // The heart's centroid, and the lungs' (air inside the body) centroid and head-foot extent.
-  const bool with_heart = heart != nullptr && heart->count() > 0;
-  Eigen::Vector3d heart_c = Eigen::Vector3d::Zero(), lung_c = Eigen::Vector3d::Zero();
+// The heart's centroid, and the lungs' (air inside the body) centroid and head-foot extent (0, 0
+// with fewer than 1000 voxels of lung).
+struct Centroids {
+  Eigen::Vector3d heart = Eigen::Vector3d::Zero(), lung = Eigen::Vector3d::Zero();
   double lung_lo = HUGE_VAL, lung_hi = -HUGE_VAL;
-  {
-    long nh = 0, nl = 0;
-    for (int k = 0; k < ct.size.z(); ++k) {
-      for (int j = 0; j < ct.size.y(); ++j) {
-        for (int i = 0; i < ct.size.x(); ++i) {
-          const long n = ct.Index(i, j, k);
-          const bool in_heart = with_heart && heart->inside[n];
-          const bool lung = seg.body.inside[n] && ct.values[n] <= seg.body_threshold;
-          if (!in_heart && !lung) continue;
-          const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
-          if (in_heart) {
-            heart_c += p;
-            ++nh;
-          }
-          if (lung) {
-            lung_c += p;
-            ++nl;
-            lung_lo = std::min(lung_lo, p.z());
-            lung_hi = std::max(lung_hi, p.z());
-          }
+};
+
+Centroids MeasureCentroids(const Volume& ct, const Segmentation& seg, const Mask* heart,
+                           bool with_heart) {
+  Centroids c;
+  long nh = 0, nl = 0;
+  for (int k = 0; k < ct.size.z(); ++k) {
+    for (int j = 0; j < ct.size.y(); ++j) {
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const long n = ct.Index(i, j, k);
+        const bool in_heart = with_heart && heart->inside[n];
+        const bool lung = seg.body.inside[n] && ct.values[n] <= seg.body_threshold;
+        if (!in_heart && !lung) continue;
+        const Eigen::Vector3d p = ct.PatientPoint(i, j, k);
+        if (in_heart) {
+          c.heart += p;
+          ++nh;
+        }
+        if (lung) {
+          c.lung += p;
+          ++nl;
+          c.lung_lo = std::min(c.lung_lo, p.z());
+          c.lung_hi = std::max(c.lung_hi, p.z());
         }
       }
     }
-    if (nh > 0) heart_c /= static_cast<double>(nh);
-    if (nl > 0) lung_c /= static_cast<double>(nl);
-    if (nl < 1000) lung_lo = lung_hi = 0.0;
   }
+  if (nh > 0) c.heart /= static_cast<double>(nh);
+  if (nl > 0) c.lung /= static_cast<double>(nl);
+  if (nl < 1000) c.lung_lo = c.lung_hi = 0.0;
+  return c;
+}
 
-  // Front-back: the vertebral column is the bulk of the bone in the midline band, behind the
-  // body's centre; in front there is only the sternum (and at most some contrast).
+// Front-back: the vertebral column is the bulk of the bone in the midline band, behind the
+// body's centre; in front there is only the sternum (and at most some contrast).
+void FrontBackBySpine(const Volume& ct, const Segmentation& seg, double midline_x,
+                      OrientationCheck* out) {
+  const Eigen::Vector3d centre = 0.5 * (seg.body_min_P + seg.body_max_P);
+  const Eigen::Vector3d half = 0.5 * (seg.body_max_P - seg.body_min_P);
   long behind = 0, in_front = 0;
   for (int k = 0; k < ct.size.z(); ++k) {
     for (int j = 0; j < ct.size.y(); ++j) {
@@ -73,42 +73,46 @@ OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, con
   const long midline = behind + in_front;
   if (midline > 0) {
     const double back = static_cast<double>(behind) / static_cast<double>(midline);
-    if (back >= 0.65) out.anterior_posterior = +1;
-    if (back <= 0.35) out.anterior_posterior = -1;
-    out.findings.push_back("spine: " + Percent(back) + " of the midline bone lies behind the body's centre" +
-                           (out.anterior_posterior > 0   ? " (spine at the back: front-back as the header says)"
-                            : out.anterior_posterior < 0 ? " (the spine lies in front: front-back flipped)"
-                                                         : " (undecided)"));
+    if (back >= 0.65) out->anterior_posterior = +1;
+    if (back <= 0.35) out->anterior_posterior = -1;
+    out->findings.push_back(
+        "spine: " + Percent(back) + " of the midline bone lies behind the body's centre" +
+        (out->anterior_posterior > 0   ? " (spine at the back: front-back as the header says)"
+         : out->anterior_posterior < 0 ? " (the spine lies in front: front-back flipped)"
+                                       : " (undecided)"));
   } else {
-    out.findings.push_back("spine: no bone in the midline band (front-back undecided)");
+    out->findings.push_back("spine: no bone in the midline band (front-back undecided)");
   }
-  if (with_heart && lung_hi > lung_lo) {
-    // The heart lies in front of the lungs' centre (against the front chest wall).
-    const double ahead = lung_c.y() - heart_c.y();
-    const int vote = ahead >= 0.01 ? +1 : ahead <= -0.01 ? -1 : 0;
-    // A heart behind the lungs while the spine lies at the back as the header says is no heart
-    // where a heart lies (contrast in a kidney or the bowel of an abdominal scan, taken for the
-    // chambers): the header is not judged by it, left-right included. The other disagreement
-    // (the midline bone in front, the heart in front too) leaves front-back undecided: in a crop
-    // that cuts the spine off, the midline bone is the sternum and the heart is right.
-    out.heart_misplaced = out.anterior_posterior > 0 && vote < 0;
-    std::ostringstream s;
-    s << "heart: " << std::lround(std::abs(ahead) * 1e3) << " mm "
-      << (ahead >= 0 ? "in front of" : "behind") << " the lungs' centre"
-      << (out.heart_misplaced ? " (behind, the spine at the back: not a heart where a heart lies, "
-                                "not used to judge the header)"
-          : vote > 0          ? " (front-back as the header says)"
-          : vote < 0          ? " (behind: front-back flipped)"
-                              : " (undecided)");
-    out.findings.push_back(s.str());
-    if (out.anterior_posterior == 0) out.anterior_posterior = vote;  // the spine undecided
-    if (out.anterior_posterior != vote && vote != 0 && !out.heart_misplaced)
-      out.anterior_posterior = 0;  // cues disagree
-  }
+}
 
-  // Head-foot: a rib runs down from its back end to its front end (the rib cage's slope), so
-  // along each lateral bone piece height rises toward the back. The back is where the spine is.
-  const double back_sign = out.anterior_posterior < 0 ? -1.0 : 1.0;
+// The heart lies in front of the lungs' centre (against the front chest wall).
+void FrontBackByHeart(const Centroids& c, OrientationCheck* out) {
+  const double ahead = c.lung.y() - c.heart.y();
+  const int vote = ahead >= 0.01 ? +1 : ahead <= -0.01 ? -1 : 0;
+  // A heart behind the lungs while the spine lies at the back as the header says is no heart
+  // where a heart lies (contrast in a kidney or the bowel of an abdominal scan, taken for the
+  // chambers): the header is not judged by it, left-right included. The other disagreement
+  // (the midline bone in front, the heart in front too) leaves front-back undecided: in a crop
+  // that cuts the spine off, the midline bone is the sternum and the heart is right.
+  out->heart_misplaced = out->anterior_posterior > 0 && vote < 0;
+  std::ostringstream s;
+  s << "heart: " << std::lround(std::abs(ahead) * 1e3) << " mm "
+    << (ahead >= 0 ? "in front of" : "behind") << " the lungs' centre"
+    << (out->heart_misplaced ? " (behind, the spine at the back: not a heart where a heart lies, "
+                               "not used to judge the header)"
+        : vote > 0           ? " (front-back as the header says)"
+        : vote < 0           ? " (behind: front-back flipped)"
+                             : " (undecided)");
+  out->findings.push_back(s.str());
+  if (out->anterior_posterior == 0) out->anterior_posterior = vote;  // the spine undecided
+  if (out->anterior_posterior != vote && vote != 0 && !out->heart_misplaced)
+    out->anterior_posterior = 0;  // cues disagree
+}
+
+// Head-foot: a rib runs down from its back end to its front end (the rib cage's slope), so
+// along each lateral bone piece height rises toward the back. The back is where the spine is.
+void HeadFootByRibs(const Volume& ct, const Segmentation& seg, OrientationCheck* out) {
+  const double back_sign = out->anterior_posterior < 0 ? -1.0 : 1.0;
   double rising = 0.0, falling = 0.0;
   int pieces = 0;
   std::vector<double> sums;  // per label: n, y, z, yy, yz
@@ -151,40 +155,63 @@ OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, con
   }
   if (pieces >= 3) {
     const double up = rising / (rising + falling);
-    if (up >= 0.7) out.superior_inferior = +1;
-    if (up <= 0.3) out.superior_inferior = -1;
-    out.findings.push_back("ribs: " + Percent(up) + " of " + std::to_string(pieces) +
-                           " rib-like lateral bone pieces rise toward the back" +
-                           (out.superior_inferior > 0   ? " (head up as the header says)"
-                            : out.superior_inferior < 0 ? " (the ribs rise toward the front: head-foot flipped)"
-                                                        : " (undecided)"));
+    if (up >= 0.7) out->superior_inferior = +1;
+    if (up <= 0.3) out->superior_inferior = -1;
+    out->findings.push_back("ribs: " + Percent(up) + " of " + std::to_string(pieces) +
+                            " rib-like lateral bone pieces rise toward the back" +
+                            (out->superior_inferior > 0 ? " (head up as the header says)"
+                             : out->superior_inferior < 0
+                                 ? " (the ribs rise toward the front: head-foot flipped)"
+                                 : " (undecided)"));
   } else {
-    out.findings.push_back("ribs: fewer than 3 rib-like lateral bone pieces (head-foot undecided)");
+    out->findings.push_back(
+        "ribs: fewer than 3 rib-like lateral bone pieces (head-foot undecided)");
   }
-  // Left-right: the heart lies left of the midline (LPS +x); labelled left ribs on the left.
-  if (with_heart && !out.heart_misplaced) {
-    const double left = heart_c.x() - midline_x;
-    if (left >= 0.01) out.left_right = +1;
-    if (left <= -0.01) out.left_right = -1;
-    std::ostringstream s;
-    s << "heart: centre " << std::lround(std::abs(left) * 1e3) << " mm " << (left >= 0 ? "left" : "right")
-      << " of the body's midline"
-      << (out.left_right > 0   ? " (left-right as the header says)"
-          : out.left_right < 0 ? " (right of the midline: a mirrored header, or dextrocardia)"
-                               : " (undecided)");
-    out.findings.push_back(s.str());
-  }
-  if (seg.bones.numbered && !seg.bones.ribs_left.empty() && !seg.bones.ribs_right.empty()) {
-    double left = 0.0, right = 0.0;
-    for (const auto& c : seg.bones.ribs_left) left += c.centroid_P.x();
-    for (const auto& c : seg.bones.ribs_right) right += c.centroid_P.x();
-    left /= static_cast<double>(seg.bones.ribs_left.size());
-    right /= static_cast<double>(seg.bones.ribs_right.size());
-    const int labelled = left > right ? +1 : -1;
-    out.findings.push_back(std::string("labelled ribs: the left ribs lie ") +
-                           (labelled > 0 ? "left (LPS +x) of the right ones" : "right of the right ones: mirrored"));
-    if (out.left_right == 0 || labelled < 0) out.left_right = labelled;
-  }
+}
+
+// Left-right: the heart lies left of the midline (LPS +x).
+void LeftRightByHeart(const Centroids& c, double midline_x, OrientationCheck* out) {
+  const double left = c.heart.x() - midline_x;
+  if (left >= 0.01) out->left_right = +1;
+  if (left <= -0.01) out->left_right = -1;
+  std::ostringstream s;
+  s << "heart: centre " << std::lround(std::abs(left) * 1e3) << " mm "
+    << (left >= 0 ? "left" : "right") << " of the body's midline"
+    << (out->left_right > 0   ? " (left-right as the header says)"
+        : out->left_right < 0 ? " (right of the midline: a mirrored header, or dextrocardia)"
+                              : " (undecided)");
+  out->findings.push_back(s.str());
+}
+
+// Left-right: labelled left ribs on the left.
+void LeftRightByLabels(const Segmentation& seg, OrientationCheck* out) {
+  double left = 0.0, right = 0.0;
+  for (const auto& c : seg.bones.ribs_left) left += c.centroid_P.x();
+  for (const auto& c : seg.bones.ribs_right) right += c.centroid_P.x();
+  left /= static_cast<double>(seg.bones.ribs_left.size());
+  right /= static_cast<double>(seg.bones.ribs_right.size());
+  const int labelled = left > right ? +1 : -1;
+  out->findings.push_back(
+      std::string("labelled ribs: the left ribs lie ") +
+      (labelled > 0 ? "left (LPS +x) of the right ones" : "right of the right ones: mirrored"));
+  if (out->left_right == 0 || labelled < 0) out->left_right = labelled;
+}
+
+}  // namespace
+
+OrientationCheck CheckOrientation(const Volume& ct, const Segmentation& seg, const Mask* heart) {
+  OrientationCheck out;
+  // The body's midline: its axis (Segmentation::axis_P), at the spine when a crop face or an arm
+  // pulls the body's box aside (a heart-centred cardiac field of view).
+  const double midline_x = seg.axis_P.x();
+  const bool with_heart = heart != nullptr && heart->count() > 0;
+  const Centroids c = MeasureCentroids(ct, seg, heart, with_heart);
+  FrontBackBySpine(ct, seg, midline_x, &out);
+  if (with_heart && c.lung_hi > c.lung_lo) FrontBackByHeart(c, &out);
+  HeadFootByRibs(ct, seg, &out);
+  if (with_heart && !out.heart_misplaced) LeftRightByHeart(c, midline_x, &out);
+  if (seg.bones.numbered && !seg.bones.ribs_left.empty() && !seg.bones.ribs_right.empty())
+    LeftRightByLabels(seg, &out);
   return out;
 }
 
