@@ -320,175 +320,221 @@ namespace {
 // not reach is thin. A thin piece that runs through the scan with the same cross-section is the
 // table (the body changes along the scan). Where the table lies against the back, its bright
 // voxels out of the core go with it. Returns what was left out, in words (empty: nothing).
-std::string DetachTable(const Volume& ct, const SegmentationOptions& o, Mask* body) {
-  // Hounsfield units only: in a windowed volume fat reads as air, and the skin over thick fat
-  // is as thin as a table's shell.
-  if (!ct.hounsfield || o.table_thickness <= 0.0 || o.table_grid <= 0.0 ||
-      o.table_grid_slices <= 0.0)
-    return {};
-  const int axial = AxialAxis(ct);
-  const Eigen::Vector3d spacing = ct.spacing();
-  Eigen::Vector3i stride, size;
-  for (int a = 0; a < 3; ++a) {
-    stride[a] = a == axial
-                    ? std::max(1, static_cast<int>(std::lround(o.table_grid_slices / spacing[a])))
-                    : std::max(1, static_cast<int>(o.table_grid / spacing[a]));
-    size[a] = (ct.size[a] + stride[a] - 1) / stride[a];
+class TableDetacher {
+ public:
+  TableDetacher(const Volume& ct, const SegmentationOptions& o, Mask* body)
+      : ct_(ct), o_(o), body_(body), axial_(AxialAxis(ct)), nx_(ct.size.x()), ny_(ct.size.y()) {
+    const Eigen::Vector3d spacing = ct.spacing();
+    for (int a = 0; a < 3; ++a) {
+      stride_[a] =
+          a == axial_ ? std::max(1, static_cast<int>(std::lround(o.table_grid_slices / spacing[a])))
+                      : std::max(1, static_cast<int>(o.table_grid / spacing[a]));
+      size_[a] = (ct.size[a] + stride_[a] - 1) / stride_[a];
+    }
+    grid_.size = size_;
+    grid_.index_to_P = ct.index_to_P * stride_.cast<double>().asDiagonal();
+    grid_.origin_P = ct.origin_P;
   }
-  Volume grid;
-  grid.size = size;
-  grid.index_to_P = ct.index_to_P * stride.cast<double>().asDiagonal();
-  grid.origin_P = ct.origin_P;
-  const long nx = ct.size.x(), ny = ct.size.y();
-  auto fine = [&](int i, int j, int k) { return i + nx * (j + ny * static_cast<long>(k)); };
-  Mask coarse;
-  coarse.size = size;
-  coarse.inside.assign(static_cast<std::size_t>(grid.voxel_count()), 0);
+
+  std::string Run() {
+    CoarseBody();
+    if (!CoreAndThin()) return {};
+    std::vector<int> labels;
+    const std::vector<Component> pieces = ConnectedComponents(grid_, thin_, &labels);
+    std::ostringstream what;
+    const std::vector<int> table_label = TableLabels(pieces, labels, &what);
+    if (table_label.empty()) return {};
+    Mask table;
+    table.size = size_;
+    table.inside.assign(labels.size(), 0);
+    for (std::size_t v = 0; v < labels.size(); ++v) table.inside[v] = table_label[labels[v]];
+    std::vector<long> front;
+    std::vector<float> values;
+    RemoveTable(table, &front, &values);
+    FollowBrightContact(std::move(front), std::move(values));
+    std::ostringstream out;
+    out << "a thin piece joined to the body that runs through the scan unchanged (a CT table, its "
+           "pad or a blanket): "
+        << what.str() << "; left out of the body";
+    return out.str();
+  }
+
+ private:
+  long Fine(int i, int j, int k) const { return i + nx_ * (j + ny_ * static_cast<long>(k)); }
+  long CoarseOf(int i, int j, int k) const {
+    return grid_.Index(i / stride_.x(), j / stride_.y(), k / stride_.z());
+  }
+
   // A coarse voxel is body when any of its block is: a table's shell thinner than the block
   // stays whole.
-  for (int k = 0; k < ct.size.z(); ++k) {
-    for (int j = 0; j < ct.size.y(); ++j) {
-      const long row = fine(0, j, k);
-      const long coarse_row = grid.Index(0, j / stride.y(), k / stride.z());
-      for (int i = 0; i < ct.size.x(); ++i) {
-        if (body->inside[row + i]) coarse.inside[coarse_row + i / stride.x()] = 1;
+  void CoarseBody() {
+    coarse_.size = size_;
+    coarse_.inside.assign(static_cast<std::size_t>(grid_.voxel_count()), 0);
+    for (int k = 0; k < ct_.size.z(); ++k) {
+      for (int j = 0; j < ct_.size.y(); ++j) {
+        const long row = Fine(0, j, k);
+        const long coarse_row = grid_.Index(0, j / stride_.y(), k / stride_.z());
+        for (int i = 0; i < ct_.size.x(); ++i) {
+          if (body_->inside[row + i]) coarse_.inside[coarse_row + i / stride_.x()] = 1;
+        }
       }
     }
   }
+
   // The core: the body eroded by the ball (the trunk, and arms joined to it by a thin contact).
   // Outside is what lies outside the body's outline: the lungs and airways (holes in each
-  // slice) are not, so a thin chest wall over them is not thin.
-  Mask outside = coarse;
-  FillHolesPerSlice(grid, &outside);
-  for (auto& in : outside.inside) in = !in;
-  const std::vector<float> to_outside = SquaredDistanceToMask(grid, outside);
-  const float r2 = static_cast<float>(o.table_thickness * o.table_thickness);
-  Mask core = coarse;
-  for (std::size_t v = 0; v < to_outside.size(); ++v) core.inside[v] = to_outside[v] > r2;
-  if (core.count() == 0) return {};
-  // Thin: the body the core grown back by the ball does not reach (with a coarse voxel's
-  // diagonal more, so the skin the grid samples unevenly stays with the core).
-  const std::vector<float> to_core = SquaredDistanceToMask(grid, core);
-  const double reach = o.table_thickness + grid.spacing().norm();
-  Mask thin = coarse;
-  for (std::size_t v = 0; v < to_core.size(); ++v)
-    thin.inside[v] = coarse.inside[v] && to_core[v] > static_cast<float>(reach * reach);
-  std::vector<int> labels;
-  const std::vector<Component> pieces = ConnectedComponents(grid, thin, &labels);
-  // The body's slices, and per thin piece its slices and in-plane footprint.
-  const int a0 = (axial + 1) % 3, a1 = (axial + 2) % 3;
-  const int slices = size[axial];
-  std::vector<std::uint8_t> body_slice(slices, 0);
-  {
-    Eigen::Vector3i n;
-    for (n.z() = 0; n.z() < size.z(); ++n.z()) {
-      for (n.y() = 0; n.y() < size.y(); ++n.y()) {
-        for (n.x() = 0; n.x() < size.x(); ++n.x()) {
-          if (coarse.inside[grid.Index(n.x(), n.y(), n.z())]) body_slice[n[axial]] = 1;
+  // slice) are not, so a thin chest wall over them is not thin. Thin: the body the core grown
+  // back by the ball does not reach (with a coarse voxel's diagonal more, so the skin the grid
+  // samples unevenly stays with the core). False when nothing is left of the core.
+  bool CoreAndThin() {
+    Mask outside = coarse_;
+    FillHolesPerSlice(grid_, &outside);
+    for (auto& in : outside.inside) in = !in;
+    to_outside_ = SquaredDistanceToMask(grid_, outside);
+    r2_ = static_cast<float>(o_.table_thickness * o_.table_thickness);
+    Mask core = coarse_;
+    for (std::size_t v = 0; v < to_outside_.size(); ++v) core.inside[v] = to_outside_[v] > r2_;
+    if (core.count() == 0) return false;
+    to_core_ = SquaredDistanceToMask(grid_, core);
+    reach_ = o_.table_thickness + grid_.spacing().norm();
+    thin_ = coarse_;
+    for (std::size_t v = 0; v < to_core_.size(); ++v)
+      thin_.inside[v] = coarse_.inside[v] && to_core_[v] > static_cast<float>(reach_ * reach_);
+    return true;
+  }
+
+  // Per thin piece of `table_min_volume` or more: the table when it spans `table_min_slices` of
+  // the body's slices with the same in-plane footprint (`table_constant`). 1 per table label
+  // (index: label), empty when there is none; what it took in words on `what`.
+  std::vector<int> TableLabels(const std::vector<Component>& pieces, const std::vector<int>& labels,
+                               std::ostringstream* what) const {
+    const int a0 = (axial_ + 1) % 3, a1 = (axial_ + 2) % 3;
+    const int slices = size_[axial_];
+    std::vector<std::uint8_t> body_slice(slices, 0);
+    {
+      Eigen::Vector3i n;
+      for (n.z() = 0; n.z() < size_.z(); ++n.z()) {
+        for (n.y() = 0; n.y() < size_.y(); ++n.y()) {
+          for (n.x() = 0; n.x() < size_.x(); ++n.x()) {
+            if (coarse_.inside[grid_.Index(n.x(), n.y(), n.z())]) body_slice[n[axial_]] = 1;
+          }
+        }
+      }
+    }
+    const int body_slices = static_cast<int>(std::count(body_slice.begin(), body_slice.end(), 1));
+    std::vector<int> table_label(pieces.size() + 1, 0);
+    double removed = 0.0;
+    for (const Component& c : pieces) {
+      if (c.volume < o_.table_min_volume) continue;
+      const int label = c.label;
+      std::vector<int> footprint(static_cast<std::size_t>(size_[a0]) * size_[a1], 0);
+      std::vector<std::uint8_t> in_slice(slices, 0);
+      long voxels = 0;
+      Eigen::Vector3i n;
+      for (n.z() = 0; n.z() < size_.z(); ++n.z()) {
+        for (n.y() = 0; n.y() < size_.y(); ++n.y()) {
+          for (n.x() = 0; n.x() < size_.x(); ++n.x()) {
+            const long v = grid_.Index(n.x(), n.y(), n.z());
+            if (labels[v] != label) continue;
+            ++voxels;
+            in_slice[n[axial_]] = 1;
+            ++footprint[n[a0] + static_cast<long>(size_[a0]) * n[a1]];
+          }
+        }
+      }
+      const int spanned = static_cast<int>(std::count(in_slice.begin(), in_slice.end(), 1));
+      long constant = 0;
+      for (int f : footprint) {
+        if (f >= 0.8 * spanned) constant += f;
+      }
+      const double constant_share = static_cast<double>(constant) / static_cast<double>(voxels);
+      if (spanned < o_.table_min_slices * body_slices || constant_share < o_.table_constant)
+        continue;
+      table_label[label] = 1;
+      removed += pieces[label - 1].volume;
+      const double slice = grid_.index_to_P.col(axial_).norm();
+      *what << std::fixed << std::setprecision(0) << (what->tellp() > 0 ? "; " : "") << "about "
+            << pieces[label - 1].volume * 1e6 << " ml over " << 1e3 * spanned * slice
+            << " of the body's " << 1e3 * body_slices * slice << " mm head to foot, "
+            << 100.0 * constant_share << " % of it the same in 80 % of its slices";
+    }
+    if (removed == 0.0) return {};
+    return table_label;
+  }
+
+  // Out of the fine body: each voxel whose coarse voxel is the table's, or lies near it and
+  // further from the core than the ball (the table's contact with the back: what the body opened
+  // by the ball does not hold). The voxels taken are the front of the bright contact's growth;
+  // the table's own voxels' values are kept for its threshold.
+  void RemoveTable(const Mask& table, std::vector<long>* front, std::vector<float>* values) {
+    const std::vector<float> to_table = SquaredDistanceToMask(grid_, table);
+    const float near_table = static_cast<float>(4.0 * reach_ * reach_);
+    for (int k = 0; k < ct_.size.z(); ++k) {
+      for (int j = 0; j < ct_.size.y(); ++j) {
+        for (int i = 0; i < ct_.size.x(); ++i) {
+          const long c = CoarseOf(i, j, k), v = Fine(i, j, k);
+          if (!body_->inside[v]) continue;
+          if (table.inside[c] || (to_table[c] <= near_table && to_core_[c] > r2_)) {
+            body_->inside[v] = 0;
+            front->push_back(v);
+            if (table.inside[c]) values->push_back(ct_.values[v]);
+          }
         }
       }
     }
   }
-  const int body_slices = static_cast<int>(std::count(body_slice.begin(), body_slice.end(), 1));
-  std::vector<int> table_label(pieces.size() + 1, 0);
-  std::vector<int> candidates;
-  for (const Component& c : pieces) {
-    if (c.volume >= o.table_min_volume) candidates.push_back(c.label);
-  }
-  std::ostringstream what;
-  double removed = 0.0;
-  for (int label : candidates) {
-    std::vector<int> footprint(static_cast<std::size_t>(size[a0]) * size[a1], 0);
-    std::vector<std::uint8_t> in_slice(slices, 0);
-    long voxels = 0;
-    Eigen::Vector3i n;
-    for (n.z() = 0; n.z() < size.z(); ++n.z()) {
-      for (n.y() = 0; n.y() < size.y(); ++n.y()) {
-        for (n.x() = 0; n.x() < size.x(); ++n.x()) {
-          const long v = grid.Index(n.x(), n.y(), n.z());
-          if (labels[v] != label) continue;
-          ++voxels;
-          in_slice[n[axial]] = 1;
-          ++footprint[n[a0] + static_cast<long>(size[a0]) * n[a1]];
-        }
-      }
-    }
-    const int spanned = static_cast<int>(std::count(in_slice.begin(), in_slice.end(), 1));
-    long constant = 0;
-    for (int f : footprint) {
-      if (f >= 0.8 * spanned) constant += f;
-    }
-    const double constant_share = static_cast<double>(constant) / static_cast<double>(voxels);
-    if (spanned < o.table_min_slices * body_slices || constant_share < o.table_constant) continue;
-    table_label[label] = 1;
-    removed += pieces[label - 1].volume;
-    const double slice = grid.index_to_P.col(axial).norm();
-    what << std::fixed << std::setprecision(0) << (what.tellp() > 0 ? "; " : "") << "about "
-         << pieces[label - 1].volume * 1e6 << " ml over " << 1e3 * spanned * slice
-         << " of the body's " << 1e3 * body_slices * slice << " mm head to foot, "
-         << 100.0 * constant_share << " % of it the same in 80 % of its slices";
-  }
-  if (removed == 0.0) return {};
-  // Out of the fine body: each voxel whose coarse voxel is the table's, or lies near
-  // it and further from the core than the ball (the table's contact with the back: what the
-  // body opened by the ball does not hold).
-  Mask table;
-  table.size = size;
-  table.inside.assign(labels.size(), 0);
-  for (std::size_t v = 0; v < labels.size(); ++v) table.inside[v] = table_label[labels[v]];
-  const std::vector<float> to_table = SquaredDistanceToMask(grid, table);
-  const float near_table = static_cast<float>(4.0 * reach * reach);
-  auto coarse_of = [&](int i, int j, int k) {
-    return grid.Index(i / stride.x(), j / stride.y(), k / stride.z());
-  };
-  std::vector<long> front;
-  std::vector<float> values;
-  for (int k = 0; k < ct.size.z(); ++k) {
-    for (int j = 0; j < ct.size.y(); ++j) {
-      for (int i = 0; i < ct.size.x(); ++i) {
-        const long c = coarse_of(i, j, k), v = fine(i, j, k);
-        if (!body->inside[v]) continue;
-        if (table.inside[c] || (to_table[c] <= near_table && to_core[c] > r2)) {
-          body->inside[v] = 0;
-          front.push_back(v);
-          if (table.inside[c]) values.push_back(ct.values[v]);
-        }
-      }
-    }
-  }
+
   // Where the table lies against the back (within the ball of the core: in voxels the two
   // touch over a patch) shape cannot tell its shell from the skin, but brightness can: from what
   // was taken, on through voxels out of the core at least as bright as the table's lower
   // quartile and 150 HU (above skin and muscle).
-  if (!values.empty()) {
+  void FollowBrightContact(std::vector<long> front, std::vector<float> values) {
+    if (values.empty()) return;
     std::nth_element(values.begin(), values.begin() + values.size() / 4, values.end());
     const float bright = std::max(150.0f, values[values.size() / 4]);
     while (!front.empty()) {
       const long v = front.back();
       front.pop_back();
-      const int i = static_cast<int>(v % nx), j = static_cast<int>((v / nx) % ny),
-                k = static_cast<int>(v / (nx * ny));
+      const int i = static_cast<int>(v % nx_), j = static_cast<int>((v / nx_) % ny_),
+                k = static_cast<int>(v / (nx_ * ny_));
       for (int dk = -1; dk <= 1; ++dk) {
         for (int dj = -1; dj <= 1; ++dj) {
           for (int di = -1; di <= 1; ++di) {
             const int a = i + di, b = j + dj, c = k + dk;
-            if (a < 0 || b < 0 || c < 0 || a >= ct.size.x() || b >= ct.size.y() || c >= ct.size.z())
+            if (a < 0 || b < 0 || c < 0 || a >= ct_.size.x() || b >= ct_.size.y() ||
+                c >= ct_.size.z())
               continue;
-            const long n = fine(a, b, c);
-            if (!body->inside[n] || ct.values[n] < bright || to_outside[coarse_of(a, b, c)] > r2)
+            const long n = Fine(a, b, c);
+            if (!body_->inside[n] || ct_.values[n] < bright || to_outside_[CoarseOf(a, b, c)] > r2_)
               continue;
-            body->inside[n] = 0;
+            body_->inside[n] = 0;
             front.push_back(n);
           }
         }
       }
     }
   }
-  std::ostringstream out;
-  out << "a thin piece joined to the body that runs through the scan unchanged (a CT table, its "
-         "pad or a blanket): "
-      << what.str() << "; left out of the body";
-  return out.str();
+
+  const Volume& ct_;
+  const SegmentationOptions& o_;
+  Mask* body_;
+  const int axial_;
+  const long nx_, ny_;
+  Eigen::Vector3i stride_, size_;
+  Volume grid_;  // the coarse grid (blocks of about `table_grid`)
+  Mask coarse_, thin_;
+  std::vector<float> to_outside_, to_core_;
+  float r2_ = 0.0F;
+  double reach_ = 0.0;
+};
+
+std::string DetachTable(const Volume& ct, const SegmentationOptions& o, Mask* body) {
+  // Hounsfield units only: in a windowed volume fat reads as air, and the skin over thick fat
+  // is as thin as a table's shell.
+  if (!ct.hounsfield || o.table_thickness <= 0.0 || o.table_grid <= 0.0 ||
+      o.table_grid_slices <= 0.0)
+    return {};
+  return TableDetacher(ct, o, body).Run();
 }
 
 }  // namespace
