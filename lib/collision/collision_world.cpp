@@ -404,25 +404,17 @@ std::shared_ptr<const CollisionWorld> CollisionWorld::Build(
   return BuildWith(meshes, nullptr, std::move(robot), options, allowed);
 }
 
-std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(
-    const std::vector<FixedMesh>& meshes, const patient::Table* table,
-    std::shared_ptr<const robot::RobotModel> robot, const WorldOptions& options,
-    const std::vector<AllowedPair>& allowed) {
-  TROCAR_THROW_UNLESS(
-      std::isfinite(options.port_radius) && options.port_radius >= 0.0,
-      "collision world: port_radius = " << options.port_radius << ", expected >= 0 m");
-  auto impl = std::make_unique<Impl>();
-  impl->options = options;
-  impl->robot = std::move(robot);
-  if (impl->robot) AddRobot(*impl, options.bvh);
-  for (const auto& m : meshes) {
-    TROCAR_THROW_UNLESS(!m.name.empty(), "collision world: a fixed mesh has no name");
-    AddFixedMesh(*impl, m.name, m.mesh, m.X_WM, m.patient, m.skin,
-                 (m.patient ? "patient structure '" : "fixed mesh '") + m.name + "'" +
-                     (m.mesh.source.empty() ? "" : " (" + m.mesh.source + ")"));
-  }
-  if (table) AddTable(*impl, *table);
-  Impl& w = *impl;
+namespace {
+
+// Allows a pair of bodies (both orders); counted as allowed automatically when it was not yet.
+void AllowPair(CollisionWorld::Impl& w, int a, int b) {
+  const std::size_t n = w.n();
+  if (!w.allowed[a * n + b]) ++w.auto_allowed;
+  w.allowed[a * n + b] = w.allowed[b * n + a] = 1;
+}
+
+// Every pair's class; a body with itself and the patient with the table are allowed.
+void ClassifyPairs(CollisionWorld::Impl& w) {
   const std::size_t n = w.n();
   w.allowed.assign(n * n, 0);
   w.classes.resize(n * n);
@@ -432,79 +424,81 @@ std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(
       if (a == b || w.classes[a * n + b] == PairClass::kPatientTable) w.allowed[a * n + b] = 1;
     }
   }
-  auto allow = [&](int a, int b) {
-    if (!w.allowed[a * n + b]) ++w.auto_allowed;
-    w.allowed[a * n + b] = w.allowed[b * n + a] = 1;
+}
+
+// Shapes of one link, and links joined by a joint (through links without shapes).
+void AllowJoinedLinks(CollisionWorld::Impl& w) {
+  const robot::RobotModel& model = *w.robot;
+  std::vector<std::vector<int>> bodies_of(model.num_links());
+  for (int b : w.robot_bodies) bodies_of[w.bodies[b].link].push_back(b);
+  for (int l = 0; l < model.num_links(); ++l) {
+    std::set<int> neighbours;
+    int up = model.link(l).parent_joint;
+    while (up >= 0) {
+      const int parent = model.joint(up).parent_link;
+      neighbours.insert(parent);
+      if (!bodies_of[parent].empty()) break;
+      up = model.link(parent).parent_joint;
+    }
+    for (int a : bodies_of[l]) {
+      for (int b : bodies_of[l]) {
+        if (a != b) AllowPair(w, a, b);
+      }
+      for (int p : neighbours) {
+        for (int b : bodies_of[p]) AllowPair(w, a, b);
+      }
+    }
+  }
+}
+
+// A parallelogram mechanism (four-bar loops sharing links, as the da Vinci's double
+// parallelogram) moves as one and its bars never meet in the real arm; our capsules overlap
+// near the joints at some angles. The instrument carriage riding on the mechanism's end link is
+// part of it too (docs/decisions.md, "Collision"). An instrument's own wrist and jaws against its
+// shaft: its joint limits keep them apart.
+void AllowMechanisms(CollisionWorld::Impl& w) {
+  const robot::RobotModel& model = *w.robot;
+  auto allow_links = [&](const std::vector<int>& links) {
+    for (int a : w.robot_bodies) {
+      for (int b : w.robot_bodies) {
+        const bool in_a = std::find(links.begin(), links.end(), w.bodies[a].link) != links.end();
+        const bool in_b = std::find(links.begin(), links.end(), w.bodies[b].link) != links.end();
+        if (a < b && in_a && in_b) AllowPair(w, a, b);
+      }
+    }
   };
-  // Shapes of one link, and links joined by a joint (through links without shapes).
-  if (w.robot) {
-    const robot::RobotModel& model = *w.robot;
-    std::vector<std::vector<int>> bodies_of(model.num_links());
-    for (int b : w.robot_bodies) bodies_of[w.bodies[b].link].push_back(b);
-    for (int l = 0; l < model.num_links(); ++l) {
-      std::set<int> neighbours;
-      int up = model.link(l).parent_joint;
-      while (up >= 0) {
-        const int parent = model.joint(up).parent_link;
-        neighbours.insert(parent);
-        if (!bodies_of[parent].empty()) break;
-        up = model.link(parent).parent_joint;
-      }
-      for (int a : bodies_of[l]) {
-        for (int b : bodies_of[l]) {
-          if (a != b) allow(a, b);
-        }
-        for (int p : neighbours) {
-          for (int b : bodies_of[p]) allow(a, b);
-        }
+  std::vector<std::vector<int>> groups;
+  for (const auto& c : model.closures()) {
+    std::vector<int> loop = {c.ground_link, model.joint(c.driver).child_link,
+                             model.joint(c.coupler).child_link, model.joint(c.rocker).child_link};
+    for (auto it = groups.begin(); it != groups.end();) {
+      const bool shares = std::any_of(loop.begin(), loop.end(), [&](int l) {
+        return std::find(it->begin(), it->end(), l) != it->end();
+      });
+      if (shares) {
+        loop.insert(loop.end(), it->begin(), it->end());
+        it = groups.erase(it);
+      } else {
+        ++it;
       }
     }
+    groups.push_back(loop);
   }
-  if (w.robot) {
-    const robot::RobotModel& model = *w.robot;
-    auto allow_links = [&](const std::vector<int>& links) {
-      for (int a : w.robot_bodies) {
-        for (int b : w.robot_bodies) {
-          const bool in_a = std::find(links.begin(), links.end(), w.bodies[a].link) != links.end();
-          const bool in_b = std::find(links.begin(), links.end(), w.bodies[b].link) != links.end();
-          if (a < b && in_a && in_b) allow(a, b);
-        }
+  for (auto& group : groups) {
+    for (const auto& port : w.ports) {
+      const int carriage_parent = model.joint(model.link(port.links[0]).parent_joint).parent_link;
+      if (std::find(group.begin(), group.end(), carriage_parent) != group.end()) {
+        group.insert(group.end(), port.links.begin(), port.links.end());
       }
-    };
-    // A parallelogram mechanism (four-bar loops sharing links, as the da Vinci's double
-    // parallelogram) moves as one and its bars never meet in the real arm; our capsules overlap
-    // near the joints at some angles. The instrument carriage riding on the mechanism's end link
-    // is part of it too (docs/decisions.md, "Collision").
-    std::vector<std::vector<int>> groups;
-    for (const auto& c : model.closures()) {
-      std::vector<int> loop = {c.ground_link, model.joint(c.driver).child_link,
-                               model.joint(c.coupler).child_link, model.joint(c.rocker).child_link};
-      for (auto it = groups.begin(); it != groups.end();) {
-        const bool shares = std::any_of(loop.begin(), loop.end(), [&](int l) {
-          return std::find(it->begin(), it->end(), l) != it->end();
-        });
-        if (shares) {
-          loop.insert(loop.end(), it->begin(), it->end());
-          it = groups.erase(it);
-        } else {
-          ++it;
-        }
-      }
-      groups.push_back(loop);
     }
-    for (auto& group : groups) {
-      for (const auto& port : w.ports) {
-        const int carriage_parent = model.joint(model.link(port.links[0]).parent_joint).parent_link;
-        if (std::find(group.begin(), group.end(), carriage_parent) != group.end()) {
-          group.insert(group.end(), port.links.begin(), port.links.end());
-        }
-      }
-      allow_links(group);
-    }
-    // An instrument's own wrist and jaws against its shaft: its joint limits keep them apart.
-    for (const auto& port : w.ports) allow_links(port.links);
+    allow_links(group);
   }
-  // Caller's pairs, by body or link name.
+  for (const auto& port : w.ports) allow_links(port.links);
+}
+
+// The caller's pairs, by body or link name (not counted as automatic).
+void AllowCallersPairs(CollisionWorld::Impl& w, const std::vector<AllowedPair>& allowed) {
+  const std::size_t n = w.n();
   for (const auto& p : allowed) {
     auto matches = [&](const std::string& name) {
       std::vector<int> out;
@@ -524,47 +518,81 @@ std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(
       }
     }
   }
-  std::shared_ptr<CollisionWorld> world(new CollisionWorld(std::move(impl)));
-  // Pairs of robot shapes touching in (almost) every configuration are part of the design
-  // (parallelogram links overlapping at their joints): allowed, as MoveIt's setup assistant does.
-  if (world->impl_->robot && options.acm_samples > 0 && !world->impl_->robot_bodies.empty()) {
-    const robot::RobotModel& model = *world->impl_->robot;
-    std::map<std::pair<int, int>, int> touching;
-    int valid = 0;
-    {
-      CollisionChecker checker(world);
-      robot::RobotState state(model);
-      std::mt19937 rng(options.acm_seed);
-      auto sample = [&](const robot::JointLimits& lim) {
-        const double lo = std::isfinite(lim.lower) ? lim.lower : -M_PI;
-        const double hi = std::isfinite(lim.upper) ? lim.upper : M_PI;
-        return std::uniform_real_distribution<double>(lo, hi)(rng);
-      };
-      for (int s = 0; s < options.acm_samples; ++s) {
-        robot::RobotState trial = state;
-        for (int j : model.dof_joints()) {
-          if (model.joint(j).drive == robot::JointDrive::kHeld) {
-            trial.joint_values[model.joint(j).dof_index] = sample(model.joint(j).limits);
-          }
-        }
-        Eigen::VectorXd q(model.num_positions());
-        for (int i = 0; i < model.num_positions(); ++i)
-          q[i] = sample(model.joint(model.active_joints()[i]).limits);
-        if (!kinematics::ForwardKinematics(model, q, &trial).ok()) continue;
-        ++valid;
-        checker.SetRobotState(trial);
-        for (const auto& c :
-             checker.Check(Bit(PairClass::kSelf) | Bit(PairClass::kArmArm)).contacts) {
-          ++touching[{c.a, c.b}];
+}
+
+// Pairs of robot shapes touching in (almost) every configuration are part of the design
+// (parallelogram links overlapping at their joints): allowed, as MoveIt's setup assistant does.
+// Sampled with `world`'s own checker; `w` is that world's state.
+void AllowAlwaysTouching(const std::shared_ptr<const CollisionWorld>& world,
+                         CollisionWorld::Impl& w, const WorldOptions& options) {
+  const robot::RobotModel& model = *w.robot;
+  std::map<std::pair<int, int>, int> touching;
+  int valid = 0;
+  {
+    CollisionChecker checker(world);
+    robot::RobotState state(model);
+    std::mt19937 rng(options.acm_seed);
+    auto sample = [&](const robot::JointLimits& lim) {
+      const double lo = std::isfinite(lim.lower) ? lim.lower : -M_PI;
+      const double hi = std::isfinite(lim.upper) ? lim.upper : M_PI;
+      return std::uniform_real_distribution<double>(lo, hi)(rng);
+    };
+    for (int s = 0; s < options.acm_samples; ++s) {
+      robot::RobotState trial = state;
+      for (int j : model.dof_joints()) {
+        if (model.joint(j).drive == robot::JointDrive::kHeld) {
+          trial.joint_values[model.joint(j).dof_index] = sample(model.joint(j).limits);
         }
       }
-    }
-    if (valid >= std::max(10, options.acm_samples / 4)) {
-      for (const auto& [pair, count] : touching) {
-        if (count >= options.always_fraction * valid) allow(pair.first, pair.second);
+      Eigen::VectorXd q(model.num_positions());
+      for (int i = 0; i < model.num_positions(); ++i)
+        q[i] = sample(model.joint(model.active_joints()[i]).limits);
+      if (!kinematics::ForwardKinematics(model, q, &trial).ok()) continue;
+      ++valid;
+      checker.SetRobotState(trial);
+      for (const auto& c :
+           checker.Check(Bit(PairClass::kSelf) | Bit(PairClass::kArmArm)).contacts) {
+        ++touching[{c.a, c.b}];
       }
     }
   }
+  if (valid >= std::max(10, options.acm_samples / 4)) {
+    for (const auto& [pair, count] : touching) {
+      if (count >= options.always_fraction * valid) AllowPair(w, pair.first, pair.second);
+    }
+  }
+}
+
+}  // namespace
+
+std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(
+    const std::vector<FixedMesh>& meshes, const patient::Table* table,
+    std::shared_ptr<const robot::RobotModel> robot, const WorldOptions& options,
+    const std::vector<AllowedPair>& allowed) {
+  TROCAR_THROW_UNLESS(
+      std::isfinite(options.port_radius) && options.port_radius >= 0.0,
+      "collision world: port_radius = " << options.port_radius << ", expected >= 0 m");
+  auto impl = std::make_unique<Impl>();
+  impl->options = options;
+  impl->robot = std::move(robot);
+  if (impl->robot) AddRobot(*impl, options.bvh);
+  for (const auto& m : meshes) {
+    TROCAR_THROW_UNLESS(!m.name.empty(), "collision world: a fixed mesh has no name");
+    AddFixedMesh(*impl, m.name, m.mesh, m.X_WM, m.patient, m.skin,
+                 (m.patient ? "patient structure '" : "fixed mesh '") + m.name + "'" +
+                     (m.mesh.source.empty() ? "" : " (" + m.mesh.source + ")"));
+  }
+  if (table) AddTable(*impl, *table);
+  ClassifyPairs(*impl);
+  if (impl->robot) {
+    AllowJoinedLinks(*impl);
+    AllowMechanisms(*impl);
+  }
+  AllowCallersPairs(*impl, allowed);
+  Impl& w = *impl;
+  std::shared_ptr<CollisionWorld> world(new CollisionWorld(std::move(impl)));
+  if (w.robot && options.acm_samples > 0 && !w.robot_bodies.empty())
+    AllowAlwaysTouching(world, w, options);
   return world;
 }
 
