@@ -370,9 +370,10 @@ void CheckUid(std::string value, const std::string& file, std::uint32_t tag) {
                       file << ": " << TagName32(tag) << " is not a UID (digits and dots)");
 }
 
-// Walks every element of a file (meta group, then the dataset in its transfer syntax's encoding).
-// @throws trocar::Error naming the file and where the structure breaks.
-void CheckStructure(const std::string& bytes, const std::string& file, Sniff sniff) {
+// The file meta group (0002): its transfer syntax (implicit VR little endian for a bare dataset
+// without one) and, in `pos`, where the dataset starts.
+std::string ReadMetaGroup(const std::string& bytes, const std::string& file, Sniff sniff,
+                          std::size_t* pos_out) {
   std::size_t pos = 0;
   std::string ts = "1.2.840.10008.1.2";  // a bare dataset: implicit VR little endian
   // A file meta group (0002) is read as explicit VR little endian: after the preamble and DICM,
@@ -397,15 +398,21 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
     }
     TROCAR_THROW_UNLESS(!ts.empty(), file << ": file meta information has no transfer syntax (0002,0010)");
   }
-  std::string inflated;
-  const bool deflated = ts == "1.2.840.10008.1.2.1.99";
-  if (deflated) inflated = InflateRaw(bytes.substr(pos), file);
-  const std::string& data = deflated ? inflated : bytes;
-  std::size_t at = deflated ? 0 : pos;
-  const Walker walker(data, file, ts == "1.2.840.10008.1.2.2");
-  const bool explicit_vr = ts != "1.2.840.10008.1.2";
-  std::map<std::uint32_t, Range> top;  // top-level elements of defined length
+  *pos_out = pos;
+  return ts;
+}
+
+// The dataset's top-level elements of defined length (sequences walked and skipped), and whether
+// it holds pixel data.
+struct TopLevel {
+  std::map<std::uint32_t, Range> elements;
   bool has_pixels = false;
+};
+
+TopLevel WalkDataset(const Walker& walker, std::size_t at, bool explicit_vr,
+                     const std::string& file) {
+  TopLevel t;
+  std::map<std::uint32_t, Range>& top = t.elements;
   std::set<std::uint32_t> seen;
   // GDCM asserts on a file that ends right after its meta information (found by fuzz_dicom).
   TROCAR_THROW_UNLESS(walker.Has(at, 8) && !walker.OnlyZerosFrom(at),
@@ -418,7 +425,7 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
     // by fuzz_dicom).
     TROCAR_THROW_UNLESS((tag >> 16) != 0xFFFE, file << ": " << TagName32(tag) << " at byte " << at - 8
                                                    << " outside a sequence (garbled file)");
-    if (tag == Tag32(0x7FE0, 0x0010)) has_pixels = true;
+    if (tag == Tag32(0x7FE0, 0x0010)) t.has_pixels = true;
     // GDCM keeps the first of a repeated element, this walk would check the last: refuse both
     // (a repeated samples-per-pixel passed here and made GDCM assert; fuzz_dicom).
     TROCAR_THROW_UNLESS(seen.insert(tag).second, file << ": " << TagName32(tag) << " appears twice");
@@ -429,6 +436,12 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
       top[tag] = value;
     }
   }
+  return t;
+}
+
+// UIDs and the recognition code.
+void CheckIdentity(const std::string& data, const std::map<std::uint32_t, Range>& top,
+                   const std::string& file) {
   // UIDs are digits and dots (GDCM takes an unknown SOP class for ACR-NEMA and then asserts on
   // the recognition code; found by fuzz_dicom); the retired recognition code, when there, is
   // ACR-NEMA's.
@@ -444,9 +457,16 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
                             code.rfind("MIPS 2.0", 0) == 0,
                         file << ": recognition code (0008,0010) is not ACR-NEMA's (garbled file)");
   }
+}
+
+// The image pixel module, which GDCM asserts on rather than checks: required fields present,
+// values in range, pixel data as long as the header says.
+void CheckPixelModule(const Walker& walker, const std::string& data, const TopLevel& t,
+                      const std::string& file) {
+  const std::map<std::uint32_t, Range>& top = t.elements;
   // An image's pixel description is required, not defaulted: GDCM fills gaps with defaults that
   // can contradict each other and then asserts (bits stored above bits allocated; fuzz_dicom).
-  if (has_pixels) {
+  if (t.has_pixels) {
     for (const auto& [element, name] : {std::make_pair(0x0010, "rows"), std::make_pair(0x0011, "columns"),
                                         std::make_pair(0x0100, "bits allocated"),
                                         std::make_pair(0x0101, "bits stored")}) {
@@ -455,7 +475,6 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
                                << TagName32(Tag32(0x0028, static_cast<std::uint16_t>(element))));
     }
   }
-  // The image pixel module, which GDCM asserts on rather than checks: values in range here.
   auto us = [&](std::uint16_t element, const char* name, int fallback) {
     const auto it = top.find(Tag32(0x0028, element));
     if (it == top.end()) return fallback;
@@ -532,6 +551,23 @@ void CheckStructure(const std::string& bytes, const std::string& file, Sniff sni
                              << rows << " x " << columns << " pixels of " << allocated
                              << " bits x " << frame_count << " frame(s) need " << needed);
   }
+}
+
+// Walks every element of a file (meta group, then the dataset in its transfer syntax's encoding).
+// @throws trocar::Error naming the file and where the structure breaks.
+void CheckStructure(const std::string& bytes, const std::string& file, Sniff sniff) {
+  std::size_t pos = 0;
+  const std::string ts = ReadMetaGroup(bytes, file, sniff, &pos);
+  std::string inflated;
+  const bool deflated = ts == "1.2.840.10008.1.2.1.99";
+  if (deflated) inflated = InflateRaw(bytes.substr(pos), file);
+  const std::string& data = deflated ? inflated : bytes;
+  const std::size_t at = deflated ? 0 : pos;
+  const Walker walker(data, file, ts == "1.2.840.10008.1.2.2");
+  const bool explicit_vr = ts != "1.2.840.10008.1.2";
+  const TopLevel top = WalkDataset(walker, at, explicit_vr, file);
+  CheckIdentity(data, top.elements, file);
+  CheckPixelModule(walker, data, top, file);
 }
 
 bool DecodeIsolated(IsolatedWorker* decoder, const std::string& bytes_read,
