@@ -627,6 +627,13 @@ void Scene::ShowPlan(const planners::PlanFile& file, std::size_t index) {
   if (impl_->robot) {
     SetRobotState(planners::NominalState(*impl_->robot, plan, where));
   }
+  // The floor is the one the plan's cart stands on: lower than z = 0 when the plan raised the
+  // table (Placement::table_raise; the world is the table's).
+  if (Impl::Group* floor = impl_->FindGroup("floor")) {
+    Eigen::Isometry3d X_W = Eigen::Isometry3d::Identity();
+    X_W.translation().z() = plan.cart_z;
+    for (auto& actor : floor->actors) actor->SetUserMatrix(ToVtk(X_W));
+  }
   vtkNew<vtkAppendPolyData> ports, pivots;
   for (const planners::StoredPort& port : plan.ports) {
     ports->AddInputData(Sphere(port.p_W, 0.006));

@@ -188,7 +188,7 @@ class ClaimCheck {
     const double yaw = plan.cart_yaw_deg * M_PI / 180;
     state.X_WB = Eigen::Isometry3d::Identity();
     state.X_WB.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-    state.X_WB.translation() = Eigen::Vector3d(plan.cart_x, plan.cart_y, 0);
+    state.X_WB.translation() = Eigen::Vector3d(plan.cart_x, plan.cart_y, plan.cart_z);
     ++claims_;
     for (const auto& [name, value] : plan.setup_joints) {
       ++claims_;

@@ -25,6 +25,32 @@
 namespace trocar::apps {
 namespace {
 
+// --table-height: "fixed" (the case's table, not searched) or "LOWEST,HIGHEST" in m.
+void SetTableHeights(const std::string& text, planners::ProblemOptions* options) {
+  if (text == "fixed") {
+    options->table_height_min = options->table_height_max = std::nan("");
+    return;
+  }
+  const std::size_t comma = text.find(',');
+  double lo = NAN, hi = NAN;
+  try {
+    std::size_t used_lo = 0, used_hi = 0;
+    if (comma != std::string::npos) {
+      lo = std::stod(text.substr(0, comma), &used_lo);
+      hi = std::stod(text.substr(comma + 1), &used_hi);
+    }
+    if (used_lo != comma || used_hi != text.size() - comma - 1) lo = hi = NAN;
+  } catch (const std::exception&) {
+    lo = hi = NAN;
+  }
+  TROCAR_THROW_UNLESS(lo >= 0.3 && lo <= hi && hi <= 1.5,
+                      "--table-height: '" << text
+                                          << "', expected fixed or LOWEST,HIGHEST in m with 0.3 <= "
+                                             "LOWEST <= HIGHEST <= 1.5 (e.g. 0.79,1.04)");
+  options->table_height_min = lo;
+  options->table_height_max = hi;
+}
+
 struct PlanOptions {
   std::string case_dir;
   std::string out;
@@ -33,6 +59,8 @@ struct PlanOptions {
   std::vector<std::string> roles;
   planners::PortPlacementOptions optimizer;
   int samples = 0;
+  /// --table-height: "fixed" or "LOWEST,HIGHEST" (m); empty: the case's plan.table_height.
+  std::string table_height;
   bool no_robustness = false;
   bool no_remedies = false;
   bool no_verify = false;
@@ -104,6 +132,7 @@ class PlanCommand {
     if (!o_.arms.empty()) problem_options.arms = o_.arms;
     for (const auto& r : o_.roles) problem_options.roles.push_back(r);
     if (o_.samples > 0) problem_options.samples_per_target = o_.samples;
+    if (!o_.table_height.empty()) SetTableHeights(o_.table_height, &problem_options);
     problem_options.seed = o_.optimizer.seed;
     if (o_.no_robustness) o_.optimizer.robustness_shift = 0.0;
     // The verdict says what would reach each unserved stretch (about 10 evaluations a stretch).
@@ -319,7 +348,9 @@ class PlanCommand {
     }
     std::cout << "  cart at (" << std::setprecision(2) << plan.placement.cart_x << ", "
               << plan.placement.cart_y << ") m, heading " << std::setprecision(0)
-              << plan.placement.cart_yaw * 180 / M_PI << " deg\n";
+              << plan.placement.cart_yaw * 180 / M_PI << " deg; table top at "
+              << std::lround((problem_->patient().table.height + plan.placement.table_raise) * 1e3)
+              << " mm\n";
     for (const auto& t : ev.terms) {
       std::cout << "    " << std::left << std::setw(26) << t.name << std::right
                 << std::setprecision(3) << std::setw(8) << t.value << " " << std::left
@@ -465,6 +496,11 @@ void AddPlanCommand(CLI::App* app) {
                   "NAME=instrument|endoscope: an arm's role (default: from its frames)");
   cmd->add_option("--samples", o->samples,
                   "target samples per target (default: the case's, else 8)");
+  cmd->add_option(
+      "--table-height", o->table_height,
+      "the heights the search may set the table's top to before docking, LOWEST,HIGHEST "
+      "in m, or fixed (the case's table.height) (default: the case's plan.table_height, "
+      "else 0.79,1.04: docs/operative-state.md)");
   cmd->add_option("--ports", o->ports,
                   "where the ports come from: optimise (the default), template (the published "
                   "robotic TECAB template placed on this patient: docs/port-templates.md) or a "

@@ -314,7 +314,8 @@ std::pair<RunValues, std::string> RunPlacement(const PortPlacementProblem& probl
     for (const PortSite& site : best.placement.sites)
       sites.push_back({{"candidate", site.candidate}, {"s", site.s}});
     payload["sites"] = sites;
-    payload["cart"] = {best.placement.cart_x, best.placement.cart_y, best.placement.cart_yaw};
+    payload["cart"] = {best.placement.cart_x, best.placement.cart_y, best.placement.cart_yaw,
+                       best.placement.table_raise};
   }
   return {v, payload.dump()};
 }
@@ -550,6 +551,8 @@ class Bench {
       placement.cart_x = j["cart"].at(0).get<double>();
       placement.cart_y = j["cart"].at(1).get<double>();
       placement.cart_yaw = j["cart"].at(2).get<double>();
+      // The table's raise: a fourth value since stop 64 (databases before it: the case's table).
+      if (j["cart"].size() > 3) placement.table_raise = j["cart"].at(3).get<double>();
       Workspace ws(problem);
       const Evaluation ev = EvaluateFinalPlan(problem, placement, &ws);
       e.placed = ev.status == PlacementStatus::kPlaced;

@@ -147,17 +147,18 @@ struct Field {
 Eigen::Isometry3d CartPose(const Field& cart) {
   const Eigen::Isometry3d X_WB = cart["X_WB"].Pose();
   const double x = cart["x"].Number(), y = cart["y"].Number();
+  const double z = cart.Has("z") ? cart["z"].Number() : 0.0;
   const double yaw = cart["yaw_deg"].Number() * M_PI / 180.0;
   Eigen::Isometry3d expected = Eigen::Isometry3d::Identity();
   expected.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  expected.translation() = Eigen::Vector3d(x, y, 0.0);
+  expected.translation() = Eigen::Vector3d(x, y, z);
   const double moved = (X_WB.translation() - expected.translation()).norm();
   const double turned = Eigen::AngleAxisd(X_WB.linear().transpose() * expected.linear()).angle();
   if (moved > 1e-6 || turned > 1e-6) {
     std::ostringstream m;
-    m << "X_WB to agree with x, y and yaw_deg (the cart on the floor at (" << x << ", " << y
-      << ") m, turned " << yaw * 180.0 / M_PI << " deg); it is " << moved * 1e3 << " mm and "
-      << turned * 180.0 / M_PI << " deg from that";
+    m << "X_WB to agree with x, y, z and yaw_deg (the cart on the floor at (" << x << ", " << y
+      << ", " << z << ") m, turned " << yaw * 180.0 / M_PI << " deg); it is " << moved * 1e3
+      << " mm and " << turned * 180.0 / M_PI << " deg from that";
     cart.Fail(m.str());
   }
   return X_WB;
@@ -270,6 +271,12 @@ StoredPlan ReadPlan(const Field& p, int rank_from = 1) {
   plan.cart_x = cart["x"].Number();
   plan.cart_y = cart["y"].Number();
   plan.cart_yaw_deg = cart["yaw_deg"].Number();
+  if (cart.Has("z")) plan.cart_z = cart["z"].Number();
+  if (cart.Has("table_height")) {
+    plan.table_height = cart["table_height"].NumberOrNull();
+    if (!std::isnan(plan.table_height) && !(plan.table_height >= 0.3 && plan.table_height <= 1.5))
+      cart["table_height"].Fail("a table height of 0.3 to 1.5 m");
+  }
   plan.setup_joints = p["setup_joints"].NamedNumbers();
   plan.q_nominal = p["q_nominal"].NamedNumbers();
   const Field ports = p["ports"];
@@ -636,7 +643,9 @@ json PlanJsonEntry(const StoredPlan& plan) {
                 {"cart",
                  {{"x", plan.cart_x},
                   {"y", plan.cart_y},
+                  {"z", plan.cart_z},
                   {"yaw_deg", plan.cart_yaw_deg},
+                  {"table_height", plan.table_height},
                   {"X_WB", Matrix(plan.X_WB)}}},
                 {"setup_joints", Named(plan.setup_joints)},
                 {"q_nominal", Named(plan.q_nominal)},

@@ -138,6 +138,11 @@ struct StoredPlan {
   int collisions_at_nominal = 0;
   std::string message;
   double cart_x = 0.0, cart_y = 0.0, cart_yaw_deg = 0.0;   ///< the cart on the floor
+  /// The floor's height under the cart in the world (m): minus how far the team raised the table
+  /// above the case's (Placement::table_raise); 0 in plan files before stop 64.
+  double cart_z = 0.0;
+  /// The table top's height the plan was made for (m; NaN when the file does not say).
+  double table_height = std::numeric_limits<double>::quiet_NaN();
   Eigen::Isometry3d X_WB = Eigen::Isometry3d::Identity();  ///< the same pose (checked)
   NamedValues setup_joints;                                ///< held joints, by name
   NamedValues q_nominal;                                   ///< active joints, by name

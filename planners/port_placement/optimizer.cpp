@@ -86,7 +86,9 @@ void RunNlopt(const PortPlacementProblem& problem, nlopt::algorithm algorithm,
   if (algorithm == nlopt::LN_BOBYQA || algorithm == nlopt::LN_SBPLX ||
       algorithm == nlopt::LN_COBYLA) {
     std::vector<double> step(n);
-    for (unsigned i = 0; i < n; ++i) step[i] = 0.25 * (ub[i] - lb[i]);
+    // A coordinate held (equal bounds: the table at the case's height) takes any nonzero step:
+    // NLopt refuses a zero one and leaves a held coordinate where it is.
+    for (unsigned i = 0; i < n; ++i) step[i] = ub[i] > lb[i] ? 0.25 * (ub[i] - lb[i]) : 1.0;
     opt.set_initial_step(step);
     opt.set_xtol_rel(1e-4);
   }
@@ -488,7 +490,7 @@ class Search {
                             std::chrono::duration<double>(options.time_limit))),
         threads_(options.threads > 0 ? options.threads : omp_get_max_threads()),
         dim_(problem.dimension()),
-        cart_(dim_ - 3),
+        cart_(problem.cart_index()),
         lb_(problem.lower_bounds()),
         ub_(problem.upper_bounds()) {}
 
@@ -585,7 +587,8 @@ class Search {
           std::vector<double> x;
           for (int i : assignments[k].second)
             x.insert(x.end(), {grid[i].candidate + 0.5, grid[i].s});
-          x.insert(x.end(), {from, std::clamp(d, lb_[cart_ + 1], ub_[cart_ + 1]), 0.0});
+          x.insert(x.end(), {from, std::clamp(d, lb_[cart_ + 1], ub_[cart_ + 1]), 0.0,
+                             0.5 * (lb_[cart_ + 3] + ub_[cart_ + 3])});
           xs.push_back(x);
         }
       }
@@ -830,7 +833,7 @@ class Search {
   const PortPlacementProblem& problem_;
   const PortPlacementOptions& options_;
   const Clock::time_point t0_, deadline_;
-  const int threads_, dim_, cart_;  // cart_: the first of the cart's three decision coordinates
+  const int threads_, dim_, cart_;  // cart_: the first of the cart's decision coordinates
   const std::vector<double> lb_, ub_;
   std::atomic<int> counter_{0};  // evaluations done, for the progress
   std::atomic<bool> out_of_time_{false};
@@ -862,8 +865,8 @@ FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
   const auto deadline = t0 + std::chrono::duration_cast<Clock::duration>(
                                  std::chrono::duration<double>(options.time_limit));
   const int threads = options.threads > 0 ? options.threads : omp_get_max_threads();
-  const int dim = problem.dimension();
-  const int cart = dim - 3;
+  const int cart = problem.cart_index();
+  constexpr int kCart = PortPlacementProblem::kCartCoordinates;
   const std::vector<double> lb = problem.lower_bounds(), ub = problem.upper_bounds();
   auto progress = [&](double fraction, const std::string& stage) {
     if (options.progress && omp_get_thread_num() == 0)
@@ -889,14 +892,19 @@ FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
   const std::vector<double> distances = {
       lb[cart + 1], 0.5 * (lb[cart + 1] + ub[cart + 1]), ub[cart + 1]};
   const std::vector<double> offsets = {0.0, -0.5 * ub[cart + 2], 0.5 * ub[cart + 2]};
+  // The table at both ends of the heights the team may set it to (once when they are one).
+  std::vector<double> raises = {lb[cart + 3]};
+  if (ub[cart + 3] > lb[cart + 3]) raises.push_back(ub[cart + 3]);
   std::vector<std::pair<int, std::vector<double>>> xs;  // variant, decision
   for (std::size_t v = 0; v < bases.size(); ++v) {
     for (double from : directions) {
       for (double d : distances) {
         for (double o : offsets) {
-          std::vector<double> x = bases[v];
-          x.insert(x.end(), {from, d, o});
-          xs.push_back({static_cast<int>(v), x});
+          for (double r : raises) {
+            std::vector<double> x = bases[v];
+            x.insert(x.end(), {from, d, o, r});
+            xs.push_back({static_cast<int>(v), x});
+          }
         }
       }
     }
@@ -918,7 +926,7 @@ FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
   const int variant = xs[best].first;
   std::vector<double> x_best = xs[best].second;
   double score_best = scores[best];
-  // The cart's three coordinates polished locally (the ports stay where they were given).
+  // The cart's coordinates polished locally (the ports stay where they were given).
   if (options.local != "none" && options.polish_evaluations > 0 && Clock::now() < deadline) {
     Workspace ws(problem);
     struct Context {
@@ -930,14 +938,14 @@ FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
       std::vector<double> x_best;
       Clock::time_point deadline;
     } c{&problem, &ws, x_best, cart, 0, options.polish_evaluations, score_best, x_best, deadline};
-    nlopt::opt opt(LocalAlgorithm(options.local), 3);
-    std::vector<double> plb(3), pub(3), x0(3), step(3);
-    for (int k = 0; k < 3; ++k) {
+    nlopt::opt opt(LocalAlgorithm(options.local), kCart);
+    std::vector<double> plb(kCart), pub(kCart), x0(kCart), step(kCart);
+    for (int k = 0; k < kCart; ++k) {
       const double span = 0.15 * (ub[cart + k] - lb[cart + k]);
       x0[k] = x_best[cart + k];
       plb[k] = std::max(lb[cart + k], x0[k] - span);
       pub[k] = std::min(ub[cart + k], x0[k] + span);
-      step[k] = 0.25 * (pub[k] - plb[k]);
+      step[k] = pub[k] > plb[k] ? 0.25 * (pub[k] - plb[k]) : 1.0;  // held: any nonzero step
     }
     opt.set_lower_bounds(plb);
     opt.set_upper_bounds(pub);
@@ -948,7 +956,7 @@ FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
         [](unsigned, const double* v, double*, void* data) -> double {
           auto* c = static_cast<Context*>(data);
           if (c->evaluations >= c->budget || Clock::now() > c->deadline) throw nlopt::forced_stop();
-          for (int k = 0; k < 3; ++k) c->x[c->cart + k] = v[k];
+          for (int k = 0; k < kCart; ++k) c->x[c->cart + k] = v[k];
           const double score = c->problem->Evaluate(c->problem->Decode(c->x), c->ws).score;
           ++c->evaluations;
           if (score > c->best) {
@@ -974,10 +982,10 @@ FixedPortsPlan PlanFixedPorts(const PortPlacementProblem& problem,
   out.ports = variants[variant];
   out.variants = static_cast<int>(variants.size());
   std::ostringstream search;
-  search << "cart searched for the given ports: " << xs.size() << " poses ("
-         << variants.size() << " assignment" << (variants.size() == 1 ? "" : "s")
-         << " of the ports to the arms x " << directions.size() << " directions x "
-         << distances.size() << " distances x " << offsets.size() << " headings), then "
+  search << "cart searched for the given ports: " << xs.size() << " poses (" << variants.size()
+         << " assignment" << (variants.size() == 1 ? "" : "s") << " of the ports to the arms x "
+         << directions.size() << " directions x " << distances.size() << " distances x "
+         << offsets.size() << " headings x " << raises.size() << " table heights), then "
          << options.local << " on the best";
   out.search = search.str();
   std::vector<RankedPlan> finals(1);

@@ -15,7 +15,8 @@ void ReadPlanConfig(const std::string& case_dir, ProblemOptions* options) {
   const YamlReader y = YamlReader::Load(file);
   const YAML::Node plan = y.root()["plan"];
   if (!plan) return;
-  y.ExpectMap(plan, "plan", {"arms", "roles", "samples_per_target", "standoff", "weights"});
+  y.ExpectMap(plan, "plan",
+              {"arms", "roles", "samples_per_target", "standoff", "table_height", "weights"});
   if (plan["arms"]) options->arms = y.Strings(plan["arms"], "plan.arms");
   if (plan["roles"]) {
     const YAML::Node roles = plan["roles"];
@@ -38,6 +39,21 @@ void ReadPlanConfig(const std::string& case_dir, ProblemOptions* options) {
     TROCAR_THROW_UNLESS(s >= 0 && s <= 0.05, y.Where(plan["standoff"], "plan.standoff")
                                                  << ": " << s << " m, expected 0 to 0.05");
     options->standoff = s;
+  }
+  if (const YAML::Node t = plan["table_height"]) {
+    // The heights the search may set the table's top to, or `fixed`: the case's table.
+    if (t.IsScalar() && t.as<std::string>() == "fixed") {
+      options->table_height_min = options->table_height_max = std::nan("");
+    } else {
+      const std::vector<double> range = y.Numbers(t, "plan.table_height");
+      TROCAR_THROW_UNLESS(
+          range.size() == 2 && range[0] >= 0.3 && range[0] <= range[1] && range[1] <= 1.5,
+          y.Where(t, "plan.table_height")
+              << ": expected [lowest, highest] in m with 0.3 <= lowest <= highest "
+                 "<= 1.5, or fixed (the case's table)");
+      options->table_height_min = range[0];
+      options->table_height_max = range[1];
+    }
   }
   if (plan["weights"]) {
     const YAML::Node w = plan["weights"];

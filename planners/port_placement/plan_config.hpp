@@ -16,6 +16,7 @@ namespace trocar::planners {
 ///   roles: {ecm: endoscope}          # role overrides
 ///   samples_per_target: 8
 ///   standoff: 0.005                  # m
+///   table_height: [0.79, 1.04]       # m, the heights the search may set the table to; or fixed
 ///   weights: {coverage: 0.35, dexterity: 0.1, approach: 0.1, triangulation: 0.1, endoscope: 0.15,
 ///             spacing: 0.05, clearance_arm_arm: 0.05, clearance_arm_patient: 0.05,
 ///             clearance_instrument_rib: 0.05}

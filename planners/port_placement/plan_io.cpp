@@ -94,6 +94,8 @@ StoredPlan StorePlan(const PortPlacementProblem& problem, const RankedPlan& plan
   out.cart_x = plan.placement.cart_x;
   out.cart_y = plan.placement.cart_y;
   out.cart_yaw_deg = plan.placement.cart_yaw * 180 / M_PI;
+  out.cart_z = 0.0 - plan.placement.table_raise;  // +0 when not raised
+  out.table_height = problem.patient().table.height + plan.placement.table_raise;
   out.X_WB = plan.placement.X_WB();
   return out;
 }
@@ -313,6 +315,7 @@ RankedPlan RestorePlan(const PortPlacementProblem& problem, const PlanFile& file
   plan.placement.cart_x = p.cart_x;
   plan.placement.cart_y = p.cart_y;
   plan.placement.cart_yaw = p.cart_yaw_deg * M_PI / 180;
+  plan.placement.table_raise = 0.0 - p.cart_z;
   plan.rank_score = p.rank_score;
   // The plan as written: its status, its nominal pose (setup joints and active joints by name),
   // its coverage term and what its endoscope sees. A nominal pose that is not valid makes every

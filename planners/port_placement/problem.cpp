@@ -259,7 +259,7 @@ double ScoreWeights::sum() const {
 Eigen::Isometry3d Placement::X_WB() const {
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   X.linear() = Eigen::AngleAxisd(cart_yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  X.translation() = Eigen::Vector3d(cart_x, cart_y, 0.0);
+  X.translation() = Eigen::Vector3d(cart_x, cart_y, 0.0 - table_raise);  // +0 when not raised
   return X;
 }
 
@@ -310,6 +310,12 @@ PortPlacementProblem::PortPlacementProblem(std::shared_ptr<const patient::Patien
       options.cart_distance_min > 0 && options.cart_distance_max > options.cart_distance_min,
       "cart distance range [" << options.cart_distance_min << ", " << options.cart_distance_max
                               << "] m is empty");
+  TROCAR_THROW_UNLESS(
+      (std::isnan(options.table_height_min) && std::isnan(options.table_height_max)) ||
+          (options.table_height_min >= 0.3 && options.table_height_max <= 1.5 &&
+           options.table_height_min <= options.table_height_max),
+      "table height range [" << options.table_height_min << ", " << options.table_height_max
+                             << "] m: expected 0.3 <= min <= max <= 1.5 m");
   arms_ = FindArms(*robot_, options.roles);
   if (!options.arms.empty()) arms_ = SelectArms(arms_, options.arms);
 
@@ -624,7 +630,8 @@ void PortPlacementProblem::SetPorts(const Placement& placement, const robot::Rob
 std::vector<double> PortPlacementProblem::lower_bounds() const {
   std::vector<double> lb;
   for (std::size_t i = 0; i < arms_.size(); ++i) lb.insert(lb.end(), {0.0, 0.0});
-  lb.insert(lb.end(), {-M_PI, options_.cart_distance_min, -options_.cart_heading_offset_max});
+  lb.insert(lb.end(), {-M_PI, options_.cart_distance_min, -options_.cart_heading_offset_max,
+                       options_.TableRaiseMin(patient_->table.height)});
   return lb;
 }
 
@@ -632,7 +639,8 @@ std::vector<double> PortPlacementProblem::upper_bounds() const {
   std::vector<double> ub;
   const double n = static_cast<double>(patient_->port_candidates.size());
   for (std::size_t i = 0; i < arms_.size(); ++i) ub.insert(ub.end(), {n, 1.0});
-  ub.insert(ub.end(), {M_PI, options_.cart_distance_max, options_.cart_heading_offset_max});
+  ub.insert(ub.end(), {M_PI, options_.cart_distance_max, options_.cart_heading_offset_max,
+                       options_.TableRaiseMax(patient_->table.height)});
   return ub;
 }
 
@@ -798,6 +806,7 @@ Placement PortPlacementProblem::Decode(const std::vector<double>& x) const {
   placement.cart_y = centre_W_.y() + distance * std::sin(from);
   // Facing the centre (from + pi), turned by the offset.
   placement.cart_yaw = std::remainder(from + M_PI + offset, 2 * M_PI);
+  placement.table_raise = x[k + 3];
   return placement;
 }
 
@@ -811,6 +820,8 @@ std::vector<double> PortPlacementProblem::Encode(const Placement& placement) con
       std::clamp(std::hypot(dx, dy), options_.cart_distance_min, options_.cart_distance_max));
   x.push_back(std::clamp(std::remainder(placement.cart_yaw - from - M_PI, 2 * M_PI),
                          -options_.cart_heading_offset_max, options_.cart_heading_offset_max));
+  x.push_back(std::clamp(placement.table_raise, options_.TableRaiseMin(patient_->table.height),
+                         options_.TableRaiseMax(patient_->table.height)));
   return x;
 }
 

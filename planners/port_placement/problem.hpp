@@ -9,12 +9,13 @@
 /// state carried between calls), so a plan is reproducible and any thread may evaluate it.
 
 #include <Eigen/Geometry>
+#include <cmath>
 #include <memory>
 #include <string>
 #include <vector>
 
-#include "port_placement/arms.hpp"
 #include "collision/collision_world.hpp"
+#include "port_placement/arms.hpp"
 #include "port_placement/cart_placement.hpp"
 #include "robot/robot_model.hpp"
 #include "robot/robot_state.hpp"
@@ -73,6 +74,18 @@ struct ProblemOptions {
   /// from (any), its distance on the floor (m), and its heading off facing the centre (rad).
   double cart_distance_min = 0.6, cart_distance_max = 1.5;
   double cart_heading_offset_max = 60.0 * M_PI / 180.0;
+  /// The heights the team may set the table's top to before docking (m): the search chooses one
+  /// (Placement::table_raise from the case's table height). An operating table's top travels
+  /// about 0.79-1.04 m (31-41 in; docs/operative-state.md, "The table's height"). NaN for both:
+  /// the case's table height (PatientModel::table), not searched.
+  double table_height_min = 0.79, table_height_max = 1.04;
+  /// The table's raise's bounds for a patient whose table is at `case_height` (m).
+  double TableRaiseMin(double case_height) const {
+    return std::isnan(table_height_min) ? 0.0 : table_height_min - case_height;
+  }
+  double TableRaiseMax(double case_height) const {
+    return std::isnan(table_height_max) ? 0.0 : table_height_max - case_height;
+  }
   /// Endoscope: half field of view (rad), working distances (m), the distance it is inserted to
   /// from the targets' centroid.
   double scope_half_fov = 35.0 * M_PI / 180.0;
@@ -142,6 +155,12 @@ struct PortSite {
 struct Placement {
   std::vector<PortSite> sites;
   double cart_x = 0.0, cart_y = 0.0, cart_yaw = 0.0;  ///< world, m and rad
+  /// How much higher than the case's table (PatientModel::table.height) the team sets the table
+  /// before docking (m). The world is the table's: the patient stays where the case puts it and
+  /// the floor the cart stands on is this much lower (X_WB's z = -table_raise). Only the cart's
+  /// pose relative to the patient and the table matters to every check (the floor is no
+  /// collision body); the plan file states the table's height (docs/plan-format.md).
+  double table_raise = 0.0;
   Eigen::Isometry3d X_WB() const;
 };
 
@@ -225,8 +244,12 @@ class PortPlacementProblem {
   const Eigen::Vector3d& aim_W() const { return aim_W_; }
 
   /// Decision vector: per arm (candidate coordinate in [0, candidates), position in [0, 1]),
-  /// then the cart (direction it comes from in [-pi, pi], distance, heading offset).
-  int dimension() const { return 2 * static_cast<int>(arms_.size()) + 3; }
+  /// then the cart's kCartCoordinates (direction it comes from in [-pi, pi], distance, heading
+  /// offset, the table's raise).
+  static constexpr int kCartCoordinates = 4;
+  int dimension() const { return 2 * static_cast<int>(arms_.size()) + kCartCoordinates; }
+  /// The first of the cart's coordinates in the decision vector.
+  int cart_index() const { return 2 * static_cast<int>(arms_.size()); }
   std::vector<double> lower_bounds() const;
   std::vector<double> upper_bounds() const;
   Placement Decode(const std::vector<double>& x) const;

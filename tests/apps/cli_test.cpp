@@ -958,6 +958,13 @@ TEST(TrocarPlan, BadOptionsAreRefusedNamingThem) {
              " --robot " + test::SourcePath("robots/pa10/pa10.yaml"));
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("no RCM frame"), std::string::npos) << r.output;
+  for (const char* heights : {"1.2,0.9", "0.2,1.0", "high", "0.9"}) {
+    r = Trocar("plan " + test::SourcePath("patients/phantom-default") + " --out " + out +
+               " --table-height " + heights);
+    EXPECT_EQ(r.exit_code, 1) << heights << ": " << r.output;
+    EXPECT_NE(r.output.find("--table-height: '" + std::string(heights) + "'"), std::string::npos)
+        << r.output;
+  }
   r = Trocar("plan /nonexistent/case --out " + out);
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_FALSE(std::filesystem::exists(out + "/plan.json"));

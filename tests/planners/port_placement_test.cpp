@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -20,6 +21,7 @@
 #include "planners/bundled.hpp"
 #include "port_placement/arms.hpp"
 #include "port_placement/optimizer.hpp"
+#include "port_placement/plan_config.hpp"
 #include "port_placement/plan_io.hpp"
 #include "port_placement/port_rules.hpp"
 #include "port_placement/score_terms.hpp"
@@ -274,7 +276,113 @@ TEST(PortPlacementProblem, DecodeAndEncodeAgreeAndSitesLieOnTheirCurves) {
     EXPECT_NEAR(p.cart_x, q.cart_x, 1e-9);
     EXPECT_NEAR(p.cart_y, q.cart_y, 1e-9);
     EXPECT_NEAR(std::remainder(p.cart_yaw - q.cart_yaw, 2 * M_PI), 0.0, 1e-9);
+    EXPECT_NEAR(p.table_raise, q.table_raise, 1e-12);
+    EXPECT_DOUBLE_EQ(p.X_WB().translation().z(), -p.table_raise);
   }
+  // The table's raise spans the heights the team may set it to, from the case's table.
+  const int k = problem.cart_index() + 3;
+  EXPECT_DOUBLE_EQ(lb[k], 0.79 - Phantom()->table.height);
+  EXPECT_DOUBLE_EQ(ub[k], 1.04 - Phantom()->table.height);
+  ProblemOptions fixed;
+  fixed.table_height_min = fixed.table_height_max = std::nan("");
+  const PortPlacementProblem at_case(Phantom(), Cart(), fixed);
+  EXPECT_EQ(at_case.lower_bounds()[k], 0.0);
+  EXPECT_EQ(at_case.upper_bounds()[k], 0.0);
+  ProblemOptions inverted;
+  inverted.table_height_min = 1.0;
+  inverted.table_height_max = 0.9;
+  EXPECT_THROW(PortPlacementProblem(Phantom(), Cart(), inverted), Error);
+}
+
+// The case file's plan.table_height: a range in m, or fixed (the case's table); a bad one is
+// refused naming the field.
+TEST(PlanConfig, TheTableHeightRangeIsReadAndABadOneIsNamed) {
+  const std::string dir = test::ScratchPath("plan_config_table");
+  std::filesystem::create_directories(dir);
+  auto read = [&](const std::string& value) {
+    std::ofstream(JoinPath(dir, "patient.yaml"))
+        << "name: t\nplan: {table_height: " << value << "}\n";
+    ProblemOptions o;
+    ReadPlanConfig(dir, &o);
+    return o;
+  };
+  const ProblemOptions range = read("[0.85, 1.0]");
+  EXPECT_DOUBLE_EQ(range.table_height_min, 0.85);
+  EXPECT_DOUBLE_EQ(range.table_height_max, 1.0);
+  const ProblemOptions fixed = read("fixed");
+  EXPECT_TRUE(std::isnan(fixed.table_height_min) && std::isnan(fixed.table_height_max));
+  EXPECT_EQ(fixed.TableRaiseMin(0.8), 0.0);
+  EXPECT_EQ(fixed.TableRaiseMax(0.8), 0.0);
+  for (const char* bad : {"[1.0, 0.9]", "[0.2, 1.0]", "[0.9]", "high"}) {
+    try {
+      read(bad);
+      ADD_FAILURE() << bad << " was accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("plan.table_height"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// The world is the table's: the robot posed with the table raised by r (the cart's floor r lower
+// in W) stands to the patient and the table as the same robot, on the floor at z = 0, stands to
+// a patient and table r higher. Over seeded random placements with raises across the table's
+// range, the robot at each one's nominal pose is checked in both worlds by fresh checkers: the
+// same contacts, and the same clearance of each class (arm-table, arm-patient, ...) to 1e-9 m.
+// A cart that ignored the raise (on the same floor whatever the table) fails, and so does one
+// raised the wrong way: the robot then stands 2r off in one of them. And the raise matters: the
+// robot kept on the unraised floor stands differently to the table in most of them.
+TEST(PortPlacementProblem, RaisingTheTableIsLoweringTheCartsFloorInTheTablesWorld) {
+  const PortPlacementProblem low(Phantom(), Cart(), {});
+  const auto lb = low.lower_bounds(), ub = low.upper_bounds();
+  const int k = low.cart_index() + 3;
+  std::mt19937 rng(11);
+  int compared = 0, differing_unraised = 0;
+  for (int trial = 0; trial < 10; ++trial) {
+    std::vector<double> x(lb.size());
+    for (std::size_t i = 0; i < x.size(); ++i)
+      x[i] = std::uniform_real_distribution<double>(lb[i], ub[i])(rng);
+    x[k] = ub[k] * (trial % 2 == 0 ? 1.0 : 0.5);  // 24 or 12 cm up
+    const double r = x[k];
+    Workspace ws(low);
+    const Placement placement = low.Decode(x);
+    EXPECT_DOUBLE_EQ(placement.X_WB().translation().z(), -r);
+    low.Evaluate(placement, &ws);
+    const robot::RobotState posed = ws.state;  // the nominal pose, the cart's floor at -r
+    ASSERT_DOUBLE_EQ(posed.X_WB.translation().z(), -r);
+    auto raised_model = std::make_shared<patient::PatientModel>(*Phantom());
+    raised_model->table.height += r;
+    raised_model->X_WP.translation().z() += r;
+    const PortPlacementProblem high(raised_model, Cart(), {});
+    robot::RobotState on_floor = posed;  // the same robot, on the floor at z = 0
+    on_floor.X_WB.translation().z() += r;
+    kinematics::ForwardKinematics(*Cart(), &on_floor);
+    collision::CollisionChecker a(low.world()), b(high.world()), unraised(low.world());
+    a.SetRobotState(posed);
+    b.SetRobotState(on_floor);
+    unraised.SetRobotState(on_floor);
+    const collision::CollisionReport ra = a.Check(), rb = b.Check();
+    ASSERT_EQ(ra.contacts.size(), rb.contacts.size()) << trial;
+    for (std::size_t c = 0; c < ra.contacts.size(); ++c) {
+      EXPECT_EQ(ra.contacts[c].a, rb.contacts[c].a) << trial;
+      EXPECT_EQ(ra.contacts[c].b, rb.contacts[c].b) << trial;
+    }
+    const std::vector<collision::Clearance> ca = a.ClearanceByClass(), cb = b.ClearanceByClass(),
+                                            cu = unraised.ClearanceByClass();
+    ASSERT_EQ(ca.size(), cb.size());
+    bool differs = false;
+    for (std::size_t c = 0; c < ca.size(); ++c) {
+      if (!ca[c].valid()) continue;
+      ASSERT_TRUE(cb[c].valid()) << trial << " class " << c;
+      EXPECT_NEAR(ca[c].distance, cb[c].distance, 1e-9) << trial << " class " << c;
+      EXPECT_LT((ca[c].p_W_a - (cb[c].p_W_a - Eigen::Vector3d(0, 0, r))).norm(), 1e-6)
+          << trial << " class " << c;
+      differs = differs || !cu[c].valid() || std::abs(cu[c].distance - ca[c].distance) > 1e-3;
+    }
+    differing_unraised += differs ? 1 : 0;
+    ++compared;
+  }
+  EXPECT_EQ(compared, 10);
+  EXPECT_GE(differing_unraised, 7);
 }
 
 // The pivot of every site sits in the middle of its intercostal gap at the ribs' depth, checked
@@ -515,9 +623,12 @@ TEST(PortPlacementProblem, EvaluationIsAPureFunctionOfThePlacement) {
 // limits, the sample inside the recorded camera's field of view and working distances, a clear
 // line of sight, no collision. A LookAt that claimed views it does not have, or never moved, fails.
 TEST(PortPlacementProblem, TheEndoscopeMovesToLookAtWhatItsDockingPoseDoesNotSee) {
-  ProblemOptions fixed_options;
+  // The case's table (held) in both: the seeded placements below are the ones this was found on.
+  ProblemOptions moves_options;
+  moves_options.table_height_min = moves_options.table_height_max = std::nan("");
+  ProblemOptions fixed_options = moves_options;
   fixed_options.scope_moves = false;
-  const PortPlacementProblem moves(Phantom(), Cart(), {});
+  const PortPlacementProblem moves(Phantom(), Cart(), moves_options);
   const PortPlacementProblem fixed(Phantom(), Cart(), fixed_options);
   ASSERT_TRUE(moves.options().scope_moves);
   Workspace wm(moves), wf(fixed);
@@ -529,8 +640,8 @@ TEST(PortPlacementProblem, TheEndoscopeMovesToLookAtWhatItsDockingPoseDoesNotSee
   std::mt19937 rng(11);
   int placed = 0, moved_only = 0, kept = 0;
   for (int trial = 0; trial < 200 && placed < 8; ++trial) {
-    std::vector<double> x(lb.size());
-    for (std::size_t k = 0; k < x.size(); ++k)
+    std::vector<double> x(lb.size(), 0.0);  // the table's raise (the last) held at 0
+    for (std::size_t k = 0; k + 1 < x.size(); ++k)
       x[k] = std::uniform_real_distribution<double>(lb[k], ub[k])(rng);
     const Placement placement = moves.Decode(x);
     const Evaluation em = moves.Evaluate(placement, &wm, how);
@@ -633,6 +744,8 @@ TEST(OptimizePorts, APatientNoPlanCanServeGetsAVerdictWithTheReason) {
 TEST(OptimizePorts, FindsTheOnlyIntercostalPortThatReachesTheTarget) {
   ProblemOptions one_arm;
   one_arm.arms = {"psm1"};
+  // The case's table (held): the test is of the ports; the shield lies under one of them.
+  one_arm.table_height_min = one_arm.table_height_max = std::nan("");
   const PortPlacementProblem base(Phantom(), Cart(), one_arm);
   const auto& candidates = Phantom()->port_candidates;
   int space = -1;
