@@ -720,9 +720,11 @@ PlanFile ReadPlanFile(const std::string& path) {
   TROCAR_THROW_UNLESS(doc.is_object() && doc.contains("format") && doc["format"].is_string() &&
                           doc["format"].get<std::string>() == "trocar-plan",
                       path << ": not a trocar plan (field 'format' is not \"trocar-plan\")");
-  TROCAR_THROW_UNLESS(root["version"].Integer() == kPlanFormatVersion,
+  const int version = root["version"].Integer();
+  TROCAR_THROW_UNLESS(version >= kOldestPlanFormatVersion && version <= kPlanFormatVersion,
                       path << ": plan format version " << doc.at("version")
-                           << ", this trocar reads version " << kPlanFormatVersion);
+                           << ", this trocar reads versions " << kOldestPlanFormatVersion << " to "
+                           << kPlanFormatVersion);
   PlanFile file;
   file.path = path;
   const std::string plan_dir = ParentDirectory(path);

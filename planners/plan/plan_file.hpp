@@ -27,8 +27,11 @@ struct PatientModel;
 
 namespace trocar::planners {
 
-/// Version of the plan format this trocar reads and writes.
-constexpr int kPlanFormatVersion = 2;
+/// Version of the plan format this trocar writes; it reads this one and the versions back to
+/// kOldestPlanFormatVersion. 3 (stop 64): the cart's `z` and `table_height` (a plan whose table
+/// was raised has its cart off z = 0, which a version-2 reader would refuse as a broken pose).
+constexpr int kPlanFormatVersion = 3;
+constexpr int kOldestPlanFormatVersion = 2;
 
 /// Joint values by joint name, in the order written (the file orders them by name).
 using NamedValues = std::vector<std::pair<std::string, double>>;

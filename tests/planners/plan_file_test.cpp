@@ -153,6 +153,54 @@ TEST(PlanFile, WrittenThenReadThenWrittenAgainKeepsItsBytes) {
   EXPECT_TRUE(scope_reach && instrument_reach);
 }
 
+// Version 3 added the cart's z and table_height. A version-2 file (no such fields; its cart on
+// z = 0) is read as the plan it was, with the case's table; a raised cart's pose is checked
+// against its z; versions outside 2..3 are refused naming what this trocar reads.
+TEST(PlanFile, AVersionTwoFileIsReadWithItsCartOnTheFloorAndOthersAreRefused) {
+  const json now = json::parse(Plan().text);
+  EXPECT_EQ(now["version"], kPlanFormatVersion);
+  json old = now;
+  old["version"] = 2;
+  for (auto& plan : old["plans"]) {
+    plan["cart"].erase("z");
+    plan["cart"].erase("table_height");
+  }
+  const std::string dir = test::ScratchPath("plan_file_versions");
+  std::filesystem::create_directories(dir);
+  const std::string old_path = JoinPath(dir, "old.json");
+  WriteFileAtomically(old_path, old.dump(1));
+  const PlanFile file = ReadPlanFile(old_path);
+  ASSERT_EQ(file.plans.size(), now["plans"].size());
+  EXPECT_EQ(file.plans[0].cart_z, 0.0);
+  EXPECT_TRUE(std::isnan(file.plans[0].table_height));
+  // A cart raised in the file's X_WB but not in its z: one pose, not two.
+  json raised = now;
+  raised["plans"][0]["cart"]["X_WB"][2][3] = -0.1;
+  const std::string raised_path = JoinPath(dir, "raised.json");
+  WriteFileAtomically(raised_path, raised.dump(1));
+  try {
+    ReadPlanFile(raised_path);
+    ADD_FAILURE() << "a cart off its z was read";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("plans[0].cart"), std::string::npos) << e.what();
+  }
+  raised["plans"][0]["cart"]["z"] = -0.1;
+  WriteFileAtomically(raised_path, raised.dump(1));
+  EXPECT_DOUBLE_EQ(ReadPlanFile(raised_path).plans[0].X_WB.translation().z(), -0.1);
+  for (int version : {1, 4}) {
+    json other = now;
+    other["version"] = version;
+    const std::string path = JoinPath(dir, "v" + std::to_string(version) + ".json");
+    WriteFileAtomically(path, other.dump(1));
+    try {
+      ReadPlanFile(path);
+      ADD_FAILURE() << "version " << version << " was read";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("reads versions 2 to 3"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(PlanFile, EveryDocumentedFieldIsWritten) {
   // docs/plan-format.md's fields, as key paths: a writer that leaves one out (and a reader that
   // never asks for it) would still round-trip; this names the one missing.
