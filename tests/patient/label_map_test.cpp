@@ -1,11 +1,13 @@
+#include "patient/label_map.hpp"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <map>
 #include <set>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
-#include "patient/label_map.hpp"
 #include "patient/patient_model.hpp"
 #include "test_util.hpp"
 
@@ -236,6 +238,89 @@ TEST(LabelMap, PatientCaseWithALabelMapNamesSpacesByRibNumbers) {
                 c.name == "ICS-L11" || c.name == "ICS-R7" || c.name == "ICS-R8" || c.name == "ICS-R9" ||
                 c.name == "ICS-R10" || c.name == "ICS-R11")
         << c.name;
+  }
+}
+
+// lidc-idri-0001, a whole-thorax CT with all 24 ribs, imported with its TotalSegmentator label
+// map (issue #42: "the same scan with its labels: the ribs, spaces and sternum from the labels"):
+// each numbered space lies between the labelled ribs of its number, checked against the label
+// map read here, not the import's ribs. For each point of ICS-L<n> or ICS-R<n> (on the skin over
+// the space), the nearest voxel of that side's labelled rib n lies no lower than it (toward the
+// head) and the nearest of rib n+1 no higher, within a slice's thickness, for at least 90 % of
+// the space's points. A space
+// named one number off, or on the wrong side, fails: the test checks that its own criterion, with
+// every space named one number higher, fails nearly every space.
+TEST(LabelMap, AWholeThoraxsSpacesLieBetweenTheLabelledRibsOfTheirNumber) {
+  const std::string ct = test::SharedDataPath("ct/lidc-idri-0001/ct.nii.gz");
+  const std::string seg = test::SharedDataPath("ct/lidc-idri-0001/totalseg_labels.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(seg);
+  const std::string dir = LabelScratch("lidc_idri_0001");
+  WriteFileAtomically(dir + "/patient.yaml", "ct: " + ct + "\nlabels: " + seg +
+                                                 "\nintercostal: {left: true, right: true}\n");
+  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  ASSERT_NE(m.Find("sternum"), nullptr);
+  const patient::LabelMap map = patient::LoadLabelMap(seg);
+  // The labelled ribs' voxels in P, by "left 5", "right 12".
+  std::map<int, std::string> rib_of_label;
+  for (const auto& [label, name] : map.names) {
+    for (const char* side : {"left", "right"}) {
+      const std::string prefix = std::string("rib_") + side + "_";
+      if (name.rfind(prefix, 0) == 0)
+        rib_of_label[label] = std::string(side) + " " + name.substr(prefix.size());
+    }
+  }
+  ASSERT_EQ(rib_of_label.size(), 24u);
+  std::map<std::string, std::vector<Eigen::Vector3d>> ribs;
+  const patient::Volume& v = map.volume;
+  for (int k = 0; k < v.size.z(); ++k) {
+    for (int j = 0; j < v.size.y(); ++j) {
+      for (int i = 0; i < v.size.x(); ++i) {
+        const auto it = rib_of_label.find(static_cast<int>(v.values[v.Index(i, j, k)]));
+        if (it != rib_of_label.end()) ribs[it->second].push_back(v.PatientPoint(i, j, k));
+      }
+    }
+  }
+  auto nearest = [](const std::vector<Eigen::Vector3d>& voxels, const Eigen::Vector3d& p) {
+    Eigen::Vector3d best = voxels.front();
+    for (const Eigen::Vector3d& q : voxels)
+      if ((q - p).squaredNorm() < (best - p).squaredNorm()) best = q;
+    return best;
+  };
+  const double slice = v.spacing().z();
+  std::set<std::string> named;
+  int spaces = 0, one_off_fails = 0;
+  for (const patient::PortCandidate& c : m.port_candidates) {
+    ASSERT_EQ(c.source, "intercostal:labels") << c.name;
+    ASSERT_TRUE(c.name.rfind("ICS-L", 0) == 0 || c.name.rfind("ICS-R", 0) == 0) << c.name;
+    named.insert(c.name);
+    const std::string side = c.name[4] == 'L' ? "left" : "right";
+    const int n = std::stoi(c.name.substr(5));
+    // The share of the space's points between ribs `above` and `above` + 1 of its side, within
+    // a slice's thickness (the nearest voxel of a sloping rib may lie in the point's own slice or
+    // the next, beside it).
+    auto share_between = [&](int above) {
+      const auto& upper = ribs[side + " " + std::to_string(above)];
+      const auto& lower = ribs[side + " " + std::to_string(above + 1)];
+      if (upper.empty() || lower.empty()) return 0.0;
+      int between = 0;
+      for (const Eigen::Vector3d& p : c.skin) {
+        if (nearest(upper, p).z() >= p.z() - slice && nearest(lower, p).z() <= p.z() + slice)
+          ++between;
+      }
+      return between / static_cast<double>(c.skin.size());
+    };
+    const double share = share_between(n);
+    EXPECT_GE(share, 0.9) << c.name << ": " << 100 * share << " % of its points between ribs " << n
+                          << " and " << n + 1 << " of the " << side;
+    // The check tells a space from its neighbours: named one number higher, it fails.
+    if (n <= 10) one_off_fails += share_between(n + 1) < 0.5 ? 1 : 0;
+    ++spaces;
+  }
+  EXPECT_GE(one_off_fails, spaces - 1) << "of " << spaces << " spaces";
+  // The spaces a surgeon asks for by number, on both sides.
+  for (int n = 1; n <= 9; ++n) {
+    EXPECT_EQ(named.count("ICS-L" + std::to_string(n)), 1u) << n;
+    EXPECT_EQ(named.count("ICS-R" + std::to_string(n)), 1u) << n;
   }
 }
 
