@@ -143,6 +143,17 @@ std::string FormatVector(const Eigen::Ref<const Eigen::VectorXd>& v, int precisi
   return out.str();
 }
 
+std::string FormatError(double value, const char* unit, double resolution) {
+  std::ostringstream out;
+  const int decimals = std::max(0, static_cast<int>(std::ceil(-std::log10(resolution) - 1e-9)));
+  if (std::abs(value) < resolution) {
+    out << "under " << std::fixed << std::setprecision(decimals) << resolution << " " << unit;
+  } else {
+    out << std::fixed << std::setprecision(decimals) << value << " " << unit;
+  }
+  return out.str();
+}
+
 double Median(std::vector<double> values) {
   if (values.empty()) return std::numeric_limits<double>::quiet_NaN();
   std::sort(values.begin(), values.end());

@@ -42,4 +42,8 @@ bool ParseScalarExpression(const std::string& text, double* value);
 /// "[x, y, z]" with the given number of significant digits, for messages and printing.
 std::string FormatVector(const Eigen::Ref<const Eigen::VectorXd>& v, int precision = 6);
 
+/// A small error as a person reads it: "under 0.01 mm" below `resolution` (0.01 here), else the
+/// value to the resolution's decimals ("0.38 mm"); `value` in the unit named.
+std::string FormatError(double value, const char* unit, double resolution = 0.01);
+
 }  // namespace trocar

@@ -320,8 +320,10 @@ class SetupJointSolver {
         solved ? SetupJointResult::Status::kSolved : SetupJointResult::Status::kUnreachable;
     std::ostringstream msg;
     if (solved) {
-      msg << "frame '" << frame.name << "' placed within " << best.position_error * 1e3 << " mm";
-      if (with_axis) msg << " and " << best.angle_error * 180.0 / M_PI << " deg";
+      msg << "frame '" << frame.name << "' placed (error "
+          << FormatError(best.position_error * 1e3, "mm");
+      if (with_axis) msg << " and " << FormatError(best.angle_error * 180.0 / M_PI, "deg");
+      msg << ")";
     } else {
       msg << "unreachable: frame '" << frame.name << "' stays " << best.position_error * 1e3
           << " mm short of " << FormatVector(request.p_WF);

@@ -7,6 +7,7 @@
 
 #include "collision/collision_world.hpp"
 #include "common/error.hpp"
+#include "common/geometry.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "kinematics/setup_joints.hpp"
 #include "patient/patient_model.hpp"
@@ -108,9 +109,10 @@ CartPlacementResult PlaceCart(const robot::RobotModel& cart, const CartPlacement
     reached = reached && placed;
     if (placed && !solved.ok()) {
       std::ostringstream m;
-      m << "frame '" << arm.rcm_frame << "' placed within " << solved.position_error * 1e3
-        << " mm; its axis " << solved.angle_error * 180.0 / M_PI
-        << " deg off the aim (the arm's joints aim the rest)";
+      m << "frame '" << arm.rcm_frame << "' placed (error "
+        << FormatError(solved.position_error * 1e3, "mm") << "); its axis "
+        << FormatError(solved.angle_error * 180.0 / M_PI, "deg", 0.1)
+        << " off the aim (the arm's joints aim the rest)";
       solved.message = m.str();
     }
     message << "  " << arm.rcm_frame << ": " << solved.message << "\n";

@@ -131,7 +131,8 @@ TEST(TrocarRobotSuj, PlacesAnRcmOrSaysHowFarOffItIs) {
   const CommandRun ok =
       Trocar("robot suj " + cart + " --frame psm1_rcm --position 0.9 -0.15 1.1 --axis 0.2 0 -1");
   EXPECT_EQ(ok.exit_code, 0) << ok.output;
-  EXPECT_NE(ok.output.find("frame 'psm1_rcm' placed within"), std::string::npos) << ok.output;
+  EXPECT_NE(ok.output.find("frame 'psm1_rcm' placed (error under 0.01 mm"), std::string::npos)
+      << ok.output;
   EXPECT_NE(ok.output.find("psm1_suj_wrist_3"), std::string::npos) << ok.output;
   const CommandRun far = Trocar("robot suj " + cart + " --frame ecm_rcm --position 5 0 1");
   EXPECT_EQ(far.exit_code, 3) << far.output;

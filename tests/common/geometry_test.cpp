@@ -42,6 +42,17 @@ TEST(ParseScalarExpression, RejectsOtherText) {
   EXPECT_EQ(v, 7.0);  // untouched
 }
 
+// Issue #43: "placed within 1.69614e-05 mm" is noise to a reader. An error under the resolution
+// says so; a larger one is given to the resolution's decimals, rounded, not cut.
+TEST(FormatError, SaysUnderTheResolutionOrTheValueToItsDecimals) {
+  EXPECT_EQ(FormatError(1.69614e-05, "mm"), "under 0.01 mm");
+  EXPECT_EQ(FormatError(0.0, "deg"), "under 0.01 deg");
+  EXPECT_EQ(FormatError(0.379999, "mm"), "0.38 mm");
+  EXPECT_EQ(FormatError(12.345, "deg", 0.1), "12.3 deg");
+  EXPECT_EQ(FormatError(0.04, "deg", 0.1), "under 0.1 deg");
+  EXPECT_EQ(FormatError(7.0, "mm", 1.0), "7 mm");
+}
+
 TEST(RotationFromRpy, RoundTripsOverRandomAngles) {
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> angle(-M_PI, M_PI), pitch(-1.5, 1.5);
