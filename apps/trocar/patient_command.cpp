@@ -120,7 +120,8 @@ void RunImport(const ImportCommandOptions& o) {
   for (const auto& line : report.checks) std::cout << "  check: " << line << "\n";
   for (const auto& line : report.warnings) std::cout << "  warning: " << line << "\n";
   std::cout << "  pose: left side up " << m.left_side_up * 180.0 / M_PI << " deg, table top at "
-            << m.table.height * 1e3 << " mm\n";
+            << m.table.height * 1e3
+            << " mm (the case's; trocar plan sets each plan's within plan.table_height)\n";
   std::cout << std::setprecision(3) << "  timings (s):";
   double total = 0.0;
   for (const auto& [stage, seconds] : report.timings) {

@@ -271,7 +271,11 @@ StoredPlan ReadPlan(const Field& p, int rank_from = 1) {
   plan.cart_x = cart["x"].Number();
   plan.cart_y = cart["y"].Number();
   plan.cart_yaw_deg = cart["yaw_deg"].Number();
-  if (cart.Has("z")) plan.cart_z = cart["z"].Number();
+  if (cart.Has("z")) {
+    plan.cart_z = cart["z"].Number();
+    // The cart's floor below the table's world by how far the table was raised: a table's travel.
+    if (std::abs(plan.cart_z) > 1.0) cart["z"].Fail("a floor height within 1 m of z = 0 (m)");
+  }
   if (cart.Has("table_height")) {
     plan.table_height = cart["table_height"].NumberOrNull();
     if (!std::isnan(plan.table_height) && !(plan.table_height >= 0.3 && plan.table_height <= 1.5))

@@ -24,6 +24,14 @@ std::string LabelScratch(const std::string& name) {
   return dir;
 }
 
+// A case of the CT `ct` with the label map `seg` (and `more` lines of patient.yaml), imported.
+patient::PatientModel ImportLabelledCase(const std::string& name, const std::string& ct,
+                                         const std::string& seg, const std::string& more) {
+  const std::string dir = LabelScratch(name);
+  WriteFileAtomically(dir + "/patient.yaml", "ct: " + ct + "\nlabels: " + seg + "\n" + more);
+  return patient::ImportPatient(dir, {false, false});
+}
+
 std::string ErrorOf(const std::function<void()>& f) { return test::ErrorMessage(f, "(no error)"); }
 
 TEST(LabelMap, NamesOfTotalSegmentatorAndSlicerAreClassified) {
@@ -225,10 +233,8 @@ TEST(LabelMap, PatientCaseWithALabelMapNamesSpacesByRibNumbers) {
   const std::string ct = test::SharedDataPath("ct/totalseg-abdomen/example_ct.nii.gz");
   const std::string seg = test::SharedDataPath("ct/totalseg-abdomen/example_seg_fast_force_split.nii.gz");
   TROCAR_REQUIRE_SHARED_FILE(seg);
-  const std::string dir = LabelScratch("case");
-  WriteFileAtomically(dir + "/patient.yaml", "ct: " + ct + "\nlabels: " + seg +
-                                                 "\nheart: {contrast: false}\nintercostal: {left: true, right: true}\n");
-  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  const patient::PatientModel m = ImportLabelledCase(
+      "case", ct, seg, "heart: {contrast: false}\nintercostal: {left: true, right: true}\n");
   ASSERT_NE(m.Find("ribs"), nullptr);
   ASSERT_NE(m.Find("vessels"), nullptr);
   ASSERT_FALSE(m.port_candidates.empty());
@@ -247,17 +253,14 @@ TEST(LabelMap, PatientCaseWithALabelMapNamesSpacesByRibNumbers) {
 // map read here, not the import's ribs. For each point of ICS-L<n> or ICS-R<n> (on the skin over
 // the space), the nearest voxel of that side's labelled rib n lies no lower than it (toward the
 // head) and the nearest of rib n+1 no higher, within a slice's thickness, for at least 90 % of
-// the space's points. A space
-// named one number off, or on the wrong side, fails: the test checks that its own criterion, with
-// every space named one number higher, fails nearly every space.
+// the space's points. A space named one number off fails: the test checks that its own
+// criterion, with every space named one number higher, fails nearly every space.
 TEST(LabelMap, AWholeThoraxsSpacesLieBetweenTheLabelledRibsOfTheirNumber) {
   const std::string ct = test::SharedDataPath("ct/lidc-idri-0001/ct.nii.gz");
   const std::string seg = test::SharedDataPath("ct/lidc-idri-0001/totalseg_labels.nii.gz");
   TROCAR_REQUIRE_SHARED_FILE(seg);
-  const std::string dir = LabelScratch("lidc_idri_0001");
-  WriteFileAtomically(dir + "/patient.yaml", "ct: " + ct + "\nlabels: " + seg +
-                                                 "\nintercostal: {left: true, right: true}\n");
-  const patient::PatientModel m = patient::ImportPatient(dir, {false, false});
+  const patient::PatientModel m =
+      ImportLabelledCase("lidc_idri_0001", ct, seg, "intercostal: {left: true, right: true}\n");
   ASSERT_NE(m.Find("sternum"), nullptr);
   const patient::LabelMap map = patient::LoadLabelMap(seg);
   // The labelled ribs' voxels in P, by "left 5", "right 12".

@@ -187,6 +187,22 @@ TEST(PlanFile, AVersionTwoFileIsReadWithItsCartOnTheFloorAndOthersAreRefused) {
   raised["plans"][0]["cart"]["z"] = -0.1;
   WriteFileAtomically(raised_path, raised.dump(1));
   EXPECT_DOUBLE_EQ(ReadPlanFile(raised_path).plans[0].X_WB.translation().z(), -0.1);
+  // A floor no table's travel puts there, and a table height no table has: named.
+  for (const auto& [field, value] :
+       {std::make_pair("z", 1e300), std::make_pair("table_height", 7.0)}) {
+    json bad = now;
+    bad["plans"][0]["cart"][field] = value;
+    if (std::string(field) == "z") bad["plans"][0]["cart"]["X_WB"][2][3] = value;
+    WriteFileAtomically(raised_path, bad.dump(1));
+    try {
+      ReadPlanFile(raised_path);
+      ADD_FAILURE() << field << " " << value << " was read";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(std::string("plans[0].cart.") + field),
+                std::string::npos)
+          << e.what();
+    }
+  }
   for (int version : {1, 4}) {
     json other = now;
     other["version"] = version;
