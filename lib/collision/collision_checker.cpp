@@ -50,6 +50,29 @@ int PortPair(const CollisionWorld::Impl& w, int a, int b) {
   return -1;
 }
 
+// If one of the bodies is an instrument link drawn as a capsule and the other the chest wall's
+// frame (Body::chest_wall: the ribs that bound its space): the port the instrument passes
+// through, else -1. Its cannula may lean on them near the port, its axis never crossing them.
+int SeatPair(const CollisionWorld::Impl& w, int a, int b) {
+  const Body& A = w.bodies[a];
+  const Body& B = w.bodies[b];
+  const int r = A.kind == Body::Kind::kRobot ? a : b;
+  const Body& robot = w.bodies[r];
+  const Body& other = r == a ? B : A;
+  if (robot.port < 0 || !other.chest_wall) return -1;
+  return w.convex[r].kind == Convex::Kind::kSweptSphere ? robot.port : -1;
+}
+
+// Whether the axis of robot body r (a capsule) crosses fixed body f's mesh: a cannula leaning on a
+// rib at its port is allowed (SeatPair), one passing through the bone is not.
+SweptSphereContact AxisCrosses(const CollisionWorld::Impl& w, const fcl::CollisionObjectd& o_r,
+                               int r, int f) {
+  const Eigen::Isometry3d X_MR = w.X_pose[f].inverse() * o_r.getTransform();
+  SweptSphereContact hit = w.mesh[f]->Touches(X_MR * w.convex[r].a_G, X_MR * w.convex[r].b_G, 0.0);
+  hit.depth = w.convex[r].radius;  // the axis is in the bone: at least the radius deep
+  return hit;
+}
+
 // If one of the bodies is an instrument's distal link (wrist, jaws) whose port has a work site,
 // and the other a patient structure that is not the skin: that port, else -1.
 int WorkPair(const CollisionWorld::Impl& w, const std::vector<double>& work_radius, int a, int b) {
@@ -135,9 +158,12 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
     if (d.stop_at_first) d.done = true;
     return d.done;
   }
-  // An exempt zone: the skin around the instrument's port, or the organ around its work site.
-  const int port = PortPair(w, a, b);
-  const int work = port < 0 ? WorkPair(w, *d.work_radius, a, b) : -1;
+  // An exempt zone: the skin around the instrument's port, the organ around its work site, or
+  // the ribs its cannula leans on at its port (its axis clear of them).
+  const int skin_port = PortPair(w, a, b);
+  const int work = skin_port < 0 ? WorkPair(w, *d.work_radius, a, b) : -1;
+  const int seat = skin_port < 0 && work < 0 ? SeatPair(w, a, b) : -1;
+  const int port = skin_port >= 0 ? skin_port : seat;
   const bool zone = port >= 0 || work >= 0;
   fcl::CollisionRequestd request(zone ? kPortContacts : 1, zone || d.want_contacts);
   // FCL's own GJK: with libccd (the default) FCL missed shallow capsule–mesh contacts that its
@@ -164,8 +190,19 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
         contact.depth = c.penetration_depth;
       }
     }
+    if (!outside && seat >= 0) {
+      const int r = w.bodies[a].kind == Body::Kind::kRobot ? a : b;
+      const SweptSphereContact axis = AxisCrosses(w, r == a ? *o1 : *o2, r, r == a ? b : a);
+      if (axis.outside) {
+        outside = true;
+        contact.p_W = w.X_pose[r == a ? b : a] * axis.p_M;
+        contact.depth = axis.depth;
+      }
+    }
     if (!outside) {
-      ++(port >= 0 ? d.report.port_contacts_allowed : d.report.work_contacts_allowed);
+      ++(seat >= 0   ? d.report.seat_contacts_allowed
+         : port >= 0 ? d.report.port_contacts_allowed
+                     : d.report.work_contacts_allowed);
       return false;
     }
   } else if (result.numContacts() > 0) {
@@ -356,8 +393,10 @@ void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
         continue;
       }
       const ShapeInMesh shape = InMesh(w, *o_r, r, f);
-      const int port = PortPair(w, a, b);
-      const int work = port < 0 ? WorkPair(w, work_radius, a, b) : -1;
+      const int skin_port = PortPair(w, a, b);
+      const int work = skin_port < 0 ? WorkPair(w, work_radius, a, b) : -1;
+      const int seat = skin_port < 0 && work < 0 ? SeatPair(w, r, f) : -1;
+      const int port = skin_port >= 0 ? skin_port : seat;
       const Eigen::Vector3d centre_M =
           port >= 0   ? Eigen::Vector3d(w.X_pose[f].inverse() * port_W[port])
           : work >= 0 ? Eigen::Vector3d(w.X_pose[f].inverse() * work_W[work])
@@ -367,17 +406,22 @@ void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
           fast == Convex::Kind::kSweptSphere
               ? w.mesh[f]->Touches(shape.a_M, shape.b_M, w.convex[r].radius, centre_M, exclude)
               : w.mesh[f]->BoxTouches(shape.X_MG, w.convex[r].half, centre_M, exclude);
-      if (!hit.outside) {
+      SweptSphereContact axis;
+      if (!hit.outside && hit.excluded && seat >= 0) axis = AxisCrosses(w, *o_r, r, f);
+      if (!hit.outside && !axis.outside) {
         if (hit.excluded)
-          ++(port >= 0 ? d.report.port_contacts_allowed : d.report.work_contacts_allowed);
+          ++(seat >= 0   ? d.report.seat_contacts_allowed
+             : port >= 0 ? d.report.port_contacts_allowed
+                         : d.report.work_contacts_allowed);
         continue;
       }
+      const SweptSphereContact& at = hit.outside ? hit : axis;
       Contact contact;
       contact.a = a;
       contact.b = b;
       contact.cls = cls;
-      contact.p_W = w.X_pose[f] * hit.p_M;
-      contact.depth = hit.depth;
+      contact.p_W = w.X_pose[f] * at.p_M;
+      contact.depth = at.depth;
       d.report.collision = true;
       d.report.contacts.push_back(contact);
       if (d.stop_at_first) d.done = true;

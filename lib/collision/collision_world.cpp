@@ -1,6 +1,7 @@
 #include "collision/collision_world.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <map>
 #include <random>
@@ -13,6 +14,15 @@
 
 namespace trocar::collision {
 namespace {
+
+// The chest wall's rigid frame by structure name: "ribs" (the import's), one rib ("rib_left_5")
+// or the costal cartilages a label map may bring.
+bool IsChestWall(std::string name) {
+  std::transform(name.begin(), name.end(), name.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return name.rfind("rib", 0) == 0 || name.find("_rib") != std::string::npos ||
+         name.find("cartilage") != std::string::npos;
+}
 
 template <typename BV>
 std::shared_ptr<fcl::CollisionGeometryd> MakeBvh(const TriangleMesh& mesh) {
@@ -233,12 +243,13 @@ void AddRobot(CollisionWorld::Impl& w, BvhKind kind) {
 }
 
 void AddFixedMesh(CollisionWorld::Impl& w, const std::string& name, const TriangleMesh& mesh,
-                  const Eigen::Isometry3d& X_WM, bool patient, bool skin,
+                  const Eigen::Isometry3d& X_WM, bool patient, bool skin, bool chest_wall,
                   const std::string& context) {
   Body b;
   b.name = name;
   b.kind = patient ? Body::Kind::kPatient : Body::Kind::kFixed;
   b.skin = skin;
+  b.chest_wall = patient && (chest_wall || IsChestWall(name));
   b.triangles = static_cast<long>(mesh.triangles.size());
   w.geometry.push_back(MakeMeshGeometry(mesh, w.options.bvh, context));
   w.convex.emplace_back();
@@ -578,7 +589,7 @@ std::shared_ptr<const CollisionWorld> CollisionWorld::BuildWith(
   if (impl->robot) AddRobot(*impl, options.bvh);
   for (const auto& m : meshes) {
     TROCAR_THROW_UNLESS(!m.name.empty(), "collision world: a fixed mesh has no name");
-    AddFixedMesh(*impl, m.name, m.mesh, m.X_WM, m.patient, m.skin,
+    AddFixedMesh(*impl, m.name, m.mesh, m.X_WM, m.patient, m.skin, m.chest_wall,
                  (m.patient ? "patient structure '" : "fixed mesh '") + m.name + "'" +
                      (m.mesh.source.empty() ? "" : " (" + m.mesh.source + ")"));
   }

@@ -68,6 +68,10 @@ struct Body {
   /// patient at its port's work site (CollisionChecker::SetWorkSite).
   bool distal = false;
   bool skin = false;   ///< the patient's skin (where ports are)
+  /// The chest wall's rigid frame that bounds the intercostal spaces (ribs, costal cartilages):
+  /// an instrument's cannula may lean on it at its own port, its axis never crossing it
+  /// (CollisionChecker::SetPortPosition; docs/decisions.md, "contact rules").
+  bool chest_wall = false;
   long triangles = 0;  ///< mesh bodies
 };
 
@@ -144,6 +148,9 @@ class CollisionWorld {
     Eigen::Isometry3d X_WM = Eigen::Isometry3d::Identity();
     bool skin = false;
     bool patient = true;
+    /// Body::chest_wall (a patient structure); also set by name: "ribs", "rib...", "..._rib...",
+    /// "...cartilage..."
+    bool chest_wall = false;
   };
   static std::shared_ptr<const CollisionWorld> Build(const std::vector<FixedMesh>& meshes,
                                                      std::shared_ptr<const robot::RobotModel> robot,
@@ -219,6 +226,8 @@ struct CollisionReport {
   bool collision = false;
   std::vector<Contact> contacts;  ///< one per body pair, in body order
   int port_contacts_allowed = 0;  ///< instrument–skin pairs touching only at their port
+  /// instrument–rib pairs where the cannula leans on the ribs of its own port, its axis clear
+  int seat_contacts_allowed = 0;
   int work_contacts_allowed = 0;  ///< wrist/jaw–organ pairs touching only at their work site
 };
 
@@ -245,7 +254,10 @@ class CollisionChecker {
   void SetRobotState(const robot::RobotState& state);
   /// Puts a port somewhere other than its RCM frame (until the next SetRobotState), and with
   /// `radius` >= 0 sets how far from it an instrument may touch the skin (default
-  /// WorldOptions::port_radius; kept until set again: SetRobotState does not reset it).
+  /// WorldOptions::port_radius; kept until set again: SetRobotState does not reset it). Within
+  /// the same distance its instrument may lean on the chest wall's frame (Body::chest_wall: the
+  /// ribs bounding its space) as long as the instrument's axis does not cross it: the cannula
+  /// rests against the rib's edge, it does not pass through bone.
   void SetPortPosition(int port, const Eigen::Vector3d& p_W, double radius = -1.0);
   const Eigen::Vector3d& port_position(int port) const;
   double port_radius(int port) const;

@@ -333,6 +333,162 @@ rcm: {link: holder}
   EXPECT_THROW(checker.SetWorkSite(1, target, 0.015), Error);
 }
 
+// The contact rule at the port (docs/decisions.md, "contact rules"): an instrument's cannula may
+// lean on the ribs that bound its own space, its axis never crossing them. Two 3 mm ribs bound an
+// 18 mm gap along x, 8 mm deep in z, the pivot (the RCM) in the gap's middle; the 8 mm shaft runs
+// through it, tilted about y. Its surface meets a rib's edge from about 42 degrees, its axis
+// enters the bone from about 66. Each verdict is checked on the exact path and on FCL's.
+std::shared_ptr<const robot::RobotModel> TiltingShaft() {
+  return RobotFromYaml("seat", R"(name: instrument
+links:
+  - name: base
+  - name: slide
+  - name: holder
+  - name: shaft
+    collision: [{shape: capsule, radius: 0.004, length: 0.2, xyz: [0, 0, -0.05]}]
+joints:
+  - {name: move_x, type: prismatic, parent: base, child: slide, axis: [1, 0, 0], limits: {lower: -1, upper: 1}}
+  - {name: tilt, type: revolute, parent: slide, child: holder, axis: [0, 1, 0], limits: {lower: -1.5, upper: 1.5}}
+  - {name: insertion, type: prismatic, parent: holder, child: shaft, axis: [0, 0, -1], limits: {lower: 0, upper: 0.1}}
+rcm: {link: holder}
+)");
+}
+
+std::vector<CollisionWorld::FixedMesh> RibsAround(const std::string& name) {
+  CollisionWorld::FixedMesh upper{name + "_upper",
+                                  BoxMesh({0.009, -0.1, -0.004}, {0.012, 0.1, 0.004}),
+                                  Eigen::Isometry3d::Identity(),
+                                  false,
+                                  true,
+                                  false};
+  CollisionWorld::FixedMesh lower{name + "_lower",
+                                  BoxMesh({-0.012, -0.1, -0.004}, {-0.009, 0.1, 0.004}),
+                                  Eigen::Isometry3d::Identity(),
+                                  false,
+                                  true,
+                                  false};
+  // One structure, as the import makes "ribs".
+  TriangleMesh both = upper.mesh;
+  const int offset = static_cast<int>(both.vertices.size());
+  both.vertices.insert(both.vertices.end(), lower.mesh.vertices.begin(), lower.mesh.vertices.end());
+  for (auto t : lower.mesh.triangles)
+    both.triangles.emplace_back(t[0] + offset, t[1] + offset, t[2] + offset);
+  return {{name, both, Eigen::Isometry3d::Identity(), false, true, false}};
+}
+
+robot::RobotState TiltedShaft(const robot::RobotModel& model, double x, double tilt) {
+  robot::RobotState state(model);
+  Eigen::VectorXd q(3);
+  q << x, tilt, 0.0;
+  EXPECT_TRUE(kinematics::ForwardKinematics(model, q, &state).ok());
+  return state;
+}
+
+TEST(CollisionWorld, ACannulaMayLeanOnTheRibsOfItsOwnPortButNotPassThroughThem) {
+  const auto model = TiltingShaft();
+  for (const bool exact : {true, false}) {
+    SCOPED_TRACE(exact ? "exact" : "fcl");
+    collision::WorldOptions options;
+    options.exact_mesh_queries = exact;
+    options.acm_samples = 0;
+    const auto world = CollisionWorld::Build(RibsAround("ribs"), model, options);
+    const int shaft = world->FindBody("shaft"), ribs = world->FindBody("ribs");
+    ASSERT_TRUE(world->bodies()[ribs].chest_wall);
+    CollisionChecker checker(world);
+    // Upright: clear of the ribs.
+    checker.SetRobotState(TiltedShaft(*model, 0.0, 20 * M_PI / 180));
+    auto report = checker.Check();
+    EXPECT_FALSE(report.collision);
+    EXPECT_EQ(report.seat_contacts_allowed, 0);
+    // Leaning on the rib's edge at its own port: allowed, and counted.
+    checker.SetRobotState(TiltedShaft(*model, 0.0, 50 * M_PI / 180));
+    report = checker.Check();
+    EXPECT_FALSE(report.collision);
+    EXPECT_EQ(report.seat_contacts_allowed, 1);
+    EXPECT_FALSE(checker.InCollision());
+    // It touches them: its clearance to the ribs is zero, not hidden.
+    const auto clear = checker.MinimumDistance(Bit(PairClass::kInstrumentPatient));
+    ASSERT_TRUE(clear.valid());
+    EXPECT_EQ(clear.distance, 0.0);
+    // The same lean with the port 5 cm away: these are not its port's ribs.
+    checker.SetPortPosition(0, Eigen::Vector3d(0.05, 0, 0));
+    report = checker.Check();
+    ASSERT_TRUE(report.collision);
+    EXPECT_EQ(report.contacts[0].a, shaft);
+    EXPECT_EQ(report.contacts[0].b, ribs);
+    // Tilted until its axis enters the bone: a collision at its own port too.
+    checker.SetRobotState(TiltedShaft(*model, 0.0, 75 * M_PI / 180));
+    report = checker.Check();
+    ASSERT_TRUE(report.collision);
+    EXPECT_EQ(report.contacts[0].b, ribs);
+    EXPECT_GE(report.contacts[0].depth, 0.004 - 1e-9);
+    EXPECT_TRUE(checker.InCollision());
+    // The same boxes as another organ (not the chest wall): the lean is a collision.
+    const auto organ = CollisionWorld::Build(RibsAround("heart"), model, options);
+    EXPECT_FALSE(organ->bodies()[organ->FindBody("heart")].chest_wall);
+    CollisionChecker on_organ(organ);
+    on_organ.SetRobotState(TiltedShaft(*model, 0.0, 50 * M_PI / 180));
+    EXPECT_TRUE(on_organ.InCollision());
+  }
+}
+
+// Over seeded random tilts and offsets in the gap: the checker's verdict is a collision exactly
+// when the shaft's axis enters a rib (sampled every 0.05 mm along it, a reference independent of
+// the hierarchy), and a contact it allows is one the shaft's surface really makes.
+TEST(CollisionWorld, TheLeaningRuleHoldsOverRandomTilts) {
+  const auto model = TiltingShaft();
+  collision::WorldOptions options;
+  options.acm_samples = 0;
+  const auto world = CollisionWorld::Build(RibsAround("ribs"), model, options);
+  CollisionChecker checker(world);
+  auto in_rib = [](const Eigen::Vector3d& p) {
+    const double ax = std::abs(p.x());
+    return ax >= 0.009 && ax <= 0.012 && std::abs(p.y()) <= 0.1 && std::abs(p.z()) <= 0.004;
+  };
+  auto to_rib = [](const Eigen::Vector3d& p) {  // distance from p to the nearer box
+    const double ax = std::abs(p.x());
+    const Eigen::Vector3d d(std::max({0.009 - ax, ax - 0.012, 0.0}),
+                            std::max(std::abs(p.y()) - 0.1, 0.0),
+                            std::max(std::abs(p.z()) - 0.004, 0.0));
+    return d.norm();
+  };
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> tilt(-80 * M_PI / 180, 80 * M_PI / 180),
+      offset(-0.001, 0.001);
+  int leaning = 0, through = 0, clear = 0;
+  for (int i = 0; i < 400; ++i) {
+    const double x = offset(rng), t = tilt(rng);
+    const robot::RobotState state = TiltedShaft(*model, x, t);
+    const Eigen::Isometry3d X_WS = state.X_WL[model->GetLink("shaft")];
+    const Eigen::Vector3d a = X_WS * Eigen::Vector3d(0, 0, 0.05),
+                          b = X_WS * Eigen::Vector3d(0, 0, -0.15);
+    bool axis_in = false;
+    double nearest = 1.0, deepest = 0.0;
+    for (int k = 0; k <= 4000; ++k) {
+      const Eigen::Vector3d p = a + (b - a) * (k / 4000.0);
+      nearest = std::min(nearest, to_rib(p));
+      if (in_rib(p)) {
+        axis_in = true;
+        const double ax = std::abs(p.x());
+        deepest = std::max(deepest, std::min({ax - 0.009, 0.012 - ax, 0.004 - std::abs(p.z())}));
+      }
+    }
+    // Cases within 0.2 mm of a rule's boundary are left out (the sampling's own error).
+    if ((axis_in && deepest < 2e-4) || (!axis_in && nearest < 2e-4) ||
+        std::abs(nearest - 0.004) < 2e-4)
+      continue;
+    checker.SetRobotState(state);
+    const auto report = checker.Check();
+    EXPECT_EQ(report.collision, axis_in) << "tilt " << t * 180 / M_PI << " deg, offset " << x;
+    if (!axis_in) EXPECT_EQ(report.seat_contacts_allowed, nearest < 0.004 ? 1 : 0) << t;
+    (axis_in ? through : nearest < 0.004 ? leaning : clear)++;
+  }
+  // The cases cover all three outcomes.
+  EXPECT_GT(leaning, 40);
+  EXPECT_GT(through, 40);
+  EXPECT_GT(clear, 40);
+}
+
 TEST(CollisionWorld, DegenerateMeshesAreRejectedByName) {
   auto message = [](TriangleMesh mesh) {
     try {

@@ -138,7 +138,10 @@ TEST(Motion, EveryReturnedPathIsCollisionFreeAndWithinLimitsAtAFineStep) {
               << "sample " << m.sample << " segment " << k << " step " << i << ": " << why;
         }
       }
-      EXPECT_GT(m.min_clearance, 0.0);
+      // Zero only where a contact is allowed: a cannula leaning on the ribs of its own port
+      // touches them (docs/decisions.md, "the cannula leans on the ribs of its own port").
+      EXPECT_GE(m.min_clearance, 0.0);
+      EXPECT_TRUE(std::isfinite(m.min_clearance));
       EXPECT_GT(m.tip_path_length, 0.0);
       EXPECT_GE(m.raw_path_length + 1e-9, m.path_length);  // simplification never lengthens
     }
