@@ -489,16 +489,36 @@ bool PortPlacementProblem::LookAt(int a, const Placement& placement, const Evalu
   const double beta = std::acos(std::clamp(v0.dot(w0), -1.0, 1.0));
   const Eigen::Vector3d to_point = p_W - port;
   const double D = to_point.norm();
-  const double d = std::clamp(options_.scope_working_distance, options_.scope_min_distance,
-                              options_.scope_max_distance);
-  if (D <= d + 0.01) {
-    *why = "it lies within the working distance of the port";
-    return false;
-  }
   // The triangle port - tip - point: the tip L along the shaft, the point d along the view axis,
   // the angle at the tip 180 deg - beta; the shaft turned from the line to the point by alpha,
   // toward the docking pose's shaft (the least move).
-  const double L = -d * std::cos(beta) + std::sqrt(D * D - d * d * std::sin(beta) * std::sin(beta));
+  auto tip_depth = [&](double d) {
+    const double s = d * std::sin(beta);
+    return -d * std::cos(beta) + std::sqrt(std::max(0.0, D * D - s * s));
+  };
+  // From the working distance; a point nearer the port than that is looked at from nearer, down
+  // to the scope's shortest viewing distance, the scope's tip at least 1 cm past its pivot (in
+  // the chest, not in the wall). tip_depth falls as d grows: the largest d that leaves 1 cm.
+  constexpr double kMinTipDepth = 0.01;
+  double d = std::clamp(options_.scope_working_distance, options_.scope_min_distance,
+                        options_.scope_max_distance);
+  if (tip_depth(d) < kMinTipDepth) {
+    if (tip_depth(options_.scope_min_distance) < kMinTipDepth) {
+      std::ostringstream m;
+      m << "it lies " << std::lround(D * 1e3)
+        << " mm from the port, nearer than the scope's shortest viewing distance ("
+        << std::lround(options_.scope_min_distance * 1e3) << " mm) allows";
+      *why = m.str();
+      return false;
+    }
+    double lo = options_.scope_min_distance, hi = d;
+    for (int k = 0; k < 40; ++k) {
+      const double mid = 0.5 * (lo + hi);
+      (tip_depth(mid) >= kMinTipDepth ? lo : hi) = mid;
+    }
+    d = lo;
+  }
+  const double L = tip_depth(d);
   const double alpha = std::asin(std::clamp(d * std::sin(beta) / D, -1.0, 1.0));
   const Eigen::Vector3d u = to_point / D;
   Eigen::Vector3d axis = u.cross(w0);

@@ -695,6 +695,71 @@ TEST(PortPlacementProblem, TheEndoscopeMovesToLookAtWhatItsDockingPoseDoesNotSee
             << moved_only << " only by moving the scope\n";
 }
 
+// A point nearer the scope's port than its working distance is looked at from nearer, down to its
+// shortest viewing distance, its tip at least 1 cm past the pivot (until stop 65 every point within
+// the working distance of the port plus 1 cm was refused: the LIMA's lower samples from a camera
+// port beside them). Points on the line from the scope's port toward the targets, 25-100 mm in.
+TEST(PortPlacementProblem, TheEndoscopeLooksAtAPointNearItsPortFromNearer) {
+  ProblemOptions options;
+  options.table_height_min = options.table_height_max = std::nan("");
+  const PortPlacementProblem problem(Phantom(), Cart(), options);
+  Workspace ws(problem);
+  PortPlacementProblem::EvaluateOptions how;
+  how.detailed = true;
+  const robot::RobotModel& robot = problem.robot();
+  collision::CollisionChecker checker(problem.world());
+  const auto lb = problem.lower_bounds(), ub = problem.upper_bounds();
+  std::mt19937 rng(5);
+  int near_seen = 0, too_near = 0, placed = 0;
+  for (int trial = 0; trial < 300 && placed < 6; ++trial) {
+    std::vector<double> x(lb.size(), 0.0);
+    for (std::size_t k = 0; k + 1 < x.size(); ++k)
+      x[k] = std::uniform_real_distribution<double>(lb[k], ub[k])(rng);
+    const Placement placement = problem.Decode(x);
+    const Evaluation ev = problem.Evaluate(placement, &ws, how);
+    if (ev.status != PlacementStatus::kPlaced) continue;
+    ++placed;
+    for (const auto& view : ev.views) {
+      const PlanArm& arm = problem.arms()[view.arm];
+      const Eigen::Vector3d port = placement.sites[view.arm].p_rcm_W;
+      const Eigen::Vector3d in = (problem.aim_W() - port).normalized();
+      for (const double D : {0.025, 0.04, 0.055, 0.07, 0.1}) {
+        robot::RobotState state(robot);
+        state.X_WB = placement.X_WB();
+        state.joint_values = ev.joint_values;
+        state.q = ev.q_nominal;
+        ASSERT_TRUE(kinematics::ForwardKinematics(robot, state.q, &state).ok());
+        std::string why;
+        const Eigen::Vector3d p = port + D * in;
+        const bool seen = problem.LookAt(view.arm, placement, view, p, &state, &checker, &why);
+        const Eigen::Isometry3d X_WC = kinematics::FramePose(state, robot.GetFrame(view.frame));
+        if (D < 0.029) {  // even from 20 mm the tip would stay within 1 cm of the pivot
+          EXPECT_FALSE(seen) << D;
+          EXPECT_NE(why.find("nearer than the scope's shortest viewing distance"),
+                    std::string::npos)
+              << why;
+          ++too_near;
+          continue;
+        }
+        if (!seen) continue;
+        const Eigen::Vector3d tip =
+            kinematics::FramePose(state, robot.GetFrame(arm.tool_frame)).translation();
+        // Within the inverse kinematics' tolerance of the pose asked for.
+        const double tol = options.ik_tolerance + 1e-6;
+        EXPECT_GE((tip - port).norm(), 0.01 - tol) << D;
+        EXPECT_GE((p - X_WC.translation()).norm(), options.scope_min_distance - tol) << D;
+        const double angle = std::acos(std::clamp(
+            (X_WC.linear() * view.axis_F).dot((p - X_WC.translation()).normalized()), -1.0, 1.0));
+        EXPECT_LE(angle, options.scope_half_fov + 1e-9) << D;
+        if (D + 1e-9 < options.scope_working_distance + 0.01) ++near_seen;
+      }
+    }
+  }
+  EXPECT_GE(placed, 3);
+  EXPECT_GE(too_near, 3);
+  EXPECT_GE(near_seen, 3) << "points nearer than the working distance are seen from nearer";
+}
+
 TEST(OptimizePorts, SameSeedSamePlanWithOneAndTwoThreads) {
   const PortPlacementProblem problem(Phantom(), Cart(), {});
   PlanInputs inputs;
