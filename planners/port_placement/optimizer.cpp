@@ -416,9 +416,15 @@ Verdict JudgePlans(const PortPlacementProblem& problem, const std::vector<Ranked
     }
     std::ostringstream summary;
     if (verdict.suitable) {
-      summary << "suitable: every target is served (both instruments reach, the endoscope sees) on "
-                 "at least "
-              << std::lround(options.suitable_fraction * 100)
+      // Served is what the plan's arms do: without an endoscope arm, the instruments' reach
+      // alone (the scope is the team's, not planned here).
+      const bool scoped =
+          std::any_of(problem.arms().begin(), problem.arms().end(),
+                      [](const PlanArm& a) { return a.role == ArmRole::kEndoscope; });
+      summary << "suitable: every target is served ("
+              << (scoped ? "every instrument reaches it, the endoscope sees it"
+                         : "every instrument reaches it; no endoscope arm was planned")
+              << ") on at least " << std::lround(options.suitable_fraction * 100)
               << " % of its length by the best plan";
     } else {
       summary << "not suitable: " << verdict.reasons.size() << " target stretch"
