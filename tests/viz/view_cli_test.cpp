@@ -562,6 +562,9 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
                               {"where", {"first port as given", "second port as given"}},
                               {"verdict", {{"suitable", false}, {"summary", "not suitable: as judged"}, {"reasons", {"a reason of its own"}}}},
                               {"plan", baseline_plan}});
+  // Plan 1 as if its verification had failed, so that its approval is an override the report
+  // must show (the fixture's plan may verify as suitable: the bundled two-arm plan does).
+  doc["plans"][0]["verification"]["suitable"] = false;
   WriteFileAtomically(plan, doc.dump());
   CommandRun run = Trocar("signoff " + plan + " --approve --surgeon 'Dr <Ada>' --note 'fine & ready' --override 'for the report'");
   ASSERT_EQ(run.exit_code, 0) << run.output;
