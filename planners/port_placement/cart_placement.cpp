@@ -68,6 +68,90 @@ CartPlacementRequest DefaultPorts(const patient::PatientModel& patient,
   return request;
 }
 
+const kinematics::SetupJointResult* SetupJointMemo::Find(const std::string& key) {
+  const auto it = entries_.find(key);
+  if (it == entries_.end()) {
+    ++misses_;
+    return nullptr;
+  }
+  ++hits_;
+  return &it->second;
+}
+
+void SetupJointMemo::Remember(std::string key, const kinematics::SetupJointResult& solved) {
+  if (entries_.size() >= kCapacity) entries_.clear();
+  entries_.emplace(std::move(key), solved);
+}
+
+namespace {
+
+// The joints whose values move `link`: those on its path, and, transitively, the masters of mimic
+// joints and the drivers of closures among them (SetConfiguration resolves those from their
+// drivers, wherever the drivers are).
+std::vector<int> JointsMoving(const robot::RobotModel& model, int link) {
+  std::vector<bool> in(model.joints().size(), false);
+  for (int j : model.movable_path(link)) in[j] = true;
+  for (bool grew = true; grew;) {
+    grew = false;
+    for (int step : model.resolve_order()) {
+      if (step >= 0) {
+        const int master = model.joint(step).mimic.master;
+        if (in[step] && master >= 0 && !in[master]) in[master] = grew = true;
+      } else {
+        const robot::FourBarClosure& c = model.closures()[-1 - step];
+        if ((in[c.coupler] || in[c.rocker]) && !in[c.driver]) in[c.driver] = grew = true;
+      }
+    }
+  }
+  std::vector<int> out;
+  for (std::size_t j = 0; j < in.size(); ++j)
+    if (in[j]) out.push_back(static_cast<int>(j));
+  return out;
+}
+
+// The exact bits of everything one arm's setup-joint solve in PlaceCart reads: the frame, the
+// cart's pose, the port, the axis, the options, the active joints and the values of the joints
+// that move the frame (their current values are the first start's).
+std::string SolveKey(const robot::RobotModel& cart, const robot::RobotState& state,
+                     const kinematics::SetupJointRequest& request,
+                     const kinematics::SetupJointOptions& options) {
+  std::string key;
+  auto put = [&key](const void* p, std::size_t n) { key.append(static_cast<const char*>(p), n); };
+  auto put_double = [&put](double v) { put(&v, sizeof v); };
+  const int link = cart.GetFrame(request.frame).link;
+  key.append(request.frame);
+  key.push_back('\0');
+  put(state.X_WB.matrix().data(), 16 * sizeof(double));
+  put(request.p_WF.data(), 3 * sizeof(double));
+  const bool axis = request.axis_W.has_value();
+  put(&axis, sizeof axis);
+  if (axis) put(request.axis_W->data(), 3 * sizeof(double));
+  put(request.axis_F.data(), 3 * sizeof(double));
+  put(&options.seed, sizeof options.seed);
+  put(&options.starts, sizeof options.starts);
+  put(&options.max_iterations, sizeof options.max_iterations);
+  put_double(options.position_tolerance);
+  put_double(options.angle_tolerance);
+  put_double(options.length_scale);
+  for (const std::string& name : request.joints) key.append(name + '\0');
+  put(state.q.data(), static_cast<std::size_t>(state.q.size()) * sizeof(double));
+  // Whether the whole robot's passive joints resolve (the solver's first check) reads the values
+  // of every joint that drives one.
+  for (int step : cart.resolve_order()) {
+    const int driver =
+        step >= 0 ? cart.joint(step).mimic.master : cart.closures()[-1 - step].driver;
+    const int dof = driver >= 0 ? cart.joint(driver).dof_index : -1;
+    if (dof >= 0 && dof < state.joint_values.size()) put_double(state.joint_values[dof]);
+  }
+  for (int j : JointsMoving(cart, link)) {
+    const int dof = cart.joint(j).dof_index;
+    if (dof >= 0 && dof < state.joint_values.size()) put_double(state.joint_values[dof]);
+  }
+  return key;
+}
+
+}  // namespace
+
 CartPlacementResult PlaceCart(const robot::RobotModel& cart, const CartPlacementRequest& request,
                               const CartPlacementOptions& options, robot::RobotState* state) {
   state->X_WB = request.X_WB;
@@ -87,18 +171,31 @@ CartPlacementResult PlaceCart(const robot::RobotModel& cart, const CartPlacement
     suj_options.seed = options.seed;
     suj_options.starts = options.starts;
     suj_options.max_iterations = options.max_iterations;
-    auto solved = kinematics::SolveSetupJoints(cart, *state, suj, suj_options);
-    // The setup joints put the RCM at the port; pointing the instrument at the aim as well is
-    // best effort: an arm whose setup joints cannot turn its RCM that far (the ECM's SUJ has four
-    // joints, all but one vertical) keeps the nearest direction, and its own joints aim the rest.
-    const bool at_port = solved.position_error <= suj_options.position_tolerance;
-    if (!at_port && suj.axis_W) {
-      // At the port first, aimed as near as the setup joints allow (not the position alone:
-      // an RCM turned anywhere leaves the arm's own joints at their limits).
-      auto port_first = suj_options;
-      port_first.axis_secondary = true;
-      const auto retry = kinematics::SolveSetupJoints(cart, *state, suj, port_first);
-      if (retry.position_error < solved.position_error) solved = retry;
+    std::string key;
+    const kinematics::SetupJointResult* known = nullptr;
+    if (options.memo) {
+      key = SolveKey(cart, *state, suj, suj_options);
+      known = options.memo->Find(key);
+    }
+    kinematics::SetupJointResult solved;
+    if (known) {
+      solved = *known;
+    } else {
+      solved = kinematics::SolveSetupJoints(cart, *state, suj, suj_options);
+      // The setup joints put the RCM at the port; pointing the instrument at the aim as well is
+      // best effort: an arm whose setup joints cannot turn its RCM that far (the ECM's SUJ has
+      // four joints, all but one vertical) keeps the nearest direction, and its own joints aim
+      // the rest.
+      const bool at_port = solved.position_error <= suj_options.position_tolerance;
+      if (!at_port && suj.axis_W) {
+        // At the port first, aimed as near as the setup joints allow (not the position alone:
+        // an RCM turned anywhere leaves the arm's own joints at their limits).
+        auto port_first = suj_options;
+        port_first.axis_secondary = true;
+        const auto retry = kinematics::SolveSetupJoints(cart, *state, suj, port_first);
+        if (retry.position_error < solved.position_error) solved = retry;
+      }
+      if (options.memo) options.memo->Remember(std::move(key), solved);
     }
     const bool placed = solved.position_error <= suj_options.position_tolerance;
     for (std::size_t i = 0; i < solved.joints.size(); ++i) {

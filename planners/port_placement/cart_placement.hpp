@@ -7,8 +7,10 @@
 
 #include <Eigen/Geometry>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
+#include "kinematics/setup_joints.hpp"
 #include "port_placement/arms.hpp"
 #include "robot/robot_model.hpp"
 #include "robot/robot_state.hpp"
@@ -39,6 +41,28 @@ struct CartPlacementRequest {
   double insertion_margin = 0.01;  ///< m
 };
 
+/// Remembered setup-joint solutions. One arm's solve in PlaceCart is a pure function of the
+/// cart's pose, the arm's port and aim, the solver's options and the values of the joints that
+/// move the arm's RCM frame (its path, and what drives the passive joints on it); an optimiser
+/// that moves one coordinate at a time (DIRECT) asks the arms it did not move for the same solve
+/// again. A memo answers those from memory: the same answers, bit for bit, as solving again (the
+/// key is the inputs' exact bits), so a plan does not depend on what a memo holds. Not thread
+/// safe: one per thread (the problem's Workspace).
+class SetupJointMemo {
+ public:
+  /// The solution remembered under `key` (the inputs' bytes), or null.
+  const kinematics::SetupJointResult* Find(const std::string& key);
+  /// Remembers a solution; past kCapacity entries the memo starts afresh.
+  void Remember(std::string key, const kinematics::SetupJointResult& solved);
+  long hits() const { return hits_; }
+  long misses() const { return misses_; }
+  static constexpr std::size_t kCapacity = 4096;
+
+ private:
+  std::unordered_map<std::string, kinematics::SetupJointResult> entries_;
+  long hits_ = 0, misses_ = 0;
+};
+
 struct CartPlacementOptions {
   unsigned seed = 1;
   /// Starts of the setup-joint solver per arm (kinematics::SetupJointOptions::starts).
@@ -46,6 +70,8 @@ struct CartPlacementOptions {
   int max_iterations = 300;  ///< per start
   /// When set, a placement whose arms collide (every moving pair class) is kInCollision.
   collision::CollisionChecker* checker = nullptr;
+  /// When set, setup-joint solutions are looked up here first and remembered (SetupJointMemo).
+  SetupJointMemo* memo = nullptr;
 };
 
 enum class PlacementStatus { kPlaced, kUnreachable, kInCollision };

@@ -896,6 +896,7 @@ PortPlacementProblem::Docking PortPlacementProblem::Dock(const Placement& placem
     cart_options.seed = options_.seed;
     cart_options.starts = full_solver ? 32 : options_.suj_starts;
     cart_options.max_iterations = full_solver ? 300 : options_.suj_iterations;
+    cart_options.memo = options_.setup_joint_memo ? &ws->memo : nullptr;
     placed = PlaceCart(robot, request, cart_options, &state);
     ev->message = placed.message;
     if (!placed.ok()) {

@@ -103,6 +103,9 @@ struct ProblemOptions {
   double clearance_scale = 0.05, rib_clearance_scale = 0.004;
   /// Setup-joint solver effort while optimising (starts, iterations per start).
   int suj_starts = 4, suj_iterations = 100;
+  /// Remember each thread's setup-joint solutions (Workspace::memo): the same plans, faster
+  /// (bench/port_placement_bench compares); false solves every time.
+  bool setup_joint_memo = true;
   /// Placements whose arms collide at the nominal pose are solved again from other setup-joint
   /// starts, up to this many attempts in all.
   int placement_attempts = 3;
@@ -221,6 +224,8 @@ struct Workspace {
   ~Workspace();
   robot::RobotState state;
   std::unique_ptr<collision::CollisionChecker> checker;
+  /// Setup-joint solutions this thread has found (the same answers as solving again).
+  SetupJointMemo memo;
 };
 
 class PortPlacementProblem {

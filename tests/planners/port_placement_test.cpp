@@ -760,6 +760,49 @@ TEST(PortPlacementProblem, TheEndoscopeLooksAtAPointNearItsPortFromNearer) {
   EXPECT_GE(near_seen, 3) << "points nearer than the working distance are seen from nearer";
 }
 
+// The setup-joint memo (SetupJointMemo, the Workspace's): a placement evaluated with a memo
+// filled by other placements is the same, bit for bit, as evaluated afresh. The placements move
+// one coordinate at a time from a seeded centre (as DIRECT does), so that the arms not moved ask
+// for solves the memo holds: it must answer some (a memo never used would pass the rest), and
+// every answer must be what solving again gives.
+TEST(PortPlacementProblem, TheSetupJointMemoAnswersAsSolvingAgainDoes) {
+  ProblemOptions options;
+  const PortPlacementProblem problem(Phantom(), Cart(), options);
+  Workspace with_memo(problem);
+  const auto lb = problem.lower_bounds(), ub = problem.upper_bounds();
+  std::mt19937 rng(3);
+  int compared = 0;
+  for (int centre = 0; centre < 4; ++centre) {
+    std::vector<double> c(lb.size());
+    for (std::size_t k = 0; k < c.size(); ++k)
+      c[k] = std::uniform_real_distribution<double>(lb[k], ub[k])(rng);
+    for (std::size_t k = 0; k <= c.size(); ++k) {
+      std::vector<double> x = c;
+      if (k < c.size())
+        x[k] = lb[k] + (ub[k] - lb[k]) * std::uniform_real_distribution<double>(0, 1)(rng);
+      const Placement placement = problem.Decode(x);
+      const Evaluation remembered = problem.Evaluate(placement, &with_memo);
+      Workspace fresh(problem);
+      const Evaluation solved = problem.Evaluate(placement, &fresh);
+      ASSERT_EQ(fresh.memo.hits(), 0);
+      EXPECT_EQ(remembered.status, solved.status) << centre << " " << k;
+      EXPECT_EQ(remembered.score, solved.score) << centre << " " << k;
+      EXPECT_EQ(remembered.message, solved.message) << centre << " " << k;
+      EXPECT_TRUE(remembered.q_nominal.size() == solved.q_nominal.size() &&
+                  (remembered.q_nominal.array() == solved.q_nominal.array()).all())
+          << centre << " " << k;
+      EXPECT_TRUE(remembered.joint_values.size() == solved.joint_values.size() &&
+                  (remembered.joint_values.array() == solved.joint_values.array()).all())
+          << centre << " " << k;
+      ++compared;
+    }
+  }
+  EXPECT_EQ(compared, 4 * static_cast<int>(lb.size() + 1));
+  EXPECT_GT(with_memo.memo.hits(), 20) << with_memo.memo.misses() << " misses";
+  std::cout << with_memo.memo.hits() << " solves answered from the memo, "
+            << with_memo.memo.misses() << " solved\n";
+}
+
 TEST(OptimizePorts, SameSeedSamePlanWithOneAndTwoThreads) {
   const PortPlacementProblem problem(Phantom(), Cart(), {});
   PlanInputs inputs;
