@@ -167,15 +167,22 @@ struct PortScene {
   std::shared_ptr<const CollisionWorld> world;
 };
 
-PortScene MakePortScene(double port_radius = 0.015) {
-  PortScene s;
-  s.model = RobotFromYaml("port", R"(name: instrument
+// An instrument through a port: a slide along x, a tilt about y at the RCM (the holder), a 20 cm
+// shaft of radius 4 mm inserted along -z; with `holder_box`, the holder drawn as a 5 cm box 10 cm
+// above the RCM (a link that is not the instrument).
+std::shared_ptr<const robot::RobotModel> ShaftThroughPort(const std::string& name,
+                                                          bool holder_box) {
+  return RobotFromYaml(
+      name, std::string(R"(name: instrument
 links:
   - name: base
   - name: slide
   - name: holder
-    collision: [{shape: box, size: [0.05, 0.05, 0.05], xyz: [0, 0, 0.1]}]
-  - name: shaft
+)") +
+                (holder_box
+                     ? "    collision: [{shape: box, size: [0.05, 0.05, 0.05], xyz: [0, 0, 0.1]}]\n"
+                     : "") +
+                R"(  - name: shaft
     collision: [{shape: capsule, radius: 0.004, length: 0.2, xyz: [0, 0, -0.05]}]
 joints:
   - {name: move_x, type: prismatic, parent: base, child: slide, axis: [1, 0, 0], limits: {lower: -1, upper: 1}}
@@ -183,6 +190,11 @@ joints:
   - {name: insertion, type: prismatic, parent: holder, child: shaft, axis: [0, 0, -1], limits: {lower: 0, upper: 0.1}}
 rcm: {link: holder}
 )");
+}
+
+PortScene MakePortScene(double port_radius = 0.015) {
+  PortScene s;
+  s.model = ShaftThroughPort("port", true);
   collision::WorldOptions options;
   options.port_radius = port_radius;
   std::vector<CollisionWorld::FixedMesh> meshes = {
@@ -338,21 +350,7 @@ rcm: {link: holder}
 // 18 mm gap along x, 8 mm deep in z, the pivot (the RCM) in the gap's middle; the 8 mm shaft runs
 // through it, tilted about y. Its surface meets a rib's edge from about 42 degrees, its axis
 // enters the bone from about 66. Each verdict is checked on the exact path and on FCL's.
-std::shared_ptr<const robot::RobotModel> TiltingShaft() {
-  return RobotFromYaml("seat", R"(name: instrument
-links:
-  - name: base
-  - name: slide
-  - name: holder
-  - name: shaft
-    collision: [{shape: capsule, radius: 0.004, length: 0.2, xyz: [0, 0, -0.05]}]
-joints:
-  - {name: move_x, type: prismatic, parent: base, child: slide, axis: [1, 0, 0], limits: {lower: -1, upper: 1}}
-  - {name: tilt, type: revolute, parent: slide, child: holder, axis: [0, 1, 0], limits: {lower: -1.5, upper: 1.5}}
-  - {name: insertion, type: prismatic, parent: holder, child: shaft, axis: [0, 0, -1], limits: {lower: 0, upper: 0.1}}
-rcm: {link: holder}
-)");
-}
+std::shared_ptr<const robot::RobotModel> TiltingShaft() { return ShaftThroughPort("seat", false); }
 
 std::vector<CollisionWorld::FixedMesh> RibsAround(const std::string& name) {
   CollisionWorld::FixedMesh upper{name + "_upper",
