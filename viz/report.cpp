@@ -12,7 +12,9 @@
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "plan/reachability.hpp"
 #include "plan/signoff.hpp"
+#include "port_placement/fixed_ports.hpp"
 #include "scene.hpp"
 
 namespace trocar::viz {
@@ -69,6 +71,32 @@ table { border-collapse: collapse; margin: 8px 0; }
 th { background: #1f77b4; color: #fff; padding: 3px 8px; text-align: left; }
 td { border: 1px solid #bbb; padding: 2px 8px; }
 .suitable { color: #1a7f37; font-weight: bold; }
+td.reach-yes { background: #d7f5dc; }
+.signature { margin-top: 18px; }
+.signature span { display: inline-block; border-bottom: 1px solid #111; width: 220px; margin: 0 24px 0 6px; }
+.print-only { display: none; }
+/* The sign-off document (issue #43 item 7): printed from the browser (or headless Chromium's
+   --print-to-pdf), the summary on the first page and each plan on a page of its own; the
+   verified motions' long table stays in the HTML. */
+@page { size: A4; margin: 10mm; }
+@media print {
+  body { margin: 0; font-size: 7.5pt; }
+  h1 { font-size: 14pt; } h2 { font-size: 11pt; margin: 4px 0; } h3 { font-size: 9pt; margin: 4px 0; }
+  .plan { break-before: page; border-top: none; margin-top: 0; padding-top: 0; }
+  .pictures img { width: 32%; height: auto; margin: 2px 0.5% 2px 0; }
+  table { margin: 3px 0; } td, th { padding: 1px 4px; }
+  table.motions { display: none; }
+  /* Long texts held to a few lines on paper (whole in the HTML): a reason in the reachability
+     table two lines, a list of reasons its first three items. */
+  span.why { display: -webkit-box; -webkit-line-clamp: 2; -webkit-box-orient: vertical; overflow: hidden; }
+  ul.reasons li:nth-child(n+4) { display: none; }
+  ul.reasons { margin: 2px 0; }
+  .print-only { display: block; }
+  table, .pictures, .signature { break-inside: avoid; }
+  th, td.reach-yes, td.reach-no, td.reach-partly { -webkit-print-color-adjust: exact; print-color-adjust: exact; }
+}
+td.reach-no { background: #fbe0e0; }
+td.reach-partly { background: #fff1c2; }
 .unsuitable { color: #b42318; font-weight: bold; }
 </style>)";
 
@@ -114,7 +142,7 @@ void PlanTables(const planners::PlanFile& file, const planners::StoredPlan& p,
       << Num(100 * (p.verified_coverage - p.claimed_coverage), 0)
       << " points by verification), samples served " << Pct(p.served_fraction) << ": <span class=\""
       << (p.verified_suitable ? "suitable" : "unsuitable") << "\">"
-      << (p.verified_suitable ? "suitable" : "not suitable") << "</span></p><ul>";
+      << (p.verified_suitable ? "suitable" : "not suitable") << "</span></p><ul class=\"reasons\">";
     for (const auto& r : p.verification_reasons) h << "<li>" << Escape(r) << "</li>";
     h << "</ul>\n<table "
          "class=\"motions\"><tr><th>arm</th><th>sample</th><th>target</th><th>outcome</"
@@ -127,8 +155,58 @@ void PlanTables(const planners::PlanFile& file, const planners::StoredPlan& p,
         << (m.solved && std::isfinite(m.min_clearance) ? Num(1000 * m.min_clearance, 1) : "")
         << "</td><td>" << Escape(m.reason) << "</td></tr>";
     }
-    h << "</table>\n";
+    h << "</table>\n<p class=\"print-only\">the verified motions, one per arm and sample, are "
+         "listed in the HTML report</p>\n";
   }
+}
+
+// Which arm reaches which stretch of each target, and which the endoscope sees (issue #43 item
+// 5): a row per stretch, from planners::TargetReachability.
+void ReachTable(const planners::Reachability& reach, const planners::PlanFile& file,
+                std::ostringstream& h) {
+  h << "<h3>Reachability on the targets</h3>\n<p>"
+    << (reach.verified ? "by the plan's verified motions (instruments) and the endoscope's view"
+                       : "by the plan's own reach check (not verified by motions)")
+    << "; a stretch is where no arm's answer changes along the target.</p>\n"
+    << "<table class=\"reach\"><tr><th>target</th><th>stretch</th><th>level</th>";
+  for (const auto& arm : file.arms)
+    h << "<th>" << Escape(arm.name) << (arm.role == "endoscope" ? " sees" : " reaches") << "</th>";
+  h << "<th>served</th></tr>";
+  for (const planners::TargetStretch& st : reach.stretches) {
+    h << "<tr><td>" << Escape(st.target) << "</td><td>" << Escape(planners::StretchText(st))
+      << " (" << st.samples.size() << " sample" << (st.samples.size() > 1 ? "s" : "")
+      << ")</td><td>" << Escape(st.level) << "</td>";
+    for (const auto& arm : st.arms) {
+      h << "<td class=\""
+        << (arm.reaches ? "reach-yes\">yes"
+                        : "reach-no\">no: <span class=\"why\">" + Escape(arm.why_not) + "</span>")
+        << "</td>";
+    }
+    const char* cls = st.reach == planners::ReachClass::kServed   ? "reach-yes\">served"
+                      : st.reach == planners::ReachClass::kPartly ? "reach-partly\">partly"
+                                                                  : "reach-no\">no";
+    h << "<td class=\"" << cls << "</td></tr>";
+  }
+  h << "</table>\n";
+}
+
+// A column's served stretches, per target: "LAD 0–45 mm, 60–90 mm; LIMA none".
+std::string ServedStretches(const planners::Reachability& reach,
+                            const std::vector<std::string>& targets) {
+  std::ostringstream s;
+  for (std::size_t t = 0; t < targets.size(); ++t) {
+    std::vector<std::string> parts;
+    for (const auto& st : reach.stretches) {
+      if (st.target != targets[t] || !st.served) continue;
+      const long from = std::lround(st.from_m * 1e3), to = std::lround(st.to_m * 1e3);
+      parts.push_back(from == to ? std::to_string(from) : std::to_string(from) + "–" + std::to_string(to));
+    }
+    s << (t ? "; " : "") << targets[t] << " ";
+    if (parts.empty()) s << "none";
+    for (std::size_t i = 0; i < parts.size(); ++i) s << (i ? ", " : "") << parts[i];
+    if (!parts.empty()) s << " mm";
+  }
+  return s.str();
 }
 
 // The plans shown and the placed baselines in columns (issue #43 item 6): ports by space, score,
@@ -179,6 +257,9 @@ void Comparison(const planners::PlanFile& file, std::size_t shown, std::ostrings
       return c.plan->verified_served.empty() ? std::string("-") : ServedOf(file, *c.plan, t);
     });
   }
+  row("served stretches (from each target's origin)", [&](const Column& c) {
+    return Escape(ServedStretches(planners::TargetReachability(file, *c.plan), targets));
+  });
   row("verdict (verified motions)", [](const Column& c) {
     if (!c.plan->verified) return std::string("not verified");
     return std::string("<span class=\"") +
@@ -216,18 +297,37 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
   if (file.has_verified_verdict) {
     h << "<p>by verified motions (the verdict that counts): <span class=\""
       << (file.verified_suitable ? "suitable" : "unsuitable") << "\">"
-      << Escape(file.verified_summary) << "</span></p><ul>";
+      << Escape(file.verified_summary) << "</span></p><ul class=\"reasons\">";
     for (const auto& r : file.verified_reasons) h << "<li>" << Escape(r) << "</li>";
     h << "</ul>\n";
   }
   h << "<p>" << (file.has_verified_verdict ? "claimed, by the plans' own reach checks: " : "")
     << "<span class=\"" << (file.suitable ? "suitable" : "unsuitable") << "\">"
-    << Escape(file.summary) << "</span></p><ul>";
+    << Escape(file.summary) << "</span></p><ul class=\"reasons\">";
   for (const auto& r : file.reasons) h << "<li>" << Escape(r) << "</li>";
   h << "</ul>\n";
   const std::size_t shown =
       std::min<std::size_t>(file.plans.size(), static_cast<std::size_t>(options.max_plans));
+  // A stretch's level in the patient's intercostal spaces, when they are numbered.
+  const planners::LevelText level = [&](const std::vector<Eigen::Vector3d>& p_W) {
+    const std::string spaces = planners::SpacesAtLevel(*view.patient, p_W);
+    return spaces.empty() ? spaces : "at the " + spaces;
+  };
   Comparison(file, shown, h);
+  // The sign-off block of the printed document: each plan's current decision, and lines to sign.
+  h << "<h2>Sign-off</h2>\n";
+  bool any_decision = false;
+  for (std::size_t k = 0; k < file.plans.size(); ++k) {
+    if (file.plans[k].signoffs.empty()) continue;
+    any_decision = true;
+    const planners::SignOff& last = file.plans[k].signoffs.back();
+    h << "<p>plan " << file.plans[k].rank << ": <b>" << Escape(planners::PlanDecisionStatus(file, k))
+      << "</b> (" << Escape(last.decision) << " by " << Escape(last.surgeon) << " at "
+      << Escape(last.time) << (last.override_reason.empty() ? "" : "; an override: " + Escape(last.override_reason))
+      << ")</p>\n";
+  }
+  if (!any_decision) h << "<p>no plan signed off yet (trocar signoff, or the workstation's Approve)</p>\n";
+  h << "<div class=\"signature\">surgeon<span></span>signature<span></span>date<span></span></div>\n";
   for (std::size_t k = 0; k < shown; ++k) {
     const planners::StoredPlan& p = file.plans[k];
     view.scene->ShowPlan(file, k);
@@ -250,13 +350,34 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
       h << ImgTag(EncodePng(Render(*view.scene, {{scope, camera}}, options.width, options.height)),
                   "plan " + std::to_string(p.rank) + ": endoscope view");
     }
+    // The targets coloured along their length by how the plan serves them, with the heart and
+    // the ports: skin, bones, robot and table out of the way for this picture.
+    view.scene->ShowReachability(file, k);
+    std::vector<std::pair<std::string, bool>> shown_groups;
+    for (const std::string& g : view.scene->groups()) {
+      shown_groups.push_back({g, view.scene->style().Visible(g)});
+      // (The targets' own tubes hidden: the reach tubes cover them whole, in other colours.)
+      const bool keep = g == "heart" || g.rfind("reach:", 0) == 0 || g == "ports";
+      if (!keep) view.scene->SetVisible(g, false);
+      if (g.rfind("reach:", 0) == 0) view.scene->SetVisible(g, true);
+    }
+    ViewSpec targets_view;
+    targets_view.kind = ViewSpec::Kind::kTargets;
+    const Views on_targets = {{targets_view, view.scene->ExternalCamera(double(options.width) / options.height,
+                                                                     Scene::Framing::kTargets)}};
+    h << ImgTag(EncodePng(Render(*view.scene, on_targets, options.width, options.height)),
+                "plan " + std::to_string(p.rank) + ": reachability on the targets");
+    for (const auto& [g, visible] : shown_groups) view.scene->SetVisible(g, visible);
+    for (const char* g : {"reach:served", "reach:partly", "reach:none", "reach:labels"})
+      view.scene->SetVisible(g, false);
     h << "</div>\n<p>nominal pose: " << Escape(Describe(pose)) << "</p>\n";
+    ReachTable(planners::TargetReachability(file, k, level), file, h);
     PlanTables(file, p, h);
     h << "<h3>Sign-off</h3>";
     h << "<p>status: <b>" << Escape(planners::PlanDecisionStatus(file, k)) << "</b></p>";
     const std::vector<std::string> blockers = planners::ApprovalBlockers(file, k);
     if (!blockers.empty()) {
-      h << "<p>approval needs an override:</p><ul>";
+      h << "<p>approval needs an override:</p><ul class=\"reasons\">";
       for (const auto& b : blockers) h << "<li>" << Escape(b) << "</li>";
       h << "</ul>";
     }
@@ -295,9 +416,10 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
     for (const auto& w : b.where) h << "<li>" << Escape(w) << "</li>";
     h << "</ul><p>" << Escape(b.plan.status) << ", score " << Num(b.plan.score, 3)
       << "; its own verdict: <span class=\"" << (b.suitable ? "suitable" : "unsuitable") << "\">"
-      << Escape(b.summary) << "</span></p><ul>";
+      << Escape(b.summary) << "</span></p><ul class=\"reasons\">";
     for (const auto& r : b.reasons) h << "<li>" << Escape(r) << "</li>";
     h << "</ul>\n";
+    ReachTable(planners::TargetReachability(file, b.plan, level), file, h);
     PlanTables(file, b.plan, h);
     h << "</div>\n";
   }

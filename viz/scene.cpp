@@ -1,5 +1,8 @@
 #include "scene.hpp"
 
+#include <array>
+#include <map>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
@@ -17,6 +20,7 @@
 #include <vtkCubeSource.h>
 #include <vtkCylinderSource.h>
 #include <vtkArrowSource.h>
+#include <vtkBillboardTextActor3D.h>
 #include <vtkFollower.h>
 #include <vtkImageData.h>
 #include <vtkLegendBoxActor.h>
@@ -36,6 +40,7 @@
 #include <vtkRenderWindow.h>
 #include <vtkRenderer.h>
 #include <vtkSmartPointer.h>
+#include <vtkWeakPointer.h>
 #include <vtkSphereSource.h>
 #include <vtkTransform.h>
 #include <vtkTransformPolyDataFilter.h>
@@ -45,6 +50,7 @@
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "plan/reachability.hpp"
 #include "kinematics/forward_kinematics.hpp"
 
 namespace trocar::viz {
@@ -147,6 +153,32 @@ vtkSmartPointer<vtkPolyData> ShapePolyData(const robot::Geometry& g) {
 }
 
 /// A polyline thickened into a tube.
+// The colours of the second, third, ... target (the first takes the style's "target"): apart from
+// each other, from the heart's red and from the skin, bones, cones and candidates.
+const std::array<Eigen::Vector3d, 4> kTargetPalette = {
+    Eigen::Vector3d(1.00, 0.42, 0.78), Eigen::Vector3d(0.00, 0.60, 0.55),
+    Eigen::Vector3d(0.55, 0.35, 0.10), Eigen::Vector3d(0.85, 0.90, 1.00)};
+
+// The part of a polyline (points with their arc lengths from the first) between arc lengths a
+// and b, its ends interpolated.
+std::vector<Eigen::Vector3d> SubCurve(const std::vector<Eigen::Vector3d>& points,
+                                      const std::vector<double>& arc, double a, double b) {
+  std::vector<Eigen::Vector3d> out;
+  auto at = [&](double t) {
+    std::size_t i = 1;
+    while (i + 1 < points.size() && arc[i] < t) ++i;
+    const double len = arc[i] - arc[i - 1];
+    const double u = len > 0 ? std::clamp((t - arc[i - 1]) / len, 0.0, 1.0) : 0.0;
+    return Eigen::Vector3d(points[i - 1] + u * (points[i] - points[i - 1]));
+  };
+  if (points.size() < 2 || b <= a) return out;
+  out.push_back(at(a));
+  for (std::size_t i = 0; i < points.size(); ++i)
+    if (arc[i] > a && arc[i] < b) out.push_back(points[i]);
+  out.push_back(at(b));
+  return out;
+}
+
 vtkSmartPointer<vtkPolyData> Tube(const std::vector<Eigen::Vector3d>& points, double radius) {
   if (points.size() < 2) return nullptr;
   vtkNew<vtkPoints> p;
@@ -227,6 +259,57 @@ struct Scene::Impl {
   mutable std::unique_ptr<collision::TriangleBvh> skin_bvh;
   std::vector<int> highlighted, near;
   bool pointer_shown = false;
+  /// Text beside what it names, facing the camera (issue #43 item 2): each target's name at its
+  /// middle, each port's arm and space. Shown with the "labels" overlay and its owner group.
+  struct Label {
+    std::string owner;  ///< the group it names ("target:LAD", "ports")
+    vtkSmartPointer<vtkBillboardTextActor3D> actor;
+  };
+  std::vector<Label> labels;
+
+  bool LabelsShown() const {
+    if (!style.flat) return style.Visible("labels");
+    const auto it = style.visible.find("labels");
+    return it != style.visible.end() && it->second;
+  }
+  void AddLabel(const std::string& owner, const std::string& text, const Eigen::Vector3d& p_W) {
+    auto actor = vtkSmartPointer<vtkBillboardTextActor3D>::New();
+    actor->SetInput(text.c_str());
+    actor->SetPosition(p_W.x(), p_W.y(), p_W.z());
+    actor->SetDisplayOffset(8, 8);
+    vtkTextProperty* t = actor->GetTextProperty();
+    t->SetFontSize(15);
+    t->BoldOn();
+    const Eigen::Vector3d c = style.Colour(owner);
+    t->SetColor(c.data());
+    t->SetBackgroundColor(0.05, 0.05, 0.07);
+    t->SetBackgroundOpacity(0.6);
+    labels.push_back({owner, actor});
+    StyleLabels();
+  }
+  void StyleLabels() {
+    for (const Label& l : labels) l.actor->SetVisibility(LabelsShown() && style.Visible(l.owner));
+  }
+  /// The renderers the scene was added to, so that a label made later (a plan's ports) joins
+  /// them.
+  std::vector<vtkWeakPointer<vtkRenderer>> renderers;
+  void RemoveLabels(const std::string& owner) {
+    for (const Label& l : labels) {
+      if (l.owner != owner) continue;
+      for (auto& r : renderers)
+        if (r) r->RemoveViewProp(l.actor);
+    }
+    labels.erase(std::remove_if(labels.begin(), labels.end(),
+                                [&](const Label& l) { return l.owner == owner; }),
+                 labels.end());
+  }
+  void AddLabelsToRenderers() {
+    for (auto& r : renderers) {
+      if (!r) continue;
+      for (const Label& l : labels)
+        if (!r->HasViewProp(l.actor)) r->AddViewProp(l.actor);
+    }
+  }
 
   Group& GetGroup(const std::string& name) {
     for (Group& g : groups)
@@ -320,8 +403,16 @@ struct Scene::Impl {
       }
       Add(s.name, poly, m.X_WP);
     }
-    for (const patient::Target& t : m.targets) {
-      Add("target:" + t.name, Tube(ToWorld(t.points, m.X_WP), 0.0015));
+    // Each target its own colour (issue #43 item 2): the style's for "target:NAME" when it
+    // names one, else the first target takes the targets' colour and the others the palette's.
+    for (std::size_t i = 0; i < m.targets.size(); ++i) {
+      const std::string group = "target:" + m.targets[i].name;
+      if (!style.colours.count(group))
+        style.colours[group] = i == 0 ? style.Colour("target")
+                                      : kTargetPalette[(i - 1) % kTargetPalette.size()];
+      Add(group, Tube(ToWorld(m.targets[i].points, m.X_WP), 0.0015));
+      if (!m.targets[i].points.empty())
+        AddLabel(group, m.targets[i].name, m.X_WP * m.targets[i].points[m.targets[i].points.size() / 2]);
     }
     {
       vtkNew<vtkAppendPolyData> append;
@@ -612,11 +703,13 @@ void Scene::SetOpacity(const std::string& group, double opacity) {
 void Scene::SetVisible(const std::string& group, bool visible) {
   impl_->style.visible[group] = visible;
   for (const auto& g : impl_->groups) impl_->ApplyStyle(g);
+  impl_->StyleLabels();
 }
 void Scene::SetBackground(const Eigen::Vector3d& rgb) { impl_->style.background = rgb; }
 void Scene::SetFlat(bool flat) {
   impl_->style.flat = flat;
   for (const auto& g : impl_->groups) impl_->ApplyStyle(g);
+  impl_->StyleLabels();
 }
 
 void Scene::ShowPlan(const planners::PlanFile& file, std::size_t index) {
@@ -640,6 +733,11 @@ void Scene::ShowPlan(const planners::PlanFile& file, std::size_t index) {
     pivots->AddInputData(Sphere(port.rcm_W, 0.004));
   }
   impl_->ReplaceGroup("ports", plan.ports.empty() ? nullptr : Output(ports));
+  // Each port labelled with its arm and space ("psm1 ICS-L3").
+  impl_->RemoveLabels("ports");
+  for (const planners::StoredPort& port : plan.ports)
+    impl_->AddLabel("ports", port.arm + " " + port.candidate, port.p_W);
+  impl_->AddLabelsToRenderers();
   impl_->ReplaceGroup("pivots", plan.ports.empty() ? nullptr : Output(pivots));
   std::vector<Eigen::Vector3d> points, normals;
   for (const planners::StoredSample& s : file.samples) {
@@ -664,6 +762,36 @@ void Scene::HighlightLinks(const std::vector<int>& colliding, const std::vector<
 }
 
 CameraPose Scene::ExternalCamera(double aspect, Framing framing) const {
+  if (framing == Framing::kTargets && impl_->patient) {
+    // The targets and the ports, from the patient's front turned toward the ports' side and
+    // the head, the head up: the LAD on the heart's front and the LIMA on the chest wall's back
+    // face both face this way.
+    const patient::PatientModel& m = *impl_->patient;
+    std::vector<Eigen::Vector3d> points;
+    for (const patient::Target& t : m.targets)
+      for (const Eigen::Vector3d& p : t.points) points.push_back(m.X_WP * p);
+    const std::size_t on_targets = points.size();
+    if (const auto* ports = impl_->FindGroup("ports")) impl_->AddPoints(*ports, &points);
+    if (on_targets > 0) {
+      Eigen::Vector3d lo = points[0], hi = points[0];
+      for (const auto& p : points) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
+      const Eigen::Vector3d centre = (lo + hi) / 2;
+      double radius = 0.03;
+      for (const auto& p : points) radius = std::max(radius, (p - centre).norm());
+      double side = 0;  // the ports' side: +1 the patient's left
+      for (std::size_t i = on_targets; i < points.size(); ++i)
+        side += (m.X_WP.inverse() * points[i]).x() - (m.X_WP.inverse() * centre).x();
+      const Eigen::Vector3d d_P =
+          Eigen::Vector3d(side < 0 ? -0.55 : 0.55, -1.0, 0.35).normalized();
+      CameraPose pose;
+      const double half = pose.view_angle_deg / 2 * kPi / 180;
+      const double fit = std::min(half, std::atan(std::tan(half) * std::max(aspect, 1e-3)));
+      pose.focal_point = centre;
+      pose.position = centre + m.X_WP.linear() * d_P * (radius / std::sin(fit) * 1.05);
+      pose.view_up = m.X_WP.linear() * Eigen::Vector3d::UnitZ();
+      return pose;
+    }
+  }
   const auto* skin_group = impl_->FindGroup("skin");
   const bool chest = framing == Framing::kChest && skin_group && !skin_group->actors.empty();
   // Bounds of the patient, the table and the robot (not the floor); for the chest, the skin's.
@@ -800,6 +928,11 @@ void AdaptAfterFirstFrame(vtkRenderWindow* window) {
 void Scene::AddTo(vtkRenderer* renderer) const {
   for (const auto& g : impl_->groups)
     for (const auto& a : g.actors) renderer->AddActor(a);
+  auto& renderers = impl_->renderers;
+  renderers.erase(std::remove_if(renderers.begin(), renderers.end(), [](const auto& r) { return !r; }),
+                  renderers.end());
+  renderers.push_back(renderer);
+  impl_->AddLabelsToRenderers();
   renderer->SetBackground(impl_->style.background.data());
 }
 
@@ -890,6 +1023,67 @@ void Scene::AddOrientationMarker(vtkRenderer* renderer, const CameraPose& view) 
   renderer->ResetCameraClippingRange();
 }
 
+void Scene::ShowReachability(const planners::PlanFile& file, std::size_t index) {
+  const planners::Reachability reach = planners::TargetReachability(file, index);
+  std::map<planners::ReachClass, vtkSmartPointer<vtkAppendPolyData>> tubes;
+  std::map<planners::ReachClass, int> parts;
+  for (auto c : {planners::ReachClass::kServed, planners::ReachClass::kPartly,
+                 planners::ReachClass::kNone})
+    tubes[c] = vtkSmartPointer<vtkAppendPolyData>::New();
+  if (impl_->patient) {
+    const patient::PatientModel& m = *impl_->patient;
+    for (const patient::Target& t : m.targets) {
+      // The target's samples along it; each colours the stretch of the curve nearer to it than
+      // to its neighbours (the first from the curve's start, the last to its end).
+      std::vector<int> along;
+      for (std::size_t s = 0; s < file.samples.size(); ++s)
+        if (file.samples[s].target == t.name) along.push_back(static_cast<int>(s));
+      if (along.empty() || t.points.size() < 2) continue;
+      std::sort(along.begin(), along.end(), [&](int a, int b) {
+        return file.samples[a].arc_length < file.samples[b].arc_length;
+      });
+      const std::vector<Eigen::Vector3d> p_W = ToWorld(t.points, m.X_WP);
+      std::vector<double> arc(p_W.size(), 0.0);
+      for (std::size_t i = 1; i < p_W.size(); ++i) arc[i] = arc[i - 1] + (p_W[i] - p_W[i - 1]).norm();
+      for (std::size_t k = 0; k < along.size(); ++k) {
+        const double here = file.samples[along[k]].arc_length;
+        const double a = k == 0 ? 0.0 : 0.5 * (file.samples[along[k - 1]].arc_length + here);
+        const double b =
+            k + 1 == along.size() ? arc.back() : 0.5 * (here + file.samples[along[k + 1]].arc_length);
+        if (auto tube = Tube(SubCurve(p_W, arc, a, b), 0.0028)) {
+          tubes[reach.per_sample[along[k]]]->AddInputData(tube);
+          ++parts[reach.per_sample[along[k]]];
+        }
+      }
+    }
+  }
+  const std::pair<planners::ReachClass, const char*> groups[] = {
+      {planners::ReachClass::kServed, "reach:served"},
+      {planners::ReachClass::kPartly, "reach:partly"},
+      {planners::ReachClass::kNone, "reach:none"}};
+  for (const auto& [c, name] : groups)
+    impl_->ReplaceGroup(name, parts[c] ? Output(tubes[c]) : nullptr);
+  // Each target named with its served share ("LAD: 4 of 8 served"), at its middle.
+  impl_->GetGroup("reach:labels");
+  impl_->RemoveLabels("reach:labels");
+  if (impl_->patient) {
+    const patient::PatientModel& m = *impl_->patient;
+    for (const patient::Target& t : m.targets) {
+      int of = 0, served = 0;
+      for (std::size_t s = 0; s < file.samples.size(); ++s) {
+        if (file.samples[s].target != t.name) continue;
+        ++of;
+        served += reach.per_sample[s] == planners::ReachClass::kServed;
+      }
+      if (of == 0 || t.points.empty()) continue;
+      impl_->AddLabel("reach:labels",
+                      t.name + ": " + std::to_string(served) + " of " + std::to_string(of) + " served",
+                      m.X_WP * t.points[t.points.size() / 2]);
+    }
+  }
+  impl_->AddLabelsToRenderers();
+}
+
 void Scene::AddLegend(vtkRenderer* renderer) const {
   std::vector<std::pair<std::string, std::string>> entries;  // group, label
   for (const auto& g : impl_->groups) {
@@ -898,6 +1092,9 @@ void Scene::AddLegend(vtkRenderer* renderer) const {
     const bool target = g.name.rfind("target:", 0) == 0;
     std::string label = target ? g.name.substr(7) + " (target)" : g.name;
     if (g.name == "candidates") label = "port candidates";
+    if (g.name == "reach:served") label = "served: all instruments, seen";
+    if (g.name == "reach:partly") label = "reached by some arms";
+    if (g.name == "reach:none") label = "reached by no instrument";
     entries.push_back({g.name, label});
   }
   if (entries.empty()) return;
@@ -961,6 +1158,10 @@ ViewSpec ViewSpec::Parse(const std::string& text) {
     v.kind = Kind::kRoom;
     return v;
   }
+  if (text == "targets") {
+    v.kind = Kind::kTargets;
+    return v;
+  }
   if (text == "endoscope") {
     v.kind = Kind::kEndoscope;
     return v;
@@ -970,7 +1171,7 @@ ViewSpec ViewSpec::Parse(const std::string& text) {
     v.camera.frame = text.substr(6);
     return v;
   }
-  TROCAR_THROW("view '" << text << "': expected external, room, endoscope or frame:<robot frame>");
+  TROCAR_THROW("view '" << text << "': expected external, room, targets, endoscope or frame:<robot frame>");
 }
 
 CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
@@ -981,6 +1182,8 @@ CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
       return scene.ExternalCamera(aspect);
     case ViewSpec::Kind::kRoom:
       return scene.ExternalCamera(aspect, Scene::Framing::kRoom);
+    case ViewSpec::Kind::kTargets:
+      return scene.ExternalCamera(aspect, Scene::Framing::kTargets);
     case ViewSpec::Kind::kEndoscope: {
       TROCAR_THROW_UNLESS(plan && !plan->views.empty(),
                           "the endoscope view needs a plan whose robot has an endoscope arm");
@@ -1013,7 +1216,8 @@ Image Render(const Scene& scene, const Views& views, int width, int height) {
     renderer->SetViewport(i / n, 0, (i + 1) / n, 1);
     scene.AddTo(renderer);
     const bool scope = views[i].first.kind != ViewSpec::Kind::kExternal &&
-                       views[i].first.kind != ViewSpec::Kind::kRoom;
+                       views[i].first.kind != ViewSpec::Kind::kRoom &&
+                       views[i].first.kind != ViewSpec::Kind::kTargets;
     Scene::Apply(views[i].second, renderer, scope ? &views[i].first.camera : nullptr);
     window->AddRenderer(renderer);
     if (scope) continue;

@@ -117,6 +117,13 @@ class Scene {
   /// Shows a plan of `file`: its ports (incision and pivot), its target samples' approach cones,
   /// and the robot at its nominal pose. @throws trocar::Error when the plan does not fit the robot.
   void ShowPlan(const planners::PlanFile& file, std::size_t index);
+  /// Colours each target along its length by how plan `index` of `file` serves it (issue #43
+  /// item 5; planners::TargetReachability): each sample's stretch of the curve (nearer to it
+  /// than to its neighbours) drawn over the target in the group "reach:served" (every instrument
+  /// moves there and an endoscope sees it), "reach:partly" (some arm does) or "reach:none" (no
+  /// instrument moves there). @throws trocar::Error when the plan's data names an unknown arm
+  /// or sample.
+  void ShowReachability(const planners::PlanFile& file, std::size_t index);
   /// The robot at `state` (link poses from its X_WL).
   void SetRobotState(const robot::RobotState& state);
   const robot::RobotState* robot_state() const;
@@ -130,7 +137,9 @@ class Scene {
 
   /// What the external camera frames: the chest (the patient's skin, where the ports are: the
   /// default, so that the patient fills the view), or the room (patient, table and robot).
-  enum class Framing { kChest, kRoom };
+  /// kTargets: the targets and the ports, from the patient's front (turned toward the ports'
+  /// side and the head), the head up; the chest when the patient has no targets.
+  enum class Framing { kChest, kRoom, kTargets };
   /// The external camera, from the side away from the cart, toward the foot end, from above;
   /// image `aspect` = width / height. Without a patient, the room.
   CameraPose ExternalCamera(double aspect, Framing framing = Framing::kChest) const;
@@ -178,10 +187,11 @@ Eigen::Vector3d EulerXyzDeg(const Eigen::Matrix3d& R);
 
 /// One view of a screenshot or a window pane.
 struct ViewSpec {
-  enum class Kind { kExternal, kRoom, kEndoscope, kFrame };
+  enum class Kind { kExternal, kRoom, kTargets, kEndoscope, kFrame };
   Kind kind = Kind::kExternal;
   FrameCamera camera;  ///< kEndoscope (from the plan's view) and kFrame
-  /// "external" (the chest and its ports), "room" (patient, table and robot), "endoscope",
+  /// "external" (the chest and its ports), "room" (patient, table and robot), "targets" (the
+  /// targets and the ports from the front, Scene::Framing::kTargets), "endoscope",
   /// "frame:<name>" (along the frame's z axis).
   /// @throws trocar::Error for any other text.
   static ViewSpec Parse(const std::string& text);

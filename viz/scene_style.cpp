@@ -37,6 +37,8 @@ SceneStyle SceneStyle::Default() {
       {"floor", {0.28, 0.29, 0.31}},   {"robot", {0.78, 0.80, 0.86}},
       {"collision", {1.00, 0.10, 0.05}},  {"near_miss", {1.00, 0.65, 0.00}},
       {"pointer", {0.10, 0.55, 1.00}},
+      {"reach:served", {0.00, 0.70, 0.35}}, {"reach:partly", {1.00, 0.78, 0.00}},
+      {"reach:none", {0.60, 0.20, 1.00}}, {"reach:labels", {0.95, 0.95, 0.95}},
       {"marker:head", {0.95, 0.30, 0.30}}, {"marker:left", {0.30, 0.85, 0.35}},
       {"marker:anterior", {0.35, 0.55, 1.00}},
   };

@@ -82,10 +82,12 @@ LoadedView LoadView(const ViewInputs& in) {
     out.robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(in.robot));
   }
   TROCAR_OPTION_UNLESS(in.motion.empty() || out.plan, "motion", "needs a plan file");
+  TROCAR_OPTION_UNLESS(!in.reach || out.plan, "reach", "needs a plan file (whose arms reach the targets)");
   out.scene = std::make_unique<Scene>(out.patient, out.robot, style);
   if (out.plan) {
     const std::size_t k = static_cast<std::size_t>(in.plan_index - 1);
     out.scene->ShowPlan(*out.plan, k);
+    if (in.reach) out.scene->ShowReachability(*out.plan, k);
     if (!in.motion.empty()) {
       std::size_t waypoint = 0;
       const planners::StoredMotion& m = FindMotion(out.plan->plans[k], in.motion, &waypoint);

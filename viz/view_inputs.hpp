@@ -23,6 +23,8 @@ struct ViewInputs {
   std::string motion;      ///< "ARM:SAMPLE[:WAYPOINT]": the robot on a verified motion
   std::vector<std::string> colours, opacities, hidden;
   bool flat = false;
+  /// Each target coloured along its length by which arms reach it (Scene::ShowReachability).
+  bool reach = false;
 };
 
 struct LoadedView {

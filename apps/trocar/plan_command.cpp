@@ -17,6 +17,8 @@
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "patient/patient_model.hpp"
+#include "plan/reachability.hpp"
+#include "port_placement/fixed_ports.hpp"
 #include "port_placement/optimizer.hpp"
 #include "port_placement/plan_config.hpp"
 #include "port_placement/plan_io.hpp"
@@ -106,6 +108,8 @@ class PlanCommand {
   }
 
  private:
+  /// Plan 1's reachability on the targets, from the plan file as written.
+  std::optional<planners::Reachability> reach_;
   using Clock = std::chrono::steady_clock;
 
   // Everything the command line says is checked before any work; the problem's options.
@@ -302,7 +306,7 @@ class PlanCommand {
     result_.criteria_comparison = result_.criteria.Compare(counts);
   }
 
-  void Write() const {
+  void Write() {
     planners::PlanInputs inputs;
     inputs.case_dir = o_.case_dir;
     inputs.robot_file = o_.robot;
@@ -313,7 +317,33 @@ class PlanCommand {
         o_.out, *problem_, result_, o_.optimizer, inputs, [&](planners::PlanFile* file) {
           if (!verifications_.empty())
             planners::AddVerification(file, *problem_, verifications_, baseline_verifications_);
+          // Which arm reaches which stretch of each target, as the file says it (issue #43 item
+          // 5): printed with the verdict.
+          if (!file->plans.empty())
+            reach_ = planners::TargetReachability(
+                *file, 0, [&](const std::vector<Eigen::Vector3d>& p_W) {
+                  const std::string spaces = planners::SpacesAtLevel(*patient_, p_W);
+                  return spaces.empty() ? spaces : "at the " + spaces;
+                });
         });
+  }
+
+  void PrintReachability() const {
+    if (!reach_) return;
+    std::cout << "reachability on the targets, plan 1 ("
+              << (reach_->verified ? "verified motions" : "its own reach check") << "):\n";
+    for (const planners::TargetStretch& st : reach_->stretches) {
+      std::cout << "  " << st.target << " " << planners::StretchText(st)
+                << (st.level.empty() ? "" : ", " + st.level) << ": "
+                << (st.served ? "served"
+                              : st.reach == planners::ReachClass::kPartly ? "partly" : "not reached")
+                << " (";
+      for (std::size_t a = 0; a < st.arms.size(); ++a)
+        std::cout << (a ? ", " : "") << st.arms[a].arm << " "
+                  << (st.arms[a].reaches ? (st.arms[a].endoscope ? "sees" : "reaches")
+                                         : "no: " + st.arms[a].why_not);
+      std::cout << ")\n";
+    }
   }
 
   // What the robustness score is the mean over (optimizer.cpp): the heart over its operative
@@ -433,6 +463,7 @@ class PlanCommand {
                 << " % of instrument motions verified)\n";
       for (const auto& r : verifications_.front().reasons) std::cout << "  " << r << "\n";
     }
+    PrintReachability();
     PrintCriteria();
     std::cout << std::setprecision(1) << "evaluations: " << result_.evaluations << " in "
               << std::chrono::duration<double>(Clock::now() - t0_).count() << " s on "

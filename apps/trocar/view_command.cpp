@@ -45,10 +45,29 @@ int RunView(const ViewOptions& o) {
     const viz::SceneFile file = viz::ReadSceneFile(o.scene);
     inputs = file.inputs;
     if (file.has_camera) saved_camera = file.camera;
+    TROCAR_THROW_UNLESS(o.inputs.motion.empty() && o.inputs.robot.empty(),
+                        "--scene " << o.scene
+                                   << ": the scene file saves its robot and the robot's pose; give "
+                                      "no --motion or --robot");
     try {
       loaded = viz::LoadScene(file);
     } catch (const Error& e) {
       TROCAR_THROW(o.scene << ": " << e.what());
+    }
+    // What the command line says over the saved scene: colours, opacities, hidden groups, flat
+    // colours, the targets' reach.
+    viz::SceneStyle over;
+    over.background = file.style.background;
+    for (const auto& c : o.inputs.colours) over.ParseColour(c);
+    for (const auto& op : o.inputs.opacities) over.ParseOpacity(op);
+    for (const auto& [g, c] : over.colours) loaded.scene->SetColour(g, c);
+    for (const auto& [g, v] : over.opacities) loaded.scene->SetOpacity(g, v);
+    for (const auto& h : o.inputs.hidden) loaded.scene->SetVisible(h, false);
+    loaded.scene->SetBackground(over.background);
+    if (o.inputs.flat) loaded.scene->SetFlat(true);
+    if (o.inputs.reach) {
+      TROCAR_THROW_UNLESS(loaded.plan, "--reach: the scene " << o.scene << " shows no plan");
+      loaded.scene->ShowReachability(*loaded.plan, static_cast<std::size_t>(inputs.plan_index - 1));
     }
   } else {
     TROCAR_THROW_UNLESS(!o.inputs.case_dir.empty(), "view: give a CASE folder (or --scene FILE)");
@@ -120,6 +139,10 @@ void AddViewInputOptions(CLI::App* cmd, viz::ViewInputs* in) {
   cmd->add_option("--opacity", in->opacities, "GROUP=opacity (0..1)");
   cmd->add_option("--hide", in->hidden, "a group not to draw");
   cmd->add_flag("--flat", in->flat, "unlit exact colours (a pixel's colour names its group)");
+  cmd->add_flag("--reach", in->reach,
+                "colour each target along its length by how the plan serves it: served (every "
+                "instrument moves there, the endoscope sees it), reached by some arms, by none "
+                "(its verified motions, else its own reach check)");
 }
 
 void AddReportCommand(CLI::App* app) {

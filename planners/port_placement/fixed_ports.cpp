@@ -203,6 +203,19 @@ std::string SpacesText(int first, int last) {
   return ordinal(first) + " to " + ordinal(last) + " intercostal spaces";
 }
 
+std::string SpacesAtLevel(const patient::PatientModel& patient,
+                          const std::vector<Eigen::Vector3d>& p_W) {
+  const Eigen::Isometry3d X_PW = patient.X_WP.inverse();
+  int lo = 0, hi = 0;
+  for (const Eigen::Vector3d& p : p_W) {
+    const int n = SpaceAtLevel(patient, X_PW * p);
+    if (n <= 0) continue;
+    lo = lo == 0 ? n : std::min(lo, n);
+    hi = std::max(hi, n);
+  }
+  return SpacesText(lo, hi);
+}
+
 PortTemplate TecabTemplate() {
   PortTemplate t;
   t.name = "tecab";

@@ -53,6 +53,11 @@ int SpaceAtLevel(const patient::PatientModel& patient, const Eigen::Vector3d& p_
 /// "3rd intercostal space", "1st to 2nd intercostal spaces"; "" when `first` is 0.
 std::string SpacesText(int first, int last);
 
+/// The spaces at the level of points in the world (a target's stretch), as SpacesText gives them:
+/// from the lowest to the highest SpaceAtLevel of the points; "" when none is named.
+std::string SpacesAtLevel(const patient::PatientModel& patient,
+                          const std::vector<Eigen::Vector3d>& p_W);
+
 /// A port of a template: which arm role, which intercostal space, where along it.
 struct TemplatePort {
   ArmRole role = ArmRole::kInstrument;

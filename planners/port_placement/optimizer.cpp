@@ -389,15 +389,9 @@ Verdict JudgePlans(const PortPlacementProblem& problem, const std::vector<Ranked
           line << from << " mm from its origin";
         else
           line << from << "–" << to << " mm from its origin";
-        const Eigen::Isometry3d X_PW = problem.patient().X_WP.inverse();
-        int lo = 0, hi = 0;
-        for (std::size_t k = i; k <= j; ++k) {
-          const int n = SpaceAtLevel(problem.patient(), X_PW * samples[idx[k]].p_W);
-          if (n <= 0) continue;
-          lo = lo == 0 ? n : std::min(lo, n);
-          hi = std::max(hi, n);
-        }
-        const std::string level = SpacesText(lo, hi);
+        std::vector<Eigen::Vector3d> stretch_W;
+        for (std::size_t k = i; k <= j; ++k) stretch_W.push_back(samples[idx[k]].p_W);
+        const std::string level = SpacesAtLevel(problem.patient(), stretch_W);
         if (!level.empty()) line << ", at the " << level;
         line << ": " << why;
         // What would change that, where a neighbouring port or cart pose can be shown to

@@ -23,6 +23,7 @@
 #include "port_placement/port_rules.hpp"
 #include "robot/load_robot.hpp"
 #include "scene.hpp"
+#include "projection.hpp"
 #include "test_util.hpp"
 
 namespace trocar::viz {
@@ -97,21 +98,7 @@ std::unique_ptr<Scene> FlatSceneWithTheCartBesideTheTable() {
   return scene;
 }
 
-/// Where a point lands in a view (pixels, y down) by a pinhole camera with a vertical view angle,
-/// as VTK's; false when it is behind the camera.
-bool Project(const CameraPose& c, int width, int height, const Eigen::Vector3d& p_W, Eigen::Vector2d* px) {
-  const Eigen::Vector3d f = (c.focal_point - c.position).normalized();
-  const Eigen::Vector3d r = f.cross(c.view_up).normalized();
-  const Eigen::Vector3d u = r.cross(f);
-  const Eigen::Vector3d d = p_W - c.position;
-  const double z = d.dot(f);
-  if (z <= 1e-6) return false;
-  const double t = std::tan(c.view_angle_deg / 2 * M_PI / 180);
-  const double aspect = static_cast<double>(width) / height;
-  const double nx = d.dot(r) / (z * t * aspect), ny = d.dot(u) / (z * t);
-  *px = Eigen::Vector2d((nx + 1) / 2 * width, (1 - ny) / 2 * height);
-  return true;
-}
+using test_projection::Project;
 
 /// Puts the ECM (base moved, joints as they are) so that its scope's tip is `distance` from
 /// `p_W` along -`axis`, its shaft (the tool frame's z) along `axis`; returns the tip's pose.
@@ -162,7 +149,11 @@ TEST(Scene, AFlatPictureOfTheBundledCaseShowsThePatientTheTableAndTheRobot) {
   EXPECT_EQ(CountColour(inside, s.Colour("robot")), 0);
   EXPECT_GT(CountColour(inside, s.Colour("heart")), 20);
   EXPECT_GT(CountColour(inside, s.Colour("ribs")), 100);
-  EXPECT_GT(CountColour(inside, s.Colour("target")), 5);
+  // Each target in its own colour (the first in the style's "target"), both drawn.
+  EXPECT_EQ(s.Colour("target:LAD"), s.Colour("target"));
+  EXPECT_NE(s.Colour("target:LIMA"), s.Colour("target:LAD"));
+  EXPECT_GT(CountColour(inside, s.Colour("target:LAD")) + CountColour(inside, s.Colour("target:LIMA")), 5);
+  EXPECT_GT(CountColour(inside, s.Colour("target:LIMA")), 0);
   // The same scene renders the same picture.
   const Image again = Render(scene, views, w, h);
   EXPECT_EQ(inside.rgb, again.rgb);

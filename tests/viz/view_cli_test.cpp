@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <set>
 #include <csignal>
 
 #include <gtest/gtest.h>
@@ -22,6 +23,8 @@
 #include "kinematics/forward_kinematics.hpp"
 #include <thread>
 #include "plan/plan_file.hpp"
+#include "plan/reachability.hpp"
+#include "projection.hpp"
 #include "plan/signoff.hpp"
 #include "robot/load_robot.hpp"
 #include "scene.hpp"
@@ -629,6 +632,124 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   const Image page = ReadPng(shot);
   EXPECT_GT(CountRgb(page, 0, 0, 255), 2000) << "the plans' pictures";
   EXPECT_GT(CountRgb(page, 31, 119, 180), 2000) << "the tables";
+  // The sign-off document (issue #43 item 7): printed by the browser, the summary (verdict,
+  // comparison, sign-off block) on the first page and each plan and the baseline on one page of
+  // its own: 1 + 2 + 1 pages.
+  EXPECT_NE(html.find("<h2>Sign-off</h2>"), std::string::npos);
+  EXPECT_NE(html.find("class=\"signature\""), std::string::npos);
+  const std::string pdf = Out("report.pdf");
+  run = Shell("chromium --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
+              "--disable-background-networking --disable-component-update --disable-sync "
+              "--user-data-dir=" + Out("chromium") + " --no-pdf-header-footer "
+              "--generate-pdf-document-outline --print-to-pdf=" + pdf + " file://" + dir + "/report.html");
+  ASSERT_TRUE(std::filesystem::exists(pdf)) << run.output;
+  const std::string bytes = ReadTextFile(pdf);
+  int pages = 0;
+  for (std::size_t at = bytes.find("/Type /Page"); at != std::string::npos; at = bytes.find("/Type /Page", at + 1))
+    pages += bytes.compare(at, 12, "/Type /Pages") != 0;
+  EXPECT_EQ(pages, 4) << "a summary page, then one page for each of the 2 plans and the baseline";
+  // Where each heading lies, from the PDF's outline: the page object its destination names.
+  auto page_of = [&](const std::string& title) {
+    const auto at = bytes.find("/Title (" + title);
+    if (at == std::string::npos) return std::string("missing");
+    const auto dest = bytes.find("/Dest [", at);
+    return dest == std::string::npos ? std::string("no destination")
+                                     : bytes.substr(dest + 7, bytes.find(' ', dest + 7) - dest - 7);
+  };
+  const std::string first = page_of("Verdict");
+  EXPECT_EQ(page_of("Plans compared"), first);
+  EXPECT_EQ(page_of("Sign-off)"), first) << "the sign-off block on the summary page";
+  const std::set<std::string> plan_pages = {page_of("Plan 1:"), page_of("Plan 2:"), page_of("Baseline,")};
+  EXPECT_EQ(plan_pages.size(), 3u) << "each plan on a page of its own";
+  EXPECT_EQ(plan_pages.count(first), 0u) << "no plan on the summary page";
+  EXPECT_EQ(plan_pages.count("missing"), 0u);
+}
+
+// Issue #43 item 5: each target coloured along its length by how the plan serves it. Plan 1's
+// verified motions are set so that every third sample is served, reached by psm1 alone, or by
+// no arm; in the targets' view every sample's point shows its own class's colour, and the report
+// gives the stretches in a table and a picture.
+TEST_F(ViewCli, TheTargetsAreColouredAlongTheirLengthByWhichArmsReachThem) {
+  planners::PlanFile file = planners::ReadPlanFile(Plan());
+  planners::StoredPlan& plan = file.plans[0];
+  ASSERT_TRUE(plan.verified);
+  const std::size_t ns = file.samples.size();
+  std::vector<planners::ReachClass> want(ns);
+  for (std::size_t s = 0; s < ns; ++s)
+    want[s] = s % 3 == 0 ? planners::ReachClass::kServed
+                         : (s % 3 == 1 ? planners::ReachClass::kPartly : planners::ReachClass::kNone);
+  for (auto& m : plan.motions) {
+    const int c = m.sample % 3;
+    m.solved = c == 0 || (c == 1 && m.arm == "psm1");
+    m.outcome = m.solved ? "solved" : "failed";
+    m.reason = m.solved ? "" : "set by the test";
+  }
+  for (std::size_t s = 0; s < ns; ++s) plan.verified_served[s] = s % 3 == 0;
+  const std::string path = Out("reach_plan.json");
+  planners::WritePlanFile(path, file);
+
+  ViewInputs in;
+  in.case_dir = file.case_dir;
+  in.plan = path;
+  in.flat = true;
+  in.reach = true;
+  LoadedView view = LoadView(in);
+  for (const std::string& g : view.scene->groups())
+    view.scene->SetVisible(g, g.rfind("reach:", 0) == 0);
+  view.scene->SetBackground(Eigen::Vector3d::Zero());
+  const int w = 800, h = 600;
+  ViewSpec spec = ViewSpec::Parse("targets");
+  const CameraPose camera = ViewCamera(*view.scene, spec, double(w) / h, &plan, nullptr);
+  const Image image = Render(*view.scene, {{spec, camera}}, w, h);
+  const SceneStyle& style = view.scene->style();
+  auto rgb8 = [](const Eigen::Vector3d& c) {
+    return std::array<int, 3>{int(std::lround(255 * c.x())), int(std::lround(255 * c.y())),
+                              int(std::lround(255 * c.z()))};
+  };
+  const std::map<planners::ReachClass, std::array<int, 3>> colour = {
+      {planners::ReachClass::kServed, rgb8(style.Colour("reach:served"))},
+      {planners::ReachClass::kPartly, rgb8(style.Colour("reach:partly"))},
+      {planners::ReachClass::kNone, rgb8(style.Colour("reach:none"))}};
+  auto near = [](const std::array<std::uint8_t, 3>& p, const std::array<int, 3>& c) {
+    return std::abs(p[0] - c[0]) <= 2 && std::abs(p[1] - c[1]) <= 2 && std::abs(p[2] - c[2]) <= 2;
+  };
+  int shown = 0, right = 0;
+  std::map<planners::ReachClass, long> pixels;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      for (const auto& [c, rgb] : colour) pixels[c] += near(image.Pixel(x, y), rgb);
+  for (std::size_t s = 0; s < ns; ++s) {
+    Eigen::Vector2d px;
+    ASSERT_TRUE(test_projection::Project(camera, w, h, file.samples[s].p_W, &px));
+    ASSERT_TRUE(px.x() >= 0 && px.x() < w && px.y() >= 0 && px.y() < h) << "sample " << s << " out of the view";
+    ++shown;
+    // Its class's colour within 2 pixels, and not another class's at the point itself.
+    bool found = false;
+    for (int dy = -2; dy <= 2 && !found; ++dy)
+      for (int dx = -2; dx <= 2 && !found; ++dx) {
+        const int x = std::clamp(int(px.x()) + dx, 0, w - 1), y = std::clamp(int(px.y()) + dy, 0, h - 1);
+        found = near(image.Pixel(x, y), colour.at(want[s]));
+      }
+    right += found;
+  }
+  // (A sample where the other target's tube crosses in front may show that one's colour.)
+  EXPECT_GE(right, shown * 9 / 10) << right << " of " << shown << " samples in their colour";
+  for (const auto& [c, n] : pixels) EXPECT_GT(n, 30) << "class " << int(c);
+  // The report: the table's rows are the stretches, the picture is there.
+  const std::string dir = Out("reach_report");
+  const CommandRun run = Trocar("report " + path + " --out " + dir + " --plans 1");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const std::string html = ReadTextFile(dir + "/report.html");
+  EXPECT_NE(html.find("alt=\"plan 1: reachability on the targets\""), std::string::npos);
+  const auto at = html.find("<table class=\"reach\">");
+  ASSERT_NE(at, std::string::npos);
+  const std::string table = html.substr(at, html.find("</table>", at) - at);
+  const planners::Reachability reach = planners::TargetReachability(planners::ReadPlanFile(path), 0);
+  std::size_t rows = 0;
+  for (std::size_t k = table.find("<tr><td>"); k != std::string::npos; k = table.find("<tr><td>", k + 1)) ++rows;
+  EXPECT_EQ(rows, reach.stretches.size());
+  EXPECT_GE(reach.stretches.size(), ns * 2 / 3) << "every third sample alike: a stretch is one sample";
+  EXPECT_NE(table.find("no: <span class=\"why\">failed: set by the test</span>"), std::string::npos) << table;
 }
 
 // The workstation's plan page says each port in a surgeon's terms (as the plan file holds them),
