@@ -173,9 +173,9 @@ void ReachTable(const planners::Reachability& reach, const planners::PlanFile& f
     h << "<th>" << Escape(arm.name) << (arm.role == "endoscope" ? " sees" : " reaches") << "</th>";
   h << "<th>served</th></tr>";
   for (const planners::TargetStretch& st : reach.stretches) {
-    h << "<tr><td>" << Escape(st.target) << "</td><td>" << Escape(planners::StretchText(st))
-      << " (" << st.samples.size() << " sample" << (st.samples.size() > 1 ? "s" : "")
-      << ")</td><td>" << Escape(st.level) << "</td>";
+    h << "<tr><td>" << Escape(st.target) << "</td><td>" << Escape(planners::StretchText(st)) << " ("
+      << st.samples.size() << " sample" << (st.samples.size() > 1 ? "s" : "") << ")</td><td>"
+      << Escape(st.level) << "</td>";
     for (const auto& arm : st.arms) {
       h << "<td class=\""
         << (arm.reaches ? "reach-yes\">yes"
@@ -199,7 +199,8 @@ std::string ServedStretches(const planners::Reachability& reach,
     for (const auto& st : reach.stretches) {
       if (st.target != targets[t] || !st.served) continue;
       const long from = std::lround(st.from_m * 1e3), to = std::lround(st.to_m * 1e3);
-      parts.push_back(from == to ? std::to_string(from) : std::to_string(from) + "–" + std::to_string(to));
+      parts.push_back(from == to ? std::to_string(from)
+                                 : std::to_string(from) + "–" + std::to_string(to));
     }
     s << (t ? "; " : "") << targets[t] << " ";
     if (parts.empty()) s << "none";
@@ -321,13 +322,16 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
     if (file.plans[k].signoffs.empty()) continue;
     any_decision = true;
     const planners::SignOff& last = file.plans[k].signoffs.back();
-    h << "<p>plan " << file.plans[k].rank << ": <b>" << Escape(planners::PlanDecisionStatus(file, k))
-      << "</b> (" << Escape(last.decision) << " by " << Escape(last.surgeon) << " at "
-      << Escape(last.time) << (last.override_reason.empty() ? "" : "; an override: " + Escape(last.override_reason))
+    h << "<p>plan " << file.plans[k].rank << ": <b>"
+      << Escape(planners::PlanDecisionStatus(file, k)) << "</b> (" << Escape(last.decision)
+      << " by " << Escape(last.surgeon) << " at " << Escape(last.time)
+      << (last.override_reason.empty() ? "" : "; an override: " + Escape(last.override_reason))
       << ")</p>\n";
   }
-  if (!any_decision) h << "<p>no plan signed off yet (trocar signoff, or the workstation's Approve)</p>\n";
-  h << "<div class=\"signature\">surgeon<span></span>signature<span></span>date<span></span></div>\n";
+  if (!any_decision)
+    h << "<p>no plan signed off yet (trocar signoff, or the workstation's Approve)</p>\n";
+  h << "<div "
+       "class=\"signature\">surgeon<span></span>signature<span></span>date<span></span></div>\n";
   for (std::size_t k = 0; k < shown; ++k) {
     const planners::StoredPlan& p = file.plans[k];
     view.scene->ShowPlan(file, k);
@@ -363,8 +367,9 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
     }
     ViewSpec targets_view;
     targets_view.kind = ViewSpec::Kind::kTargets;
-    const Views on_targets = {{targets_view, view.scene->ExternalCamera(double(options.width) / options.height,
-                                                                     Scene::Framing::kTargets)}};
+    const Views on_targets = {
+        {targets_view, view.scene->ExternalCamera(double(options.width) / options.height,
+                                                  Scene::Framing::kTargets)}};
     h << ImgTag(EncodePng(Render(*view.scene, on_targets, options.width, options.height)),
                 "plan " + std::to_string(p.rank) + ": reachability on the targets");
     for (const auto& [g, visible] : shown_groups) view.scene->SetVisible(g, visible);

@@ -1,57 +1,55 @@
 #include "scene.hpp"
 
-#include <array>
-#include <map>
-
-#include <algorithm>
-#include <cmath>
-#include <cstdlib>
-#include <filesystem>
-#include <sstream>
-
 #include <unistd.h>
-
 #include <vtkActor.h>
 #include <vtkAppendPolyData.h>
+#include <vtkArrowSource.h>
+#include <vtkBillboardTextActor3D.h>
 #include <vtkCamera.h>
-#include <vtkCommand.h>
 #include <vtkCellArray.h>
+#include <vtkCommand.h>
 #include <vtkConeSource.h>
 #include <vtkCubeSource.h>
 #include <vtkCylinderSource.h>
-#include <vtkArrowSource.h>
-#include <vtkBillboardTextActor3D.h>
 #include <vtkFollower.h>
 #include <vtkImageData.h>
 #include <vtkLegendBoxActor.h>
-#include <vtkPlaneSource.h>
-#include <vtkTextProperty.h>
-#include <vtkVectorText.h>
 #include <vtkLight.h>
 #include <vtkMatrix4x4.h>
 #include <vtkNew.h>
+#include <vtkPlaneSource.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
 #include <vtkPolyDataMapper.h>
 #include <vtkPolyDataNormals.h>
 #include <vtkPolyLine.h>
-#include <vtkQuadricDecimation.h>
 #include <vtkProperty.h>
+#include <vtkQuadricDecimation.h>
 #include <vtkRenderWindow.h>
 #include <vtkRenderer.h>
 #include <vtkSmartPointer.h>
-#include <vtkWeakPointer.h>
 #include <vtkSphereSource.h>
+#include <vtkTextProperty.h>
 #include <vtkTransform.h>
 #include <vtkTransformPolyDataFilter.h>
 #include <vtkTubeFilter.h>
+#include <vtkVectorText.h>
+#include <vtkWeakPointer.h>
 #include <vtkWindowToImageFilter.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+#include <sstream>
 
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
-#include "plan/reachability.hpp"
 #include "kinematics/forward_kinematics.hpp"
+#include "plan/reachability.hpp"
 
 namespace trocar::viz {
 namespace {
@@ -408,11 +406,12 @@ struct Scene::Impl {
     for (std::size_t i = 0; i < m.targets.size(); ++i) {
       const std::string group = "target:" + m.targets[i].name;
       if (!style.colours.count(group))
-        style.colours[group] = i == 0 ? style.Colour("target")
-                                      : kTargetPalette[(i - 1) % kTargetPalette.size()];
+        style.colours[group] =
+            i == 0 ? style.Colour("target") : kTargetPalette[(i - 1) % kTargetPalette.size()];
       Add(group, Tube(ToWorld(m.targets[i].points, m.X_WP), 0.0015));
       if (!m.targets[i].points.empty())
-        AddLabel(group, m.targets[i].name, m.X_WP * m.targets[i].points[m.targets[i].points.size() / 2]);
+        AddLabel(group, m.targets[i].name,
+                 m.X_WP * m.targets[i].points[m.targets[i].points.size() / 2]);
     }
     {
       vtkNew<vtkAppendPolyData> append;
@@ -781,8 +780,7 @@ CameraPose Scene::ExternalCamera(double aspect, Framing framing) const {
       double side = 0;  // the ports' side: +1 the patient's left
       for (std::size_t i = on_targets; i < points.size(); ++i)
         side += (m.X_WP.inverse() * points[i]).x() - (m.X_WP.inverse() * centre).x();
-      const Eigen::Vector3d d_P =
-          Eigen::Vector3d(side < 0 ? -0.55 : 0.55, -1.0, 0.35).normalized();
+      const Eigen::Vector3d d_P = Eigen::Vector3d(side < 0 ? -0.55 : 0.55, -1.0, 0.35).normalized();
       CameraPose pose;
       const double half = pose.view_angle_deg / 2 * kPi / 180;
       const double fit = std::min(half, std::atan(std::tan(half) * std::max(aspect, 1e-3)));
@@ -929,8 +927,9 @@ void Scene::AddTo(vtkRenderer* renderer) const {
   for (const auto& g : impl_->groups)
     for (const auto& a : g.actors) renderer->AddActor(a);
   auto& renderers = impl_->renderers;
-  renderers.erase(std::remove_if(renderers.begin(), renderers.end(), [](const auto& r) { return !r; }),
-                  renderers.end());
+  renderers.erase(
+      std::remove_if(renderers.begin(), renderers.end(), [](const auto& r) { return !r; }),
+      renderers.end());
   renderers.push_back(renderer);
   impl_->AddLabelsToRenderers();
   renderer->SetBackground(impl_->style.background.data());
@@ -1027,8 +1026,8 @@ void Scene::ShowReachability(const planners::PlanFile& file, std::size_t index) 
   const planners::Reachability reach = planners::TargetReachability(file, index);
   std::map<planners::ReachClass, vtkSmartPointer<vtkAppendPolyData>> tubes;
   std::map<planners::ReachClass, int> parts;
-  for (auto c : {planners::ReachClass::kServed, planners::ReachClass::kPartly,
-                 planners::ReachClass::kNone})
+  for (auto c :
+       {planners::ReachClass::kServed, planners::ReachClass::kPartly, planners::ReachClass::kNone})
     tubes[c] = vtkSmartPointer<vtkAppendPolyData>::New();
   if (impl_->patient) {
     const patient::PatientModel& m = *impl_->patient;
@@ -1044,12 +1043,14 @@ void Scene::ShowReachability(const planners::PlanFile& file, std::size_t index) 
       });
       const std::vector<Eigen::Vector3d> p_W = ToWorld(t.points, m.X_WP);
       std::vector<double> arc(p_W.size(), 0.0);
-      for (std::size_t i = 1; i < p_W.size(); ++i) arc[i] = arc[i - 1] + (p_W[i] - p_W[i - 1]).norm();
+      for (std::size_t i = 1; i < p_W.size(); ++i)
+        arc[i] = arc[i - 1] + (p_W[i] - p_W[i - 1]).norm();
       for (std::size_t k = 0; k < along.size(); ++k) {
         const double here = file.samples[along[k]].arc_length;
         const double a = k == 0 ? 0.0 : 0.5 * (file.samples[along[k - 1]].arc_length + here);
-        const double b =
-            k + 1 == along.size() ? arc.back() : 0.5 * (here + file.samples[along[k + 1]].arc_length);
+        const double b = k + 1 == along.size()
+                             ? arc.back()
+                             : 0.5 * (here + file.samples[along[k + 1]].arc_length);
         if (auto tube = Tube(SubCurve(p_W, arc, a, b), 0.0028)) {
           tubes[reach.per_sample[along[k]]]->AddInputData(tube);
           ++parts[reach.per_sample[along[k]]];
@@ -1076,9 +1077,10 @@ void Scene::ShowReachability(const planners::PlanFile& file, std::size_t index) 
         served += reach.per_sample[s] == planners::ReachClass::kServed;
       }
       if (of == 0 || t.points.empty()) continue;
-      impl_->AddLabel("reach:labels",
-                      t.name + ": " + std::to_string(served) + " of " + std::to_string(of) + " served",
-                      m.X_WP * t.points[t.points.size() / 2]);
+      impl_->AddLabel(
+          "reach:labels",
+          t.name + ": " + std::to_string(served) + " of " + std::to_string(of) + " served",
+          m.X_WP * t.points[t.points.size() / 2]);
     }
   }
   impl_->AddLabelsToRenderers();
@@ -1171,7 +1173,8 @@ ViewSpec ViewSpec::Parse(const std::string& text) {
     v.camera.frame = text.substr(6);
     return v;
   }
-  TROCAR_THROW("view '" << text << "': expected external, room, targets, endoscope or frame:<robot frame>");
+  TROCAR_THROW("view '" << text
+                        << "': expected external, room, targets, endoscope or frame:<robot frame>");
 }
 
 CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,

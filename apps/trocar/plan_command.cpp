@@ -335,8 +335,9 @@ class PlanCommand {
     for (const planners::TargetStretch& st : reach_->stretches) {
       std::cout << "  " << st.target << " " << planners::StretchText(st)
                 << (st.level.empty() ? "" : ", " + st.level) << ": "
-                << (st.served ? "served"
-                              : st.reach == planners::ReachClass::kPartly ? "partly" : "not reached")
+                << (st.served                                   ? "served"
+                    : st.reach == planners::ReachClass::kPartly ? "partly"
+                                                                : "not reached")
                 << " (";
       for (std::size_t a = 0; a < st.arms.size(); ++a)
         std::cout << (a ? ", " : "") << st.arms[a].arm << " "

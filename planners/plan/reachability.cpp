@@ -80,8 +80,8 @@ Reachability TargetReachability(const PlanFile& file, const StoredPlan& plan,
       }
     }
     const bool is_served = s < served.size() ? static_cast<bool>(served[s]) : (all && seen);
-    r.per_sample[s] = is_served ? ReachClass::kServed
-                                : (some ? ReachClass::kPartly : ReachClass::kNone);
+    r.per_sample[s] =
+        is_served ? ReachClass::kServed : (some ? ReachClass::kPartly : ReachClass::kNone);
   }
   // The targets in their first sample's order, each's samples along it.
   std::vector<std::string> targets;
@@ -126,9 +126,10 @@ Reachability TargetReachability(const PlanFile& file, const StoredPlan& plan,
                             : std::string(plan.verified && !endoscope[a] ? "no verified motion"
                                                                          : "not checked")];
           }
-          on.why_not = std::max_element(count.begin(), count.end(), [](const auto& x, const auto& y) {
-                         return x.second < y.second;
-                       })->first;
+          on.why_not =
+              std::max_element(count.begin(), count.end(), [](const auto& x, const auto& y) {
+                return x.second < y.second;
+              })->first;
         }
         st.arms.push_back(on);
       }
@@ -145,9 +146,9 @@ Reachability TargetReachability(const PlanFile& file, const StoredPlan& plan,
 }
 
 Reachability TargetReachability(const PlanFile& file, std::size_t index, const LevelText& level) {
-  TROCAR_THROW_UNLESS(index < file.plans.size(),
-                      file.path << ": no plan " << index + 1 << " (the file has "
-                                << file.plans.size() << ")");
+  TROCAR_THROW_UNLESS(index < file.plans.size(), file.path << ": no plan " << index + 1
+                                                           << " (the file has " << file.plans.size()
+                                                           << ")");
   return TargetReachability(file, file.plans[index], level);
 }
 

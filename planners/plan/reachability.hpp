@@ -9,12 +9,11 @@
 /// changes: within a stretch every instrument either moves to every sample or to none, and the
 /// endoscope sees every sample or none.
 
+#include <Eigen/Core>
 #include <cstddef>
 #include <functional>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "plan/plan_file.hpp"
 
@@ -41,10 +40,10 @@ struct ArmOnStretch {
 
 struct TargetStretch {
   std::string target;
-  std::vector<int> samples;       ///< indices into PlanFile::samples, along the target
-  double from_m = 0.0, to_m = 0.0;  ///< the samples' arc lengths from the target's first point
-  std::vector<ArmOnStretch> arms;   ///< in the plan file's arm order
-  bool served = false;              ///< every sample of the stretch served
+  std::vector<int> samples;              ///< indices into PlanFile::samples, along the target
+  double from_m = 0.0, to_m = 0.0;       ///< the samples' arc lengths from the target's first point
+  std::vector<ArmOnStretch> arms;        ///< in the plan file's arm order
+  bool served = false;                   ///< every sample of the stretch served
   ReachClass reach = ReachClass::kNone;  ///< the same for every sample of the stretch
   /// Where the stretch lies in a surgeon's terms ("at the 3rd to 4th intercostal spaces"), from
   /// the caller's `level`; empty without.
@@ -53,7 +52,7 @@ struct TargetStretch {
 
 struct Reachability {
   bool verified = false;  ///< from verified motions (else from the plan's own reach check)
-  std::vector<ReachClass> per_sample;  ///< indexed as PlanFile::samples
+  std::vector<ReachClass> per_sample;    ///< indexed as PlanFile::samples
   std::vector<TargetStretch> stretches;  ///< targets in their first sample's order
 };
 

@@ -1,15 +1,16 @@
 // Which arm reaches which stretch of each target (issue #43 item 5), against a reference built
 // sample by sample from seeded random plan files.
+#include "plan/reachability.hpp"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <random>
 #include <map>
 #include <numeric>
+#include <random>
 #include <set>
 
 #include "common/error.hpp"
-#include "plan/reachability.hpp"
 
 namespace trocar::planners {
 namespace {
@@ -59,7 +60,8 @@ RandomPlan MakeRandomPlan(unsigned seed) {
   plan.verified = coin(0.6);
   r.ok.assign(na, std::vector<bool>(ns));
   r.why.assign(na, std::vector<std::string>(ns));
-  const char* reasons[] = {"in collision: psm's shaft against the heart", "joint limit", "unreachable"};
+  const char* reasons[] = {"in collision: psm's shaft against the heart", "joint limit",
+                           "unreachable"};
   // Statuses in runs along each target (each sample keeps its predecessor's with 70 %).
   for (std::size_t a = 0; a < na; ++a) {
     std::map<std::string, bool> last;
@@ -86,7 +88,8 @@ RandomPlan MakeRandomPlan(unsigned seed) {
       const bool claim = plan.verified && !endoscope ? !r.ok[a][s] : r.ok[a][s];
       (endoscope ? reach.seen : reach.reached) = claim;
       reach.reached = endoscope ? true : reach.reached;
-      reach.reason = claim ? "" : (plan.verified && !endoscope ? "the claim's reason" : r.why[a][s]);
+      reach.reason =
+          claim ? "" : (plan.verified && !endoscope ? "the claim's reason" : r.why[a][s]);
       plan.reaches.push_back(reach);
       if (plan.verified && !endoscope) {
         StoredMotion m;

@@ -1,8 +1,7 @@
 #pragma once
 // Where a point lands in a rendered view, for the viewer's pixel tests.
-#include <cmath>
-
 #include <Eigen/Core>
+#include <cmath>
 
 #include "scene.hpp"
 

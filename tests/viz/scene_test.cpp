@@ -1,6 +1,14 @@
 // The workstation's scene, rendered under Xvfb (ctest runs this executable through xvfb-run):
 // what is drawn is checked pixel by pixel in the flat style, where a pixel's colour names its
 // group, against the patient model, the robot's forward kinematics and the cameras' geometry.
+#include "scene.hpp"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+#include <vtkNew.h>
+#include <vtkRenderWindow.h>
+#include <vtkRenderer.h>
+
 #include <array>
 #include <cmath>
 #include <filesystem>
@@ -8,22 +16,14 @@
 #include <map>
 #include <random>
 
-#include <unistd.h>
-
-#include <gtest/gtest.h>
-#include <vtkNew.h>
-#include <vtkRenderWindow.h>
-#include <vtkRenderer.h>
-
 #include "collision/collision_world.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "patient/patient_model.hpp"
 #include "port_placement/port_rules.hpp"
-#include "robot/load_robot.hpp"
-#include "scene.hpp"
 #include "projection.hpp"
+#include "robot/load_robot.hpp"
 #include "test_util.hpp"
 
 namespace trocar::viz {
@@ -152,7 +152,9 @@ TEST(Scene, AFlatPictureOfTheBundledCaseShowsThePatientTheTableAndTheRobot) {
   // Each target in its own colour (the first in the style's "target"), both drawn.
   EXPECT_EQ(s.Colour("target:LAD"), s.Colour("target"));
   EXPECT_NE(s.Colour("target:LIMA"), s.Colour("target:LAD"));
-  EXPECT_GT(CountColour(inside, s.Colour("target:LAD")) + CountColour(inside, s.Colour("target:LIMA")), 5);
+  EXPECT_GT(
+      CountColour(inside, s.Colour("target:LAD")) + CountColour(inside, s.Colour("target:LIMA")),
+      5);
   EXPECT_GT(CountColour(inside, s.Colour("target:LIMA")), 0);
   // The same scene renders the same picture.
   const Image again = Render(scene, views, w, h);
