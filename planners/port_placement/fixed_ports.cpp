@@ -96,6 +96,16 @@ ChestLines ChestLinesAt(const patient::PatientModel& patient, int side, double z
     }
     if (reach > 0.0) rib_reach = reach;
   }
+  if (const patient::Structure* sternum = patient.Find("sternum")) {
+    double edge = -1.0;
+    int near = 0;
+    for (const auto& v : sternum->mesh.vertices) {
+      if (std::abs(v.z() - z_P) > 0.015) continue;
+      ++near;
+      edge = std::max(edge, (v.x() - lines.midline_x) * side);
+    }
+    if (near >= 3 && edge > 0.0) lines.sternal_edge = edge;
+  }
   const auto& mesh = skin->mesh;
   for (const double band : {0.01, 0.02, 0.04}) {
     std::vector<double> lateral_face, turning;
@@ -158,7 +168,10 @@ std::string DescribePort(const patient::PatientModel& patient, const PortSite& s
     s << "on the " << nearest->first;
   else
     s << Mm(std::abs(d)) << (d > 0 ? " lateral" : " medial") << " of the " << nearest->first;
-  s << " (" << Mm(offset) << " from the midline)";
+  s << " (" << Mm(offset) << " from the midline";
+  if (std::isfinite(lines.sternal_edge))
+    s << ", " << Mm(offset - lines.sternal_edge) << " from the sternal edge";
+  s << ")";
   return s.str();
 }
 

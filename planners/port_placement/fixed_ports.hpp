@@ -12,6 +12,7 @@
 /// the optimiser's ports are; the cart's pose is then searched for them (PlanFixedPorts,
 /// optimizer.hpp).
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -34,6 +35,10 @@ struct ChestLines {
   double z_P = 0.0;       ///< the level (patient frame, m)
   double midline_x = 0.0; ///< patient frame x of the midline (m)
   double mcl = 0.0, aal = 0.0, mal = 0.0;  ///< lateral offsets (m)
+  /// The sternum's edge on that side at that level (its outermost point within 15 mm of the
+  /// level), as a lateral offset (m); NaN when the model has no sternum there (below the xiphoid,
+  /// or none found).
+  double sternal_edge = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// @throws trocar::Error when the patient has no skin, or the skin at that level has no lateral
@@ -41,8 +46,10 @@ struct ChestLines {
 ChestLines ChestLinesAt(const patient::PatientModel& patient, int side, double z_P);
 
 /// A port in a surgeon's terms: its space and where across the chest its incision lies, by the
-/// nearest of the chest's lines at its level: "ICS-L3, 14 mm lateral of the midclavicular line
-/// (102 mm from the midline)". Just the space's name when the lines cannot be read (no skin).
+/// nearest of the chest's lines at its level, and its distances from the midline and the sternal
+/// edge (where the sternum reaches that level): "ICS-L3, 14 mm lateral of the midclavicular line
+/// (102 mm from the midline, 82 mm from the sternal edge)". Just the space's name when the lines
+/// cannot be read (no skin).
 std::string DescribePort(const patient::PatientModel& patient, const PortSite& site);
 
 /// The intercostal space at the level of a point (patient frame): the number of the named space

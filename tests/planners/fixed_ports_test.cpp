@@ -133,6 +133,61 @@ TEST(FixedPorts, AStretchIsSaidAtTheSpacesItLiesBehind) {
   EXPECT_EQ(SpaceAtLevel(unnumbered, truth.lima.back()), 0);
 }
 
+// Ports in a surgeon's terms on the phantom match the generator's truth (issue #43 item 3): a
+// port on the generator's own k-th left space curve is said to lie in ICS-Lk, at its distance
+// from the midline (the phantom's sternum is centred on x = 0) and from the sternal edge (the
+// generator's sternum is 40 mm wide), within 3 mm and 4 mm.
+TEST(FixedPorts, PortsAreSaidInAnatomicalTermsAsTheGeneratorPlacedThem) {
+  patient::PhantomParameters parameters;  // the bundled case's
+  const patient::PhantomTruth truth = patient::GeneratePhantom(parameters).truth;
+  const patient::PatientModel& model = *Phantom();
+  auto mm_before = [](const std::string& text, const std::string& what) {
+    const auto at = text.find(" mm from the " + what);
+    EXPECT_NE(at, std::string::npos) << what << " in '" << text << "'";
+    if (at == std::string::npos) return std::numeric_limits<double>::quiet_NaN();
+    auto from = text.find_last_of("(, ", at - 1);
+    return std::stod(text.substr(from + 1, at - from - 1)) / 1e3;
+  };
+  int left = 0, checked = 0;
+  for (std::size_t k = 0; k < truth.intercostal_spaces.size(); ++k) {
+    if (truth.intercostal_side[k] < 0) continue;
+    ++left;
+    const auto& curve = truth.intercostal_spaces[k];
+    for (std::size_t i = 0; i < curve.size(); i += std::max<std::size_t>(1, curve.size() / 6)) {
+      PortSite site;
+      double nearest = std::numeric_limits<double>::infinity();
+      for (std::size_t c = 0; c < model.port_candidates.size(); ++c) {
+        for (const auto& q : model.port_candidates[c].skin) {
+          if ((q - curve[i]).norm() < nearest) {
+            nearest = (q - curve[i]).norm();
+            site.candidate = static_cast<int>(c);
+          }
+        }
+      }
+      site.p_P = site.p_curve_P = curve[i];
+      const std::string words = DescribePort(model, site);
+      SCOPED_TRACE(words);
+      EXPECT_EQ(words.rfind("ICS-L" + std::to_string(left) + ",", 0), 0u) << "space " << left;
+      const double offset = curve[i].x();  // left of the midline
+      EXPECT_NEAR(mm_before(words, "midline"), offset, 0.003);
+      // (The imported sternum's surface lies up to a voxel and a half, 3 mm, outside the
+      // generator's bone: its edge reads up to 4 mm nearer.)
+      EXPECT_NEAR(mm_before(words, "sternal edge"), offset - 0.020, 0.004);
+      ++checked;
+    }
+  }
+  EXPECT_EQ(left, 8);  // the bundled phantom's nine ribs a side
+  EXPECT_GT(checked, 50);
+  // Below the sternum the sternal edge is not said.
+  patient::PatientModel no_sternum = model;
+  for (auto& st : no_sternum.structures)
+    if (st.name == "sternum") st.mesh = {};
+  PortSite site;
+  site.candidate = 0;
+  site.p_P = site.p_curve_P = truth.intercostal_spaces[0][truth.intercostal_spaces[0].size() / 2];
+  EXPECT_EQ(DescribePort(no_sternum, site).find("sternal edge"), std::string::npos);
+}
+
 // Ribs the import cannot number give spaces "gap-L1", ...: the template is refused, naming the
 // space it needs, the spaces there are, and how to count them.
 TEST(FixedPorts, ATemplateOnUnnumberedSpacesIsRefusedSayingHowToCountThem) {
