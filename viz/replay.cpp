@@ -11,9 +11,11 @@ std::vector<ReplayFrame> ReplayMotion(const robot::RobotModel& robot, const robo
                                       const planners::StoredMotion& motion,
                                       planners::PlanCollisions* collisions, double max_step,
                                       double near_miss) {
-  TROCAR_THROW_UNLESS(!motion.waypoints.empty(), "motion of " << motion.arm << " to sample "
-                                                              << motion.sample << " has no waypoints ("
-                                                              << motion.outcome << ")");
+  const bool failed = motion.waypoints.empty() && motion.failure_pose.size() > 0;
+  TROCAR_THROW_UNLESS(!motion.waypoints.empty() || failed,
+                      "motion of " << motion.arm << " to sample " << motion.sample
+                                   << " has no waypoints and no failure pose (" << motion.outcome
+                                   << ")");
   TROCAR_THROW_UNLESS(max_step > 0, "replay step " << max_step << ": expected > 0");
   std::vector<int> q_index;
   std::vector<double> weight;
@@ -37,7 +39,18 @@ std::vector<ReplayFrame> ReplayMotion(const robot::RobotModel& robot, const robo
     if (collisions) frame.collisions = collisions->Check(frame.state, near_miss, motion.sample);
     frames.push_back(std::move(frame));
   };
-  const auto& w = motion.waypoints;
+  // A failed motion: from the nominal pose straight to the pose that fails (issue #43 item 9).
+  std::vector<Eigen::VectorXd> to_failure;
+  if (failed) {
+    TROCAR_THROW_UNLESS(motion.failure_pose.size() == static_cast<Eigen::Index>(q_index.size()),
+                        "motion of " << motion.arm << " to sample " << motion.sample << ": "
+                                     << motion.failure_pose.size() << " failure-pose values for "
+                                     << q_index.size() << " joints");
+    Eigen::VectorXd nominal(static_cast<Eigen::Index>(q_index.size()));
+    for (std::size_t d = 0; d < q_index.size(); ++d) nominal[d] = start.q[q_index[d]];
+    to_failure = {nominal, motion.failure_pose};
+  }
+  const auto& w = failed ? to_failure : motion.waypoints;
   add(w[0], 0);
   for (std::size_t k = 0; k + 1 < w.size(); ++k) {
     double longest = 0;

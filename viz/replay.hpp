@@ -21,8 +21,11 @@ struct ReplayFrame {
 };
 
 /// The frames of `motion` from `start` (the plan's nominal state): every waypoint is a frame, and
-/// frames between them are at most `max_step` apart (rad; m for prismatic joints, times 10).
-/// @throws trocar::Error when the motion has no waypoints or names a joint the robot has not.
+/// frames between them are at most `max_step` apart (rad; m for prismatic joints, times 10). A
+/// motion not solved that has a failure pose (issue #43 item 9): from the nominal pose straight
+/// to the pose that fails, its last frame (the reason is the motion's).
+/// @throws trocar::Error when the motion has neither waypoints nor a failure pose, or names a
+/// joint the robot has not.
 std::vector<ReplayFrame> ReplayMotion(const robot::RobotModel& robot, const robot::RobotState& start,
                                       const planners::StoredMotion& motion,
                                       planners::PlanCollisions* collisions, double max_step = 0.02,

@@ -41,9 +41,17 @@ const planners::StoredMotion& FindMotion(const planners::StoredPlan& plan, const
   const long sample = integer(parts[1]);
   for (const planners::StoredMotion& m : plan.motions) {
     if (m.arm != parts[0] || m.sample != sample) continue;
-    TROCAR_OPTION_UNLESS(!m.waypoints.empty(), "motion",
-                         "'" << text << "': that motion was not solved (" << m.outcome << ": "
-                             << m.reason << ")");
+    if (m.waypoints.empty()) {
+      // A failed motion shows the pose where it fails (issue #43 item 9), when the file has it.
+      TROCAR_OPTION_UNLESS(m.failure_pose.size() > 0 && parts.size() == 2, "motion",
+                           "'" << text << "': that motion was not solved (" << m.outcome << ": "
+                               << m.reason << ")"
+                               << (m.failure_pose.size() > 0
+                                       ? "; it has no waypoints: give ARM:SAMPLE for where it fails"
+                                       : " and its plan file keeps no pose where it fails"));
+      *waypoint = kFailurePose;
+      return m;
+    }
     const long k = parts.size() == 3 ? integer(parts[2]) : static_cast<long>(m.waypoints.size()) - 1;
     TROCAR_OPTION_UNLESS(k < static_cast<long>(m.waypoints.size()), "motion",
                          "'" << text << "': the motion has " << m.waypoints.size()
@@ -82,21 +90,29 @@ LoadedView LoadView(const ViewInputs& in) {
     out.robot = std::make_shared<const robot::RobotModel>(robot::LoadRobot(in.robot));
   }
   TROCAR_OPTION_UNLESS(in.motion.empty() || out.plan, "motion", "needs a plan file");
-  TROCAR_OPTION_UNLESS(!in.reach || out.plan, "reach", "needs a plan file (whose arms reach the targets)");
+  TROCAR_OPTION_UNLESS(!in.reach || out.plan, "reach",
+                       "needs a plan file (whose arms reach the targets)");
   out.scene = std::make_unique<Scene>(out.patient, out.robot, style);
   if (out.plan) {
     const std::size_t k = static_cast<std::size_t>(in.plan_index - 1);
     out.scene->ShowPlan(*out.plan, k);
     if (in.reach) out.scene->ShowReachability(*out.plan, k);
+    int work_sample = -1;  // on a motion, its sample: the wrist may touch the organ there
     if (!in.motion.empty()) {
       std::size_t waypoint = 0;
       const planners::StoredMotion& m = FindMotion(out.plan->plans[k], in.motion, &waypoint);
       robot::RobotState state = *out.scene->robot_state();
-      planners::SetWaypoint(*out.robot, m, waypoint, &state);
+      work_sample = m.sample;
+      if (waypoint == kFailurePose) {
+        planners::SetFailurePose(*out.robot, m, &state);
+        out.failure = m.outcome + ": " + m.reason;
+      } else {
+        planners::SetWaypoint(*out.robot, m, waypoint, &state);
+      }
       out.scene->SetRobotState(state);
     }
     out.collisions = std::make_unique<planners::PlanCollisions>(*out.patient, out.robot, *out.plan, k);
-    out.pose = out.collisions->Check(*out.scene->robot_state());
+    out.pose = out.collisions->Check(*out.scene->robot_state(), 0.005, work_sample);
     out.scene->HighlightLinks(out.pose.colliding_links, out.pose.near_links);
   }
   return out;

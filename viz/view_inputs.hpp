@@ -35,6 +35,9 @@ struct LoadedView {
   /// With a plan: its collision rules, and the shown pose's collisions (highlighted in the scene).
   std::unique_ptr<planners::PlanCollisions> collisions;
   planners::PoseCollisions pose;
+  /// With a failed motion (`ViewInputs::motion`): why it fails ("unreachable: ..."); the robot is
+  /// shown at the pose that fails.
+  std::string failure;
 };
 
 /// The pose's collisions in words: "in collision: a - b, ..." or "clearance 12.3 mm (a - b)".
@@ -49,8 +52,13 @@ LoadedView LoadView(const ViewInputs& inputs);
 /// @throws trocar::Error naming a malformed colour or opacity.
 SceneStyle StyleOf(const ViewInputs& inputs);
 
-/// Finds a verified motion by "ARM:SAMPLE[:WAYPOINT]" in a plan, and the waypoint (default: the
-/// last). @throws trocar::Error naming the text when the plan has no such motion.
+/// FindMotion's waypoint for a failed motion: the pose where it fails.
+constexpr std::size_t kFailurePose = static_cast<std::size_t>(-1);
+
+/// Finds a motion by "ARM:SAMPLE[:WAYPOINT]" in a plan, and the waypoint (default: the last); a
+/// motion not solved by "ARM:SAMPLE" gives kFailurePose when the file keeps its failure pose.
+/// @throws trocar::Error naming the text when the plan has no such motion, or a failed one
+/// without a failure pose (or with a waypoint asked).
 const planners::StoredMotion& FindMotion(const planners::StoredPlan& plan, const std::string& text,
                                          std::size_t* waypoint);
 

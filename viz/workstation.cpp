@@ -428,17 +428,19 @@ class Workstation {
     motions_->clear();
     motion_index_.clear();
     frames_.clear();
+    replayed_ = nullptr;
     const auto& motions = plan_->plans[plan_index_].motions;
     for (std::size_t i = 0; i < motions.size(); ++i) {
       const auto& m = motions[i];
-      if (m.waypoints.empty()) continue;
+      if (m.waypoints.empty() && m.failure_pose.size() == 0) continue;
       const std::string target =
           m.sample < static_cast<int>(plan_->samples.size()) ? plan_->samples[m.sample].target : "?";
-      motions_->addItem(QString::fromStdString(m.arm + " to sample " + std::to_string(m.sample) +
-                                               " (" + target + ")"));
+      motions_->addItem(
+          QString::fromStdString(m.arm + " to sample " + std::to_string(m.sample) + " (" + target +
+                                 ")" + (m.solved ? "" : ": " + m.outcome + ", where it fails")));
       motion_index_.push_back(i);
     }
-    if (motion_index_.empty()) motions_->addItem("none solved");
+    if (motion_index_.empty()) motions_->addItem("none to replay");
     filling_ = false;
     frame_slider_->setRange(0, 0);
   }
@@ -449,7 +451,8 @@ class Workstation {
       const auto& plan = plan_->plans[plan_index_];
       const robot::RobotState start =
           planners::NominalState(*scene_->robot(), plan, plan_->path + ": plan " + std::to_string(plan_index_ + 1));
-      frames_ = ReplayMotion(*scene_->robot(), start, plan.motions[motion_index_[i]], collisions_.get());
+      replayed_ = &plan.motions[motion_index_[i]];
+      frames_ = ReplayMotion(*scene_->robot(), start, *replayed_, collisions_.get());
       frame_slider_->setRange(0, static_cast<int>(frames_.size()) - 1);
       frame_slider_->setValue(0);
       ShowFrame(0);
@@ -463,8 +466,12 @@ class Workstation {
     const ReplayFrame& frame = frames_[f];
     scene_->SetRobotState(frame.state);
     scene_->HighlightLinks(frame.collisions.colliding_links, frame.collisions.near_links);
-    const QString text = "frame " + QString::number(f + 1) + " of " + QString::number(frames_.size()) +
-                         ": " + QString::fromStdString(Describe(frame.collisions));
+    QString text = "frame " + QString::number(f + 1) + " of " + QString::number(frames_.size()) +
+                   ": " + QString::fromStdString(Describe(frame.collisions));
+    // A failed motion's last frame is the pose that fails: its reason beside the collisions.
+    if (replayed_ && !replayed_->solved && f + 1 == static_cast<int>(frames_.size()))
+      text +=
+          QString::fromStdString("\nfails here: " + replayed_->outcome + ": " + replayed_->reason);
     pose_label_->setText(text);
     window_.statusBar()->showMessage(text);
     SyncJoints();
@@ -750,6 +757,7 @@ class Workstation {
   QLabel* pose_label_ = nullptr;
   QTimer* timer_ = nullptr;
   std::vector<std::size_t> motion_index_;
+  const planners::StoredMotion* replayed_ = nullptr;  ///< the motion in frames_
   std::vector<ReplayFrame> frames_;
   std::unique_ptr<planners::PlanFile> plan_;
   std::size_t plan_index_ = 0;

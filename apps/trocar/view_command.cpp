@@ -115,6 +115,9 @@ int RunView(const ViewOptions& o) {
   std::cout << "wrote " << o.screenshot << " (" << width << "x" << height << ", "
             << names.size() << " view" << (names.size() > 1 ? "s" : "") << ", "
             << loaded.scene->triangle_count() << " triangles)\n";
+  if (!loaded.failure.empty())
+    std::cout << "motion " << inputs.motion << " fails: " << loaded.failure
+              << "; shown at the pose where it fails\n";
   if (loaded.collisions) std::cout << "robot pose: " << viz::Describe(loaded.pose) << "\n";
   return 0;
 }

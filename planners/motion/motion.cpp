@@ -567,6 +567,7 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
   // random poses of the arm.
   std::vector<Eigen::VectorXd> goals;
   std::string goal_failure;
+  Eigen::VectorXd goal_failure_q;  // the pose goal_failure describes
   {
     std::mt19937 rng(seed);
     robot::RobotState ik_state = state_;
@@ -589,13 +590,18 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
       const std::string failure = problem.SolveReach(arm_index, problem_.placement(),
                                                      problem.samples()[sample_index], &ik_state);
       if (!failure.empty()) {
-        if (goal_failure.empty()) goal_failure = failure;
+        if (goal_failure.empty()) {
+          goal_failure = failure;
+          goal_failure_q = arm_q(ik_state.q);
+        }
         continue;
       }
       std::string why;
       if (!Valid(ik_state.q, &why)) {
-        if (goal_failure.empty() || goal_failure.rfind("no inverse", 0) == 0)
+        if (goal_failure.empty() || goal_failure.rfind("no inverse", 0) == 0) {
           goal_failure = "the inverse-kinematics solution is not valid: " + why;
+          goal_failure_q = arm_q(ik_state.q);
+        }
         continue;
       }
       const Eigen::VectorXd goal = arm_q(ik_state.q);
@@ -608,6 +614,7 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
     out.status = MotionStatus::kInvalidGoal;
     out.outcome = "unreachable";
     out.reason = goal_failure.empty() ? "no inverse-kinematics solution" : goal_failure;
+    out.failure_q = goal_failure_q;
     return out;
   }
 
@@ -638,6 +645,7 @@ TargetMotion MotionContext::Plan(int arm_index, int sample_index, const MotionOp
     why << "no collision-free motion found in " << options.time_limit << " s ("
         << ToString(out.status) << ")";
     out.reason = why.str();
+    out.failure_q = goals.front();
     return out;
   }
   StorePath(pdef->getSolutionPath()->as<og::PathGeometric>(), simplifier, space, options, &out);

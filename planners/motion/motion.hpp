@@ -100,6 +100,11 @@ struct TargetMotion {
   long graph_motions = 0;            ///< and edges
   bool correct = false;              ///< the re-check passed
   std::vector<Eigen::VectorXd> path; ///< waypoints: the arm's joint values (its q_indices)
+  /// Not solved: the pose that fails, for replay (issue #43 item 9), the arm's joint values:
+  /// "unreachable", the inverse kinematics' answer whose failure `reason` gives (its solution in
+  /// collision, or where it stopped short at a joint's limit); "timeout" and "failed", the goal
+  /// no path was found to. Empty when there is none (an invalid start).
+  Eigen::VectorXd failure_q;
 };
 
 /// What a motion query needs from a plan, shared by every thread.

@@ -213,6 +213,11 @@ void StoreVerification(const PortPlacementProblem& problem, const PlanVerificati
       for (int i : arm.q_indices) s.joints.push_back(robot.joint(robot.active_joints()[i]).name);
       s.waypoints = m.path;
     }
+    if (!m.solved && m.failure_q.size() == static_cast<Eigen::Index>(arm.q_indices.size())) {
+      if (s.joints.empty())
+        for (int i : arm.q_indices) s.joints.push_back(robot.joint(robot.active_joints()[i]).name);
+      s.failure_pose = m.failure_q;
+    }
     plan->motions.push_back(std::move(s));
   }
 }

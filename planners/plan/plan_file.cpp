@@ -221,6 +221,18 @@ StoredMotion ReadMotion(const Field& m) {
       motion.waypoints.push_back(q);
     }
   }
+  if (m.Has("failure_pose")) {
+    if (motion.solved) m["failure_pose"].Fail("no failure pose on a solved motion");
+    if (motion.joints.empty()) {
+      motion.joints = m["joints"].Strings();
+      if (motion.joints.size() > kMaxArmJoints) m["joints"].Fail("at most 64 joints of one arm");
+    }
+    const Field f = m["failure_pose"];
+    if (f.Size() != motion.joints.size())
+      f.Fail(std::to_string(motion.joints.size()) + " joint values");
+    motion.failure_pose.resize(static_cast<Eigen::Index>(motion.joints.size()));
+    for (std::size_t d = 0; d < motion.joints.size(); ++d) motion.failure_pose[d] = f[d].Number();
+  }
   return motion;
 }
 
@@ -564,6 +576,12 @@ json VerificationJson(const StoredPlan& plan) {
       }
       entry["joints"] = m.joints;
       entry["waypoints"] = waypoints;
+    }
+    if (m.failure_pose.size() > 0) {
+      entry["joints"] = m.joints;
+      json pose = json::array();
+      for (int c = 0; c < m.failure_pose.size(); ++c) pose.push_back(m.failure_pose[c]);
+      entry["failure_pose"] = pose;
     }
     motions.push_back(entry);
   }
@@ -1059,22 +1077,42 @@ robot::RobotState NominalState(const robot::RobotModel& robot, const StoredPlan&
   return state;
 }
 
-void SetWaypoint(const robot::RobotModel& robot, const StoredMotion& motion, std::size_t k,
-                 robot::RobotState* state) {
-  TROCAR_THROW_UNLESS(k < motion.waypoints.size(),
-                      "motion of " << motion.arm << " to sample " << motion.sample << " has "
-                                   << motion.waypoints.size() << " waypoints, not " << k + 1);
+namespace {
+// The motion's arm at `q_arm` (its `joints`), the rest of `state` kept.
+void SetArmJoints(const robot::RobotModel& robot, const StoredMotion& motion,
+                  const Eigen::VectorXd& q_arm, const std::string& what, robot::RobotState* state) {
   Eigen::VectorXd q = state->q;
+  TROCAR_THROW_UNLESS(q_arm.size() == static_cast<Eigen::Index>(motion.joints.size()),
+                      "motion of " << motion.arm << " to sample " << motion.sample << ", " << what
+                                   << ": " << q_arm.size() << " joint values for "
+                                   << motion.joints.size() << " joints");
   for (std::size_t d = 0; d < motion.joints.size(); ++d) {
     const int j = robot.FindJoint(motion.joints[d]);
     TROCAR_THROW_UNLESS(j >= 0 && robot.joint(j).q_index >= 0,
                         "motion of " << motion.arm << ": '" << motion.joints[d]
                                      << "' is not an active joint of " << robot.name());
-    q[robot.joint(j).q_index] = motion.waypoints[k][d];
+    q[robot.joint(j).q_index] = q_arm[static_cast<Eigen::Index>(d)];
   }
   const auto fk = kinematics::ForwardKinematics(robot, q, state);
-  TROCAR_THROW_UNLESS(fk.ok(), "motion of " << motion.arm << " to sample " << motion.sample
-                                            << ", waypoint " << k << ": " << fk.message);
+  TROCAR_THROW_UNLESS(fk.ok(), "motion of " << motion.arm << " to sample " << motion.sample << ", "
+                                            << what << ": " << fk.message);
+}
+}  // namespace
+
+void SetWaypoint(const robot::RobotModel& robot, const StoredMotion& motion, std::size_t k,
+                 robot::RobotState* state) {
+  TROCAR_THROW_UNLESS(k < motion.waypoints.size(),
+                      "motion of " << motion.arm << " to sample " << motion.sample << " has "
+                                   << motion.waypoints.size() << " waypoints, not " << k + 1);
+  SetArmJoints(robot, motion, motion.waypoints[k], "waypoint " + std::to_string(k), state);
+}
+
+void SetFailurePose(const robot::RobotModel& robot, const StoredMotion& motion,
+                    robot::RobotState* state) {
+  TROCAR_THROW_UNLESS(motion.failure_pose.size() > 0,
+                      "motion of " << motion.arm << " to sample " << motion.sample
+                                   << " has no failure pose (solved, or written before stop 66)");
+  SetArmJoints(robot, motion, motion.failure_pose, "its failure pose", state);
 }
 
 }  // namespace trocar::planners

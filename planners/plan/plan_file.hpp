@@ -104,6 +104,10 @@ struct StoredMotion {
   double min_clearance = std::numeric_limits<double>::quiet_NaN();  ///< m, solved paths
   std::vector<std::string> joints;         ///< the arm's active joints, by name
   std::vector<Eigen::VectorXd> waypoints;  ///< joint values; the first is the nominal pose
+  /// A motion not solved: the pose that fails, in `joints` (the colliding inverse-kinematics
+  /// solution, where it stopped at a joint's limit, or the goal no path reached); empty when
+  /// the file has none.
+  Eigen::VectorXd failure_pose;
 };
 
 /// How a plan was verified (`plans[].verification`, beside the figures StoredPlan holds).
@@ -341,5 +345,9 @@ robot::RobotState NominalState(const robot::RobotModel& robot, const StoredPlan&
 /// @throws trocar::Error when the motion names a joint the robot has not.
 void SetWaypoint(const robot::RobotModel& robot, const StoredMotion& motion, std::size_t k,
                  robot::RobotState* state);
+/// `state` with a failed motion's failure pose set on its arm's joints (then forward kinematics).
+/// @throws trocar::Error when the motion has no failure pose or names a joint the robot has not.
+void SetFailurePose(const robot::RobotModel& robot, const StoredMotion& motion,
+                    robot::RobotState* state);
 
 }  // namespace trocar::planners

@@ -1,35 +1,36 @@
 // trocar view on a real plan of the bundled case: screenshots, replay of verified motions, the
 // window, and bad input. The plan is made once for the suite by `trocar plan` (small budget).
-#include <array>
-#include <chrono>
-#include <cstdio>
-#include <filesystem>
-#include <fstream>
-#include <random>
-#include <set>
-#include <csignal>
-
-#include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <sys/file.h>
 #include <sys/wait.h>
 #include <unistd.h>
+
+#include <array>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <set>
+#include <thread>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "common/limits.hpp"
 #include "control/igtl_device.hpp"
 #include "kinematics/forward_kinematics.hpp"
-#include <thread>
 #include "plan/plan_file.hpp"
 #include "plan/reachability.hpp"
-#include "projection.hpp"
 #include "plan/signoff.hpp"
+#include "projection.hpp"
+#include "replay.hpp"
 #include "robot/load_robot.hpp"
 #include "scene.hpp"
-#include "test_util.hpp"
 #include "scene_file.hpp"
+#include "test_util.hpp"
 #include "view_inputs.hpp"
 #include "workstation.hpp"
 
@@ -208,6 +209,91 @@ TEST_F(ViewCli, CollisionsOfTheShownPoseAreSaidAndDrawnInTheCollisionColour) {
   }
   EXPECT_NE(deep.output.find("robot pose: in collision: " + arm + "_"), std::string::npos) << deep.output;
   EXPECT_GT(CountRgb(ReadPng(Out("deep.png")), 255, 0, 255), 20);
+}
+
+// Issue #43 item 9: a failed motion is shown at the pose where it fails, with its reason. The
+// verification keeps that pose (an unreachable sample's inverse-kinematics answer, in collision
+// or at a limit); the view poses the arm there and says why; the replay runs from the nominal
+// pose to it. A plan's motion made to fail by the test (its instrument pushed into the heart)
+// shows the same.
+TEST_F(ViewCli, AFailedMotionIsShownAtThePoseWhereItFails) {
+  planners::PlanFile file = planners::ReadPlanFile(Plan());
+  int real = 0;
+  for (std::size_t k = 0; k < file.plans.size(); ++k) {
+    for (const auto& m : file.plans[k].motions) {
+      if (m.solved || m.outcome != "unreachable") continue;
+      SCOPED_TRACE(m.arm + ":" + std::to_string(m.sample) + " " + m.reason);
+      ASSERT_EQ(m.failure_pose.size(), static_cast<Eigen::Index>(m.joints.size()));
+      if (m.reason.find("not valid: collision") == std::string::npos) continue;
+      ViewInputs in;
+      in.case_dir = file.case_dir;
+      in.plan = Plan();
+      in.plan_index = static_cast<int>(k) + 1;
+      in.motion = m.arm + ":" + std::to_string(m.sample);
+      const LoadedView view = LoadView(in);
+      EXPECT_TRUE(view.pose.collision) << "the stored pose where it fails does not collide";
+      EXPECT_EQ(view.failure, m.outcome + ": " + m.reason);
+      ++real;
+    }
+  }
+  std::cout << real << " motions of the suite's plan fail in collision and were shown\n";
+  // A solved motion to an LAD sample turned into a failure: its last waypoint pushed 6 cm and
+  // further along the insertion until the view says it collides.
+  planners::StoredPlan& plan = file.plans[0];
+  planners::StoredMotion* chosen = nullptr;
+  for (auto& m : plan.motions)
+    if (m.solved && m.arm == "psm1" && file.samples[m.sample].target == "LAD") chosen = &m;
+  ASSERT_TRUE(chosen) << "the suite's plan has no solved psm1 motion to the LAD";
+  const std::size_t insertion = static_cast<std::size_t>(
+      std::find(chosen->joints.begin(), chosen->joints.end(), "psm1_outer_insertion") -
+      chosen->joints.begin());
+  ASSERT_LT(insertion, chosen->joints.size());
+  const Eigen::VectorXd at_target = chosen->waypoints.back();
+  chosen->solved = false;
+  chosen->has_path = false;
+  chosen->outcome = "unreachable";
+  chosen->reason = "set by the test";
+  chosen->waypoints.clear();
+  const std::string id = "psm1:" + std::to_string(chosen->sample);
+  CommandRun run;
+  for (double push = 0.06; push <= 0.15 + 1e-9; push += 0.03) {
+    chosen->failure_pose = at_target;
+    chosen->failure_pose[static_cast<Eigen::Index>(insertion)] += push;
+    planners::WritePlanFile(Out("failed.json"), file);
+    run = Trocar("view patients/phantom-default " + Out("failed.json") + kFlat + "--motion " + id +
+                 " --colour collision=255,0,255 --view room --size 480x320 --screenshot " +
+                 Out("failed.png"));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    if (run.output.find("robot pose: in collision") != std::string::npos) break;
+  }
+  EXPECT_NE(
+      run.output.find("motion " + id +
+                      " fails: unreachable: set by the test; shown at the pose where it fails"),
+      std::string::npos)
+      << run.output;
+  EXPECT_NE(run.output.find("robot pose: in collision: psm1_"), std::string::npos) << run.output;
+  EXPECT_GT(CountRgb(ReadPng(Out("failed.png")), 255, 0, 255), 20)
+      << "the failing links in the collision colour";
+  // The replay: from the nominal pose to the failing one, which is its last frame and collides.
+  ViewInputs in;
+  in.case_dir = file.case_dir;
+  in.plan = Out("failed.json");
+  const LoadedView view = LoadView(in);
+  const planners::StoredMotion* failed = nullptr;
+  for (const auto& m : view.plan->plans[0].motions)
+    if (m.arm == "psm1" && m.sample == chosen->sample) failed = &m;
+  ASSERT_TRUE(failed);
+  const std::vector<ReplayFrame> frames =
+      ReplayMotion(*view.robot, *view.scene->robot_state(), *failed, view.collisions.get());
+  ASSERT_GE(frames.size(), 2u);
+  EXPECT_EQ(frames.front().state.q, view.scene->robot_state()->q) << "starts at the nominal pose";
+  const int j = view.robot->joint(view.robot->FindJoint("psm1_outer_insertion")).q_index;
+  EXPECT_DOUBLE_EQ(frames.back().state.q[j],
+                   chosen->failure_pose[static_cast<Eigen::Index>(insertion)]);
+  EXPECT_TRUE(frames.back().collisions.collision);
+  // A waypoint of a motion that has none is refused, naming it.
+  in.motion = id + ":2";
+  EXPECT_THROW(LoadView(in), Error);
 }
 
 TEST_F(ViewCli, TheWindowShowsTheSidebarAndTheScene) {
@@ -638,14 +724,19 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   EXPECT_NE(html.find("<h2>Sign-off</h2>"), std::string::npos);
   EXPECT_NE(html.find("class=\"signature\""), std::string::npos);
   const std::string pdf = Out("report.pdf");
-  run = Shell("chromium --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
-              "--disable-background-networking --disable-component-update --disable-sync "
-              "--user-data-dir=" + Out("chromium") + " --no-pdf-header-footer "
-              "--generate-pdf-document-outline --print-to-pdf=" + pdf + " file://" + dir + "/report.html");
+  run = Shell(
+      "chromium --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
+      "--disable-background-networking --disable-component-update --disable-sync "
+      "--user-data-dir=" +
+      Out("chromium") +
+      " --no-pdf-header-footer "
+      "--generate-pdf-document-outline --print-to-pdf=" +
+      pdf + " file://" + dir + "/report.html");
   ASSERT_TRUE(std::filesystem::exists(pdf)) << run.output;
   const std::string bytes = ReadTextFile(pdf);
   int pages = 0;
-  for (std::size_t at = bytes.find("/Type /Page"); at != std::string::npos; at = bytes.find("/Type /Page", at + 1))
+  for (std::size_t at = bytes.find("/Type /Page"); at != std::string::npos;
+       at = bytes.find("/Type /Page", at + 1))
     pages += bytes.compare(at, 12, "/Type /Pages") != 0;
   EXPECT_EQ(pages, 4) << "a summary page, then one page for each of the 2 plans and the baseline";
   // Where each heading lies, from the PDF's outline: the page object its destination names.
@@ -659,7 +750,8 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
   const std::string first = page_of("Verdict");
   EXPECT_EQ(page_of("Plans compared"), first);
   EXPECT_EQ(page_of("Sign-off)"), first) << "the sign-off block on the summary page";
-  const std::set<std::string> plan_pages = {page_of("Plan 1:"), page_of("Plan 2:"), page_of("Baseline,")};
+  const std::set<std::string> plan_pages = {page_of("Plan 1:"), page_of("Plan 2:"),
+                                            page_of("Baseline,")};
   EXPECT_EQ(plan_pages.size(), 3u) << "each plan on a page of its own";
   EXPECT_EQ(plan_pages.count(first), 0u) << "no plan on the summary page";
   EXPECT_EQ(plan_pages.count("missing"), 0u);
@@ -676,8 +768,9 @@ TEST_F(ViewCli, TheTargetsAreColouredAlongTheirLengthByWhichArmsReachThem) {
   const std::size_t ns = file.samples.size();
   std::vector<planners::ReachClass> want(ns);
   for (std::size_t s = 0; s < ns; ++s)
-    want[s] = s % 3 == 0 ? planners::ReachClass::kServed
-                         : (s % 3 == 1 ? planners::ReachClass::kPartly : planners::ReachClass::kNone);
+    want[s] = s % 3 == 0
+                  ? planners::ReachClass::kServed
+                  : (s % 3 == 1 ? planners::ReachClass::kPartly : planners::ReachClass::kNone);
   for (auto& m : plan.motions) {
     const int c = m.sample % 3;
     m.solved = c == 0 || (c == 1 && m.arm == "psm1");
@@ -721,13 +814,15 @@ TEST_F(ViewCli, TheTargetsAreColouredAlongTheirLengthByWhichArmsReachThem) {
   for (std::size_t s = 0; s < ns; ++s) {
     Eigen::Vector2d px;
     ASSERT_TRUE(test_projection::Project(camera, w, h, file.samples[s].p_W, &px));
-    ASSERT_TRUE(px.x() >= 0 && px.x() < w && px.y() >= 0 && px.y() < h) << "sample " << s << " out of the view";
+    ASSERT_TRUE(px.x() >= 0 && px.x() < w && px.y() >= 0 && px.y() < h)
+        << "sample " << s << " out of the view";
     ++shown;
     // Its class's colour within 2 pixels, and not another class's at the point itself.
     bool found = false;
     for (int dy = -2; dy <= 2 && !found; ++dy)
       for (int dx = -2; dx <= 2 && !found; ++dx) {
-        const int x = std::clamp(int(px.x()) + dx, 0, w - 1), y = std::clamp(int(px.y()) + dy, 0, h - 1);
+        const int x = std::clamp(int(px.x()) + dx, 0, w - 1),
+                  y = std::clamp(int(px.y()) + dy, 0, h - 1);
         found = near(image.Pixel(x, y), colour.at(want[s]));
       }
     right += found;
@@ -744,12 +839,17 @@ TEST_F(ViewCli, TheTargetsAreColouredAlongTheirLengthByWhichArmsReachThem) {
   const auto at = html.find("<table class=\"reach\">");
   ASSERT_NE(at, std::string::npos);
   const std::string table = html.substr(at, html.find("</table>", at) - at);
-  const planners::Reachability reach = planners::TargetReachability(planners::ReadPlanFile(path), 0);
+  const planners::Reachability reach =
+      planners::TargetReachability(planners::ReadPlanFile(path), 0);
   std::size_t rows = 0;
-  for (std::size_t k = table.find("<tr><td>"); k != std::string::npos; k = table.find("<tr><td>", k + 1)) ++rows;
+  for (std::size_t k = table.find("<tr><td>"); k != std::string::npos;
+       k = table.find("<tr><td>", k + 1))
+    ++rows;
   EXPECT_EQ(rows, reach.stretches.size());
-  EXPECT_GE(reach.stretches.size(), ns * 2 / 3) << "every third sample alike: a stretch is one sample";
-  EXPECT_NE(table.find("no: <span class=\"why\">failed: set by the test</span>"), std::string::npos) << table;
+  EXPECT_GE(reach.stretches.size(), ns * 2 / 3)
+      << "every third sample alike: a stretch is one sample";
+  EXPECT_NE(table.find("no: <span class=\"why\">failed: set by the test</span>"), std::string::npos)
+      << table;
 }
 
 // The workstation's plan page says each port in a surgeon's terms (as the plan file holds them),
