@@ -354,25 +354,43 @@ std::string WriteReport(ViewInputs inputs, const std::string& dir, const ReportO
       h << ImgTag(EncodePng(Render(*view.scene, {{scope, camera}}, options.width, options.height)),
                   "plan " + std::to_string(p.rank) + ": endoscope view");
     }
+    // A picture of one framing with only some groups shown, the others' visibility restored
+    // after (the reach groups shown only where asked).
+    auto picture = [&](Scene::Framing framing, ViewSpec::Kind kind,
+                       const std::function<bool(const std::string&)>& shown,
+                       const std::string& alt) {
+      std::vector<std::pair<std::string, bool>> before;
+      for (const std::string& g : view.scene->groups()) {
+        before.push_back({g, view.scene->style().Visible(g)});
+        if (!shown(g))
+          view.scene->SetVisible(g, false);
+        else if (g.rfind("reach:", 0) == 0)
+          view.scene->SetVisible(g, true);
+      }
+      ViewSpec spec;
+      spec.kind = kind;
+      const Views views = {
+          {spec, view.scene->ExternalCamera(double(options.width) / options.height, framing)}};
+      h << ImgTag(EncodePng(Render(*view.scene, views, options.width, options.height)),
+                  "plan " + std::to_string(p.rank) + ": " + alt);
+      for (const auto& [g, visible] : before) view.scene->SetVisible(g, visible);
+    };
+    auto is_reach = [](const std::string& g) { return g.rfind("reach:", 0) == 0; };
+    // The ports on the chest, close: skin, ribs and spaces, without the robot.
+    picture(
+        Scene::Framing::kPorts, ViewSpec::Kind::kPorts,
+        [&](const std::string& g) {
+          return g != "robot" && g != "cones" && g != "pivots" && !is_reach(g);
+        },
+        "ports on the chest");
     // The targets coloured along their length by how the plan serves them, with the heart and
-    // the ports: skin, bones, robot and table out of the way for this picture.
+    // the ports (the targets' own tubes hidden: the reach tubes cover them whole, in other
+    // colours).
     view.scene->ShowReachability(file, k);
-    std::vector<std::pair<std::string, bool>> shown_groups;
-    for (const std::string& g : view.scene->groups()) {
-      shown_groups.push_back({g, view.scene->style().Visible(g)});
-      // (The targets' own tubes hidden: the reach tubes cover them whole, in other colours.)
-      const bool keep = g == "heart" || g.rfind("reach:", 0) == 0 || g == "ports";
-      if (!keep) view.scene->SetVisible(g, false);
-      if (g.rfind("reach:", 0) == 0) view.scene->SetVisible(g, true);
-    }
-    ViewSpec targets_view;
-    targets_view.kind = ViewSpec::Kind::kTargets;
-    const Views on_targets = {
-        {targets_view, view.scene->ExternalCamera(double(options.width) / options.height,
-                                                  Scene::Framing::kTargets)}};
-    h << ImgTag(EncodePng(Render(*view.scene, on_targets, options.width, options.height)),
-                "plan " + std::to_string(p.rank) + ": reachability on the targets");
-    for (const auto& [g, visible] : shown_groups) view.scene->SetVisible(g, visible);
+    picture(
+        Scene::Framing::kTargets, ViewSpec::Kind::kTargets,
+        [&](const std::string& g) { return g == "heart" || g == "ports" || is_reach(g); },
+        "reachability on the targets");
     for (const char* g : {"reach:served", "reach:partly", "reach:none", "reach:labels"})
       view.scene->SetVisible(g, false);
     h << "</div>\n<p>nominal pose: " << Escape(Describe(pose)) << "</p>\n";

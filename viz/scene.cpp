@@ -259,53 +259,76 @@ struct Scene::Impl {
   bool pointer_shown = false;
   /// Text beside what it names, facing the camera (issue #43 item 2): each target's name at its
   /// middle, each port's arm and space. Shown with the "labels" overlay and its owner group.
+  /// Each renderer has its own copy of a label's actor: a billboard shared by two views (side by
+  /// side) took the other view's turn.
   struct Label {
     std::string owner;  ///< the group it names ("target:LAD", "ports")
-    vtkSmartPointer<vtkBillboardTextActor3D> actor;
+    std::string text;
+    Eigen::Vector3d p_W = Eigen::Vector3d::Zero();
+    std::vector<std::pair<vtkWeakPointer<vtkRenderer>, vtkSmartPointer<vtkBillboardTextActor3D>>>
+        copies;
   };
   std::vector<Label> labels;
+  /// The renderers the scene was added to, so that a label made later (a plan's ports) joins
+  /// them.
+  std::vector<vtkWeakPointer<vtkRenderer>> renderers;
 
   bool LabelsShown() const {
     if (!style.flat) return style.Visible("labels");
     const auto it = style.visible.find("labels");
     return it != style.visible.end() && it->second;
   }
-  void AddLabel(const std::string& owner, const std::string& text, const Eigen::Vector3d& p_W) {
+  vtkSmartPointer<vtkBillboardTextActor3D> LabelActor(const Label& l) const {
     auto actor = vtkSmartPointer<vtkBillboardTextActor3D>::New();
-    actor->SetInput(text.c_str());
-    actor->SetPosition(p_W.x(), p_W.y(), p_W.z());
+    actor->SetInput(l.text.c_str());
+    actor->SetPosition(l.p_W.x(), l.p_W.y(), l.p_W.z());
     actor->SetDisplayOffset(8, 8);
     vtkTextProperty* t = actor->GetTextProperty();
     t->SetFontSize(15);
     t->BoldOn();
-    const Eigen::Vector3d c = style.Colour(owner);
+    const Eigen::Vector3d c = style.Colour(l.owner);
     t->SetColor(c.data());
     t->SetBackgroundColor(0.05, 0.05, 0.07);
     t->SetBackgroundOpacity(0.6);
-    labels.push_back({owner, actor});
-    StyleLabels();
+    actor->SetVisibility(LabelsShown() && style.Visible(l.owner));
+    return actor;
+  }
+  void AddLabel(const std::string& owner, const std::string& text, const Eigen::Vector3d& p_W) {
+    labels.push_back({owner, text, p_W, {}});
+    AddLabelsToRenderers();
   }
   void StyleLabels() {
-    for (const Label& l : labels) l.actor->SetVisibility(LabelsShown() && style.Visible(l.owner));
+    for (const Label& l : labels)
+      for (const auto& [r, actor] : l.copies)
+        actor->SetVisibility(LabelsShown() && style.Visible(l.owner));
   }
-  /// The renderers the scene was added to, so that a label made later (a plan's ports) joins
-  /// them.
-  std::vector<vtkWeakPointer<vtkRenderer>> renderers;
   void RemoveLabels(const std::string& owner) {
     for (const Label& l : labels) {
       if (l.owner != owner) continue;
-      for (auto& r : renderers)
-        if (r) r->RemoveViewProp(l.actor);
+      for (const auto& [r, actor] : l.copies)
+        if (r) r->RemoveViewProp(actor);
     }
     labels.erase(std::remove_if(labels.begin(), labels.end(),
                                 [&](const Label& l) { return l.owner == owner; }),
                  labels.end());
   }
   void AddLabelsToRenderers() {
-    for (auto& r : renderers) {
-      if (!r) continue;
-      for (const Label& l : labels)
-        if (!r->HasViewProp(l.actor)) r->AddViewProp(l.actor);
+    renderers.erase(
+        std::remove_if(renderers.begin(), renderers.end(), [](const auto& r) { return !r; }),
+        renderers.end());
+    for (Label& l : labels) {
+      l.copies.erase(
+          std::remove_if(l.copies.begin(), l.copies.end(), [](const auto& c) { return !c.first; }),
+          l.copies.end());
+      for (auto& r : renderers) {
+        const bool has = std::any_of(l.copies.begin(), l.copies.end(), [&](const auto& c) {
+          return c.first.GetPointer() == r.GetPointer();
+        });
+        if (has) continue;
+        auto actor = LabelActor(l);
+        r->AddViewProp(actor);
+        l.copies.push_back({r, actor});
+      }
     }
   }
 
@@ -760,34 +783,75 @@ void Scene::HighlightLinks(const std::vector<int>& colliding, const std::vector<
   if (auto* g = impl_->FindGroup("robot")) impl_->ApplyStyle(*g);
 }
 
+CameraPose FramePoints(const std::vector<Eigen::Vector3d>& p_W, double aspect,
+                       const Eigen::Vector3d& direction_W, const Eigen::Vector3d& up_W) {
+  TROCAR_THROW_UNLESS(!p_W.empty(), "framing: no points to frame");
+  Eigen::Vector3d lo = p_W[0], hi = p_W[0];
+  for (const auto& p : p_W) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
+  const Eigen::Vector3d centre = (lo + hi) / 2;
+  double radius = 0.02;
+  for (const auto& p : p_W) radius = std::max(radius, (p - centre).norm());
+  CameraPose pose;
+  const double half = pose.view_angle_deg / 2 * kPi / 180;
+  const double fit = std::min(half, std::atan(std::tan(half) * std::max(aspect, 1e-3)));
+  Eigen::Vector3d d =
+      direction_W.norm() > 1e-9 ? direction_W.normalized() : Eigen::Vector3d::UnitZ();
+  Eigen::Vector3d up = up_W - up_W.dot(d) * d;
+  if (up.norm() < 1e-6)
+    up = (std::abs(d.z()) < 0.9 ? Eigen::Vector3d::UnitZ() : Eigen::Vector3d::UnitX());
+  pose.focal_point = centre;
+  pose.position = centre + d * (radius / std::sin(fit) * 1.05);
+  pose.view_up = up.normalized();
+  return pose;
+}
+
 CameraPose Scene::ExternalCamera(double aspect, Framing framing) const {
-  if (framing == Framing::kTargets && impl_->patient) {
-    // The targets and the ports, from the patient's front turned toward the ports' side and
-    // the head, the head up: the LAD on the heart's front and the LIMA on the chest wall's back
-    // face both face this way.
+  if ((framing == Framing::kTargets || framing == Framing::kPorts) && impl_->patient) {
     const patient::PatientModel& m = *impl_->patient;
-    std::vector<Eigen::Vector3d> points;
-    for (const patient::Target& t : m.targets)
-      for (const Eigen::Vector3d& p : t.points) points.push_back(m.X_WP * p);
-    const std::size_t on_targets = points.size();
-    if (const auto* ports = impl_->FindGroup("ports")) impl_->AddPoints(*ports, &points);
-    if (on_targets > 0) {
-      Eigen::Vector3d lo = points[0], hi = points[0];
-      for (const auto& p : points) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
-      const Eigen::Vector3d centre = (lo + hi) / 2;
-      double radius = 0.03;
-      for (const auto& p : points) radius = std::max(radius, (p - centre).norm());
-      double side = 0;  // the ports' side: +1 the patient's left
-      for (std::size_t i = on_targets; i < points.size(); ++i)
-        side += (m.X_WP.inverse() * points[i]).x() - (m.X_WP.inverse() * centre).x();
-      const Eigen::Vector3d d_P = Eigen::Vector3d(side < 0 ? -0.55 : 0.55, -1.0, 0.35).normalized();
-      CameraPose pose;
-      const double half = pose.view_angle_deg / 2 * kPi / 180;
-      const double fit = std::min(half, std::atan(std::tan(half) * std::max(aspect, 1e-3)));
-      pose.focal_point = centre;
-      pose.position = centre + m.X_WP.linear() * d_P * (radius / std::sin(fit) * 1.05);
-      pose.view_up = m.X_WP.linear() * Eigen::Vector3d::UnitZ();
-      return pose;
+    const Eigen::Isometry3d X_PW = m.X_WP.inverse();
+    std::vector<Eigen::Vector3d> ports, points;
+    if (const auto* group = impl_->FindGroup("ports")) impl_->AddPoints(*group, &ports);
+    if (framing == Framing::kTargets) {
+      // The targets and the ports, from the patient's front turned toward the ports' side and
+      // the head, the head up: the LAD on the heart's front and the LIMA on the chest wall's
+      // back face both face this way.
+      for (const patient::Target& t : m.targets)
+        for (const Eigen::Vector3d& p : t.points) points.push_back(m.X_WP * p);
+      if (!points.empty()) {
+        Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+        for (const auto& p : points) centre += p;
+        centre /= static_cast<double>(points.size());
+        double side = 0;  // the ports' side: +1 the patient's left
+        for (const auto& p : ports) side += (X_PW * p).x() - (X_PW * centre).x();
+        points.insert(points.end(), ports.begin(), ports.end());
+        const Eigen::Vector3d d_P =
+            Eigen::Vector3d(side < 0 ? -0.55 : 0.55, -1.0, 0.35).normalized();
+        return FramePoints(points, aspect, m.X_WP.linear() * d_P,
+                           m.X_WP.linear() * Eigen::Vector3d::UnitZ());
+      }
+    } else if (!ports.empty()) {
+      // The ports on the chest, close: from outside the body over their middle (away from the
+      // body's long axis, a little from the head), 3 cm of chest around them.
+      Eigen::Vector3d centre_P = Eigen::Vector3d::Zero();
+      for (const auto& p : ports) centre_P += X_PW * p;
+      centre_P /= static_cast<double>(ports.size());
+      const Eigen::Vector3d axis_P = 0.5 * (m.body_min_P + m.body_max_P);
+      Eigen::Vector3d out_P = centre_P - axis_P;
+      out_P.z() = 0;
+      if (out_P.norm() < 1e-6) out_P = -Eigen::Vector3d::UnitY();  // the front
+      out_P = out_P.normalized() + Eigen::Vector3d(0, 0, 0.25);
+      points = ports;
+      const Eigen::Vector3d centre_W = m.X_WP * centre_P;
+      double radius = 0;
+      for (const auto& p : ports) radius = std::max(radius, (p - centre_W).norm());
+      // A ring of points 3 cm beyond the farthest port keeps some chest around them.
+      const Eigen::Vector3d u = m.X_WP.linear() * Eigen::Vector3d::UnitZ();
+      const Eigen::Vector3d v = u.cross(m.X_WP.linear() * out_P.normalized()).normalized();
+      for (int k = 0; k < 8; ++k) {
+        const double a = k * kPi / 4;
+        points.push_back(centre_W + (radius + 0.03) * (std::cos(a) * u + std::sin(a) * v));
+      }
+      return FramePoints(points, aspect, m.X_WP.linear() * out_P, u);
     }
   }
   const auto* skin_group = impl_->FindGroup("skin");
@@ -1164,6 +1228,10 @@ ViewSpec ViewSpec::Parse(const std::string& text) {
     v.kind = Kind::kTargets;
     return v;
   }
+  if (text == "ports") {
+    v.kind = Kind::kPorts;
+    return v;
+  }
   if (text == "endoscope") {
     v.kind = Kind::kEndoscope;
     return v;
@@ -1173,8 +1241,9 @@ ViewSpec ViewSpec::Parse(const std::string& text) {
     v.camera.frame = text.substr(6);
     return v;
   }
-  TROCAR_THROW("view '" << text
-                        << "': expected external, room, targets, endoscope or frame:<robot frame>");
+  TROCAR_THROW(
+      "view '" << text
+               << "': expected external, room, targets, ports, endoscope or frame:<robot frame>");
 }
 
 CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
@@ -1187,6 +1256,8 @@ CameraPose ViewCamera(const Scene& scene, const ViewSpec& view, double aspect,
       return scene.ExternalCamera(aspect, Scene::Framing::kRoom);
     case ViewSpec::Kind::kTargets:
       return scene.ExternalCamera(aspect, Scene::Framing::kTargets);
+    case ViewSpec::Kind::kPorts:
+      return scene.ExternalCamera(aspect, Scene::Framing::kPorts);
     case ViewSpec::Kind::kEndoscope: {
       TROCAR_THROW_UNLESS(plan && !plan->views.empty(),
                           "the endoscope view needs a plan whose robot has an endoscope arm");
@@ -1220,7 +1291,8 @@ Image Render(const Scene& scene, const Views& views, int width, int height) {
     scene.AddTo(renderer);
     const bool scope = views[i].first.kind != ViewSpec::Kind::kExternal &&
                        views[i].first.kind != ViewSpec::Kind::kRoom &&
-                       views[i].first.kind != ViewSpec::Kind::kTargets;
+                       views[i].first.kind != ViewSpec::Kind::kTargets &&
+                       views[i].first.kind != ViewSpec::Kind::kPorts;
     Scene::Apply(views[i].second, renderer, scope ? &views[i].first.camera : nullptr);
     window->AddRenderer(renderer);
     if (scope) continue;

@@ -138,8 +138,10 @@ class Scene {
   /// What the external camera frames: the chest (the patient's skin, where the ports are: the
   /// default, so that the patient fills the view), or the room (patient, table and robot).
   /// kTargets: the targets and the ports, from the patient's front (turned toward the ports'
-  /// side and the head), the head up; the chest when the patient has no targets.
-  enum class Framing { kChest, kRoom, kTargets };
+  /// side and the head), the head up; the chest when the patient has no targets. kPorts: the
+  /// ports on the chest, close (3 cm of chest around them), from outside over their middle, the
+  /// head up; the chest when no plan is shown.
+  enum class Framing { kChest, kRoom, kTargets, kPorts };
   /// The external camera, from the side away from the cart, toward the foot end, from above;
   /// image `aspect` = width / height. Without a patient, the room.
   CameraPose ExternalCamera(double aspect, Framing framing = Framing::kChest) const;
@@ -177,6 +179,12 @@ class Scene {
   std::unique_ptr<Impl> impl_;
 };
 
+/// A camera looking along -`direction_W` (from that side) at the middle of `p_W`, far enough
+/// that they all fit the view (image `aspect` = width / height), `up_W` up as far as it is
+/// across the view. @throws trocar::Error when `p_W` is empty.
+CameraPose FramePoints(const std::vector<Eigen::Vector3d>& p_W, double aspect,
+                       const Eigen::Vector3d& direction_W, const Eigen::Vector3d& up_W);
+
 /// A base pose from typed values (thesis §2.8): `position` "x, y, z" (m) and `rotation` as XYZ
 /// Euler angles "a, b, c" (deg, R = Rx(a) Ry(b) Rz(c)), a quaternion "w, x, y, z" (normalised), or
 /// a rotation matrix of 9 numbers by rows (orthonormal within 1e-6, determinant +1).
@@ -187,11 +195,12 @@ Eigen::Vector3d EulerXyzDeg(const Eigen::Matrix3d& R);
 
 /// One view of a screenshot or a window pane.
 struct ViewSpec {
-  enum class Kind { kExternal, kRoom, kTargets, kEndoscope, kFrame };
+  enum class Kind { kExternal, kRoom, kTargets, kPorts, kEndoscope, kFrame };
   Kind kind = Kind::kExternal;
   FrameCamera camera;  ///< kEndoscope (from the plan's view) and kFrame
   /// "external" (the chest and its ports), "room" (patient, table and robot), "targets" (the
-  /// targets and the ports from the front, Scene::Framing::kTargets), "endoscope",
+  /// targets and the ports from the front, Scene::Framing::kTargets), "ports" (the ports on the
+  /// chest, close), "endoscope",
   /// "frame:<name>" (along the frame's z axis).
   /// @throws trocar::Error for any other text.
   static ViewSpec Parse(const std::string& text);

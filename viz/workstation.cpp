@@ -453,12 +453,40 @@ class Workstation {
           planners::NominalState(*scene_->robot(), plan, plan_->path + ": plan " + std::to_string(plan_index_ + 1));
       replayed_ = &plan.motions[motion_index_[i]];
       frames_ = ReplayMotion(*scene_->robot(), start, *replayed_, collisions_.get());
+      FrameOnMovingArm();
       frame_slider_->setRange(0, static_cast<int>(frames_.size()) - 1);
       frame_slider_->setValue(0);
       ShowFrame(0);
     } catch (const Error& e) {
       Fail(e.what());
     }
+  }
+
+  /// The external camera framed on what the replayed motion moves (issue #43 item 2): the links
+  /// whose place changes over its frames, all along it, and the sample it goes to; seen from
+  /// where the camera looks now.
+  void FrameOnMovingArm() {
+    if (frames_.size() < 2) return;
+    const auto& first = frames_.front().state.X_WL;
+    std::vector<int> moving;
+    for (const ReplayFrame& f : frames_)
+      for (std::size_t l = 0; l < first.size() && l < f.state.X_WL.size(); ++l)
+        if ((f.state.X_WL[l].translation() - first[l].translation()).norm() > 1e-4 &&
+            std::find(moving.begin(), moving.end(), static_cast<int>(l)) == moving.end())
+          moving.push_back(static_cast<int>(l));
+    std::vector<Eigen::Vector3d> points;
+    const std::size_t step = std::max<std::size_t>(1, frames_.size() / 20);
+    for (std::size_t k = 0; k < frames_.size(); k += step)
+      for (int l : moving) points.push_back(frames_[k].state.X_WL[l].translation());
+    for (int l : moving) points.push_back(frames_.back().state.X_WL[l].translation());
+    if (replayed_ && replayed_->sample >= 0 &&
+        replayed_->sample < static_cast<int>(plan_->samples.size()))
+      points.push_back(plan_->samples[replayed_->sample].p_W);
+    if (points.empty()) return;
+    const CameraPose now = ExternalPose();
+    const CameraPose framed =
+        FramePoints(points, Aspect(external_), now.position - now.focal_point, now.view_up);
+    Scene::Apply(framed, external_);
   }
 
   void ShowFrame(int f) {

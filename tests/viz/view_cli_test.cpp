@@ -211,6 +211,41 @@ TEST_F(ViewCli, CollisionsOfTheShownPoseAreSaidAndDrawnInTheCollisionColour) {
   EXPECT_GT(CountRgb(ReadPng(Out("deep.png")), 255, 0, 255), 20);
 }
 
+// Issue #43 item 2: a close-up of the ports on the chest for every plan. In the ports view every
+// port lies inside the picture, away from its edges, and the ports spread over at least half of
+// its height (it frames them with 3 cm of chest around); the whole-chest view spreads them less.
+TEST_F(ViewCli, ThePortsViewShowsThePortsOnTheChestClose) {
+  ViewInputs in;
+  in.case_dir = planners::ReadPlanFile(Plan()).case_dir;
+  in.plan = Plan();
+  in.flat = true;
+  LoadedView view = LoadView(in);
+  const int w = 640, h = 400;
+  auto spread = [&](const std::string& name) {
+    const ViewSpec spec = ViewSpec::Parse(name);
+    const CameraPose camera =
+        ViewCamera(*view.scene, spec, double(w) / h, &view.plan->plans[0], nullptr);
+    std::vector<Eigen::Vector2d> px;
+    for (const auto& port : view.plan->plans[0].ports) {
+      Eigen::Vector2d p;
+      EXPECT_TRUE(test_projection::Project(camera, w, h, port.p_W, &p)) << port.arm;
+      EXPECT_TRUE(p.x() > 0.05 * w && p.x() < 0.95 * w && p.y() > 0.05 * h && p.y() < 0.95 * h)
+          << name << ": " << port.arm << " at " << p.transpose();
+      px.push_back(p);
+    }
+    double most = 0;
+    for (const auto& a : px)
+      for (const auto& b : px) most = std::max(most, (a - b).norm());
+    return most;
+  };
+  ASSERT_GE(view.plan->plans[0].ports.size(), 2u);
+  const double close = spread("ports"), whole = spread("external");
+  EXPECT_GE(close, 0.5 * h) << "the ports spread " << close << " px of " << h;
+  EXPECT_GT(close, whole) << "the ports spread " << close << " px close up, " << whole
+                          << " in the chest view";
+  EXPECT_THROW(ViewSpec::Parse("portz"), Error);
+}
+
 // Issue #43 item 9: a failed motion is shown at the pose where it fails, with its reason. The
 // verification keeps that pose (an unreachable sample's inverse-kinematics answer, in collision
 // or at a limit); the view poses the arm there and says why; the replay runs from the nominal
@@ -667,6 +702,11 @@ TEST_F(ViewCli, TheReportLoadsInABrowserAndShowsThePlansPicturesAndTables) {
     ++images;
   }
   EXPECT_GE(images, 2u);
+  for (const std::string plan : {"1", "2"})
+    for (const char* picture :
+         {"external view", "ports on the chest", "reachability on the targets"})
+      EXPECT_NE(html.find("alt=\"plan " + plan + ": " + picture + "\""), std::string::npos)
+          << plan << " " << picture;
   EXPECT_EQ(html.find("href="), std::string::npos);
   EXPECT_NE(html.find("Dr &lt;Ada&gt;"), std::string::npos) << "the sign-off, escaped";
   EXPECT_NE(html.find("fine &amp; ready"), std::string::npos);
@@ -774,6 +814,7 @@ TEST_F(ViewCli, TheTargetsAreColouredAlongTheirLengthByWhichArmsReachThem) {
   for (auto& m : plan.motions) {
     const int c = m.sample % 3;
     m.solved = c == 0 || (c == 1 && m.arm == "psm1");
+    if (m.solved) m.failure_pose.resize(0);  // a solved motion has none
     m.outcome = m.solved ? "solved" : "failed";
     m.reason = m.solved ? "" : "set by the test";
   }
