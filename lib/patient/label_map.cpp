@@ -301,6 +301,52 @@ std::vector<int> ResampleLabels(const LabelMap& map, const Volume& grid) {
   return out;
 }
 
+LabelAgreement MeasureLabelAgreement(const Volume& ct, const BoneParts& bones,
+                                     double bone_threshold) {
+  LabelAgreement a;
+  std::vector<std::uint8_t> is_rib;
+  int top = 0;
+  for (const auto* side : {&bones.ribs_left, &bones.ribs_right})
+    for (const Component& c : *side) top = std::max(top, c.label);
+  is_rib.assign(static_cast<std::size_t>(top) + 1, 0);
+  for (const auto* side : {&bones.ribs_left, &bones.ribs_right})
+    for (const Component& c : *side) is_rib[c.label] = 1;
+  std::vector<Eigen::Vector3i> voxels;
+  for (int k = 0; k < ct.size.z(); ++k)
+    for (int j = 0; j < ct.size.y(); ++j)
+      for (int i = 0; i < ct.size.x(); ++i) {
+        const int l = bones.labels[ct.Index(i, j, k)];
+        if (l > 0 && l <= top && is_rib[l]) voxels.emplace_back(i, j, k);
+      }
+  a.rib_voxels = static_cast<long>(voxels.size());
+  if (voxels.empty()) return a;
+  auto share = [&](const Eigen::Vector3i& d) {
+    long bright = 0;
+    for (const Eigen::Vector3i& v : voxels) {
+      const Eigen::Vector3i w = v + d;
+      if ((w.array() < 0).any() || (w.array() >= ct.size.array()).any()) continue;
+      bright += ct.values[ct.Index(w.x(), w.y(), w.z())] > bone_threshold;
+    }
+    return static_cast<double>(bright) / static_cast<double>(voxels.size());
+  };
+  a.here = a.best = share(Eigen::Vector3i::Zero());
+  for (int axis = 0; axis < 3; ++axis) {
+    const double step = ct.index_to_P.col(axis).norm();
+    for (const double mm :
+         {-30.0, -25.0, -20.0, -15.0, -10.0, -5.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0}) {
+      Eigen::Vector3i d = Eigen::Vector3i::Zero();
+      d[axis] = static_cast<int>(std::lround(mm * 1e-3 / step));
+      if (d[axis] == 0) continue;
+      const double s = share(d);
+      if (s > a.best) {
+        a.best = s;
+        a.best_move_P = ct.index_to_P * d.cast<double>();
+      }
+    }
+  }
+  return a;
+}
+
 LabelledAnatomy AnatomyFromLabels(const LabelMap& map, const Volume& ct) {
   LabelledAnatomy a;
   std::map<int, LabelClass> classes;

@@ -69,4 +69,18 @@ struct LabelledAnatomy {
 /// @throws trocar::Error listing the names when none of the labels is a structure trocar uses.
 LabelledAnatomy AnatomyFromLabels(const LabelMap& map, const Volume& ct);
 
+/// How well a label map's ribs lie on the CT's ribs (issue #42, bad input): the share of the
+/// labelled rib voxels whose CT value is bone-bright (above `bone_threshold`, in the CT's units)
+/// where the map puts them, and the best share with the labels moved 5 to 30 mm (in 5 mm steps)
+/// along any of the grid's axes. A map of this CT is best where it is; a map shifted by half a rib
+/// or more, or another patient's, lies better moved or nowhere.
+struct LabelAgreement {
+  long rib_voxels = 0;
+  double here = 0.0;  ///< share bone-bright, unmoved
+  double best = 0.0;  ///< the best share over the moves (and unmoved)
+  Eigen::Vector3d best_move_P = Eigen::Vector3d::Zero();  ///< the move giving it (m)
+};
+LabelAgreement MeasureLabelAgreement(const Volume& ct, const BoneParts& bones,
+                                     double bone_threshold);
+
 }  // namespace trocar::patient

@@ -4,11 +4,13 @@
 
 #include <filesystem>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <set>
 
 #include "common/error.hpp"
 #include "common/file_util.hpp"
 #include "patient/patient_model.hpp"
+#include "patient/volume.hpp"
 #include "test_util.hpp"
 
 namespace trocar {
@@ -324,6 +326,61 @@ TEST(LabelMap, AWholeThoraxsSpacesLieBetweenTheLabelledRibsOfTheirNumber) {
   for (int n = 1; n <= 9; ++n) {
     EXPECT_EQ(named.count("ICS-L" + std::to_string(n)), 1u) << n;
     EXPECT_EQ(named.count("ICS-R" + std::to_string(n)), 1u) << n;
+  }
+}
+
+}  // namespace
+}  // namespace trocar
+
+namespace trocar {
+namespace {
+
+// Issue #42, bad input: a label map whose ribs do not lie on the CT's (its header's origin off by
+// 12 or 30 mm toward the head, or 20 mm to the side: a rib's height, a rib's spacing) is refused
+// naming the file and the overlap measured, where it is and moved to fit; the same map written
+// unshifted imports and says its overlap. The import measures the share of the labelled rib
+// voxels that are bone-bright on the CT, there and with the labels moved 5-30 mm.
+TEST(LabelMap, AWholeThoraxsMapShiftedAgainstItsCtIsRefusedWithTheOverlapMeasured) {
+  const std::string ct = test::SharedDataPath("ct/lidc-idri-0001/ct.nii.gz");
+  const std::string seg = test::SharedDataPath("ct/lidc-idri-0001/totalseg_labels.nii.gz");
+  TROCAR_REQUIRE_SHARED_FILE(seg);
+  const patient::LabelMap map = patient::LoadLabelMap(seg);
+  const std::string dir = LabelScratch("shifted_maps");
+  nlohmann::json names = nlohmann::json::object();
+  for (const auto& [value, name] : map.names) names[std::to_string(value)] = name;
+  WriteFileAtomically(dir + "/names.json", names.dump());
+  struct Shift {
+    const char* name;
+    Eigen::Vector3d d_P;
+  };
+  for (const Shift& s :
+       {Shift{"unshifted", Eigen::Vector3d::Zero()}, Shift{"head12", {0, 0, 0.012}},
+        Shift{"head30", {0, 0, 0.030}}, Shift{"left20", {0.020, 0, 0}}}) {
+    SCOPED_TRACE(s.name);
+    patient::Volume v = map.volume;
+    v.origin_P += s.d_P;
+    const std::string file = dir + "/" + s.name + ".nrrd";
+    patient::WriteNrrd(v, file);
+    const std::string case_dir = LabelScratch(std::string("shifted_") + s.name);
+    WriteFileAtomically(case_dir + "/patient.yaml", "ct: " + ct + "\nlabels: {file: " + file +
+                                                        ", names: " + dir +
+                                                        "/names.json}\n"
+                                                        "intercostal: {left: true, right: true}\n");
+    if (s.d_P.norm() == 0) {
+      const patient::ImportedPatient p = patient::ImportCase(case_dir, {false, false});
+      bool said = false;
+      for (const auto& line : p.report.checks)
+        said = said || line.find("label map: ") != std::string::npos;
+      EXPECT_TRUE(said) << "the overlap is said";
+      for (const auto& w : p.report.warnings)
+        EXPECT_EQ(w.find("label map"), std::string::npos) << w;
+      continue;
+    }
+    const std::string e = ErrorOf([&] { patient::ImportCase(case_dir, {false, false}); });
+    EXPECT_NE(e.find(std::string(s.name) + ".nrrd: its ribs do not lie on this CT's ribs: "),
+              std::string::npos)
+        << e;
+    EXPECT_NE(e.find("% moved "), std::string::npos) << e;
   }
 }
 
