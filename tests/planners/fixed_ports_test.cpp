@@ -1,23 +1,25 @@
 // Ports given by a template or a surgeon (port_placement/fixed_ports.hpp), and their plans
 // (PlanFixedPorts): issue #41 item 3.
+#include "port_placement/fixed_ports.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <limits>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <limits>
 
 #include "common/error.hpp"
+#include "common/mesh.hpp"
 #include "patient/case_file.hpp"
 #include "patient/markups.hpp"
 #include "patient/patient_model.hpp"
 #include "patient/phantom.hpp"
-#include "port_placement/fixed_ports.hpp"
+#include "planners/bundled.hpp"
 #include "port_placement/optimizer.hpp"
 #include "port_placement/selection_criteria.hpp"
-#include "common/mesh.hpp"
 #include "robot/load_robot.hpp"
-#include "planners/bundled.hpp"
 #include "test_util.hpp"
 
 namespace trocar::planners {
@@ -100,6 +102,21 @@ TEST(FixedPorts, TheTecabTemplateLandsOnItsSpacesAndLines) {
   }
 }
 
+// Points along the generator's left intercostal spaces (on the skin, about `per_space` of each),
+// with the space's number counted from the top.
+void ForPointsOfTheLeftSpaces(const patient::PhantomTruth& truth, std::size_t per_space,
+                              const std::function<void(int, const Eigen::Vector3d&)>& visit) {
+  int left = 0;
+  for (std::size_t k = 0; k < truth.intercostal_spaces.size(); ++k) {
+    if (truth.intercostal_side[k] < 0) continue;
+    ++left;
+    const auto& curve = truth.intercostal_spaces[k];
+    for (std::size_t i = 0; i < curve.size();
+         i += std::max<std::size_t>(1, curve.size() / per_space))
+      visit(left, curve[i]);
+  }
+}
+
 // A target's stretch is said at the level of the intercostal spaces it lies behind (issue #43 item
 // 4): on the bundled phantom, points inside the chest under the generator's own space curves read
 // as those spaces by the import's numbering, and the LIMA runs from the 1st space's level to the
@@ -108,19 +125,14 @@ TEST(FixedPorts, AStretchIsSaidAtTheSpacesItLiesBehind) {
   patient::PhantomParameters parameters;  // the bundled case's
   const patient::PhantomTruth truth = patient::GeneratePhantom(parameters).truth;
   const patient::PatientModel& model = *Phantom();
-  int left = 0, checked = 0;
-  for (std::size_t k = 0; k < truth.intercostal_spaces.size(); ++k) {
-    if (truth.intercostal_side[k] < 0) continue;
-    ++left;
-    const auto& curve = truth.intercostal_spaces[k];
-    for (std::size_t i = 0; i < curve.size(); i += std::max<std::size_t>(1, curve.size() / 5)) {
-      // 15 mm toward the body's long axis: under the skin, inside the wall.
-      Eigen::Vector3d inward(-curve[i].x(), -curve[i].y(), 0.0);
-      const Eigen::Vector3d p = curve[i] + 0.015 * inward.normalized();
-      EXPECT_EQ(SpaceAtLevel(model, p), left) << "space " << left << ", point " << i;
-      ++checked;
-    }
-  }
+  int checked = 0;
+  ForPointsOfTheLeftSpaces(truth, 5, [&](int left, const Eigen::Vector3d& on_skin) {
+    // 15 mm toward the body's long axis: under the skin, inside the wall.
+    Eigen::Vector3d inward(-on_skin.x(), -on_skin.y(), 0.0);
+    const Eigen::Vector3d p = on_skin + 0.015 * inward.normalized();
+    EXPECT_EQ(SpaceAtLevel(model, p), left) << "space " << left << " at " << p.transpose();
+    ++checked;
+  });
   EXPECT_GT(checked, 20);
   EXPECT_EQ(SpaceAtLevel(model, truth.lima.back()), 6);
   EXPECT_LE(SpaceAtLevel(model, truth.lima.front()), 1);
@@ -148,34 +160,30 @@ TEST(FixedPorts, PortsAreSaidInAnatomicalTermsAsTheGeneratorPlacedThem) {
     auto from = text.find_last_of("(, ", at - 1);
     return std::stod(text.substr(from + 1, at - from - 1)) / 1e3;
   };
-  int left = 0, checked = 0;
-  for (std::size_t k = 0; k < truth.intercostal_spaces.size(); ++k) {
-    if (truth.intercostal_side[k] < 0) continue;
-    ++left;
-    const auto& curve = truth.intercostal_spaces[k];
-    for (std::size_t i = 0; i < curve.size(); i += std::max<std::size_t>(1, curve.size() / 6)) {
-      PortSite site;
-      double nearest = std::numeric_limits<double>::infinity();
-      for (std::size_t c = 0; c < model.port_candidates.size(); ++c) {
-        for (const auto& q : model.port_candidates[c].skin) {
-          if ((q - curve[i]).norm() < nearest) {
-            nearest = (q - curve[i]).norm();
-            site.candidate = static_cast<int>(c);
-          }
+  int checked = 0, left = 0;
+  ForPointsOfTheLeftSpaces(truth, 6, [&](int space, const Eigen::Vector3d& on_skin) {
+    left = std::max(left, space);
+    PortSite site;
+    double nearest = std::numeric_limits<double>::infinity();
+    for (std::size_t c = 0; c < model.port_candidates.size(); ++c) {
+      for (const auto& q : model.port_candidates[c].skin) {
+        if ((q - on_skin).norm() < nearest) {
+          nearest = (q - on_skin).norm();
+          site.candidate = static_cast<int>(c);
         }
       }
-      site.p_P = site.p_curve_P = curve[i];
-      const std::string words = DescribePort(model, site);
-      SCOPED_TRACE(words);
-      EXPECT_EQ(words.rfind("ICS-L" + std::to_string(left) + ",", 0), 0u) << "space " << left;
-      const double offset = curve[i].x();  // left of the midline
-      EXPECT_NEAR(mm_before(words, "midline"), offset, 0.003);
-      // (The imported sternum's surface lies up to a voxel and a half, 3 mm, outside the
-      // generator's bone: its edge reads up to 4 mm nearer.)
-      EXPECT_NEAR(mm_before(words, "sternal edge"), offset - 0.020, 0.004);
-      ++checked;
     }
-  }
+    site.p_P = site.p_curve_P = on_skin;
+    const std::string words = DescribePort(model, site);
+    SCOPED_TRACE(words);
+    EXPECT_EQ(words.rfind("ICS-L" + std::to_string(space) + ",", 0), 0u) << "space " << space;
+    const double offset = on_skin.x();  // left of the midline
+    EXPECT_NEAR(mm_before(words, "midline"), offset, 0.003);
+    // (The imported sternum's surface lies up to a voxel and a half, 3 mm, outside the
+    // generator's bone: its edge reads up to 4 mm nearer.)
+    EXPECT_NEAR(mm_before(words, "sternal edge"), offset - 0.020, 0.004);
+    ++checked;
+  });
   EXPECT_EQ(left, 8);  // the bundled phantom's nine ribs a side
   EXPECT_GT(checked, 50);
   // Below the sternum the sternal edge is not said.
