@@ -405,7 +405,11 @@ class Workstation {
       if (timer_->isActive()) {
         timer_->stop();
         play->setText("Play");
-      } else if (!frames_.empty()) {
+      } else {
+        // The motion shown in the list when the window opened was never loaded (the list fills
+        // without loading): Play loads it first.
+        if (frames_.empty()) LoadMotion(motions_->currentIndex());
+        if (frames_.empty()) return;
         if (frame_slider_->value() >= frame_slider_->maximum()) frame_slider_->setValue(0);
         timer_->start();
         play->setText("Pause");

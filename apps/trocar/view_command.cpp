@@ -188,7 +188,8 @@ void AddViewCommand(CLI::App* app) {
                   "with --screenshot: also save what it shows as a scene file (the window saves from File)");
   cmd->add_option("--view", o->views,
                   "external (the chest and its ports), room (the patient, table and robot), "
-                  "endoscope (the plan's scope camera) or frame:<robot frame>; repeat "
+                  "targets (the targets and ports from the front), ports (the ports on the chest, "
+                  "close), endoscope (the plan's scope camera) or frame:<robot frame>; repeat "
                   "for side by side (default: external, and endoscope when the plan has one)");
   cmd->add_option("--size", o->size, "screenshot WIDTHxHEIGHT in pixels")->capture_default_str();
   cmd->add_option("--light", o->light, "intensity of the light at the scope tip (0..)")

@@ -611,6 +611,23 @@ TEST_F(ViewCli, ASceneSavedAndLoadedRendersTheSamePicture) {
   EXPECT_EQ(ReadTextFile(Out("again.json")), ReadTextFile(Out("scene.json")));
   EXPECT_FALSE(scene.style.Visible("table"));
   EXPECT_EQ(scene.style.Opacity("skin"), 0.1);
+  // The command line's style applies over the scene (it was silently ignored): flat, the skin,
+  // ribs and sternum hidden, the heart in magenta, then the heart hidden too; a pose given with a
+  // scene is refused (the scene saves its own).
+  const std::string over =
+      " view --scene " + Out("scene.json") +
+      " --flat --hide skin --hide ribs --hide sternum --colour heart=255,0,255";
+  run = Shell("cd / && " + std::string(TROCAR_BINARY) + over + common + Out("flat.png"));
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  run = Shell("cd / && " + std::string(TROCAR_BINARY) + over + " --hide heart" + common +
+              Out("hidden.png"));
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_GT(CountRgb(ReadPng(Out("flat.png")), 255, 0, 255), 200)
+      << "the heart, flat, in the colour given";
+  EXPECT_EQ(CountRgb(ReadPng(Out("hidden.png")), 255, 0, 255), 0) << "--hide heart over the scene";
+  run = Trocar("view --scene " + Out("scene.json") + motion + common + Out("posed.png"));
+  EXPECT_EQ(run.exit_code, 1) << run.output;
+  EXPECT_NE(run.output.find("give no --motion or --robot"), std::string::npos) << run.output;
   // Bad scene files are named, field by field.
   nlohmann::json doc = nlohmann::json::parse(ReadTextFile(Out("scene.json")));
   auto refuse = [&](const nlohmann::json& d, const std::string& named) {
