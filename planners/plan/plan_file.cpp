@@ -128,15 +128,18 @@ struct Field {
     for (std::size_t i = 0; i < Size(); ++i) out.push_back((*this)[i].String());
     return out;
   }
+  /// A joint value in rad or m (1e300 is no pose: a limit check downstream would still pass it to
+  /// sin and cos first).
+  double JointValue() const {
+    const double v = Number();
+    if (std::abs(v) > kMaxJointValue) Fail("a joint value within 1000 (rad or m)");
+    return v;
+  }
   std::vector<std::pair<std::string, double>> NamedNumbers() const {
     if (!j.is_object()) Fail("an object of joint names and values");
     std::vector<std::pair<std::string, double>> out;
     for (const auto& [name, value] : j.items()) {
-      const double v = (*this)[name].Number();
-      // Joint values in rad or m: 1e300 is no pose (a limit check downstream would still pass
-      // it to sin and cos first).
-      if (std::abs(v) > kMaxJointValue) (*this)[name].Fail("a joint value within 1000 (rad or m)");
-      out.emplace_back(name, v);
+      out.emplace_back(name, (*this)[name].JointValue());
     }
     return out;
   }
@@ -217,7 +220,7 @@ StoredMotion ReadMotion(const Field& m) {
         w[k].Fail(std::to_string(motion.joints.size()) + " joint values");
       }
       Eigen::VectorXd q(motion.joints.size());
-      for (std::size_t d = 0; d < motion.joints.size(); ++d) q[d] = w[k][d].Number();
+      for (std::size_t d = 0; d < motion.joints.size(); ++d) q[d] = w[k][d].JointValue();
       motion.waypoints.push_back(q);
     }
   }
@@ -231,7 +234,8 @@ StoredMotion ReadMotion(const Field& m) {
     if (f.Size() != motion.joints.size())
       f.Fail(std::to_string(motion.joints.size()) + " joint values");
     motion.failure_pose.resize(static_cast<Eigen::Index>(motion.joints.size()));
-    for (std::size_t d = 0; d < motion.joints.size(); ++d) motion.failure_pose[d] = f[d].Number();
+    for (std::size_t d = 0; d < motion.joints.size(); ++d)
+      motion.failure_pose[static_cast<Eigen::Index>(d)] = f[d].JointValue();
   }
   return motion;
 }

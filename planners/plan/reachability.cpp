@@ -34,7 +34,7 @@ Reachability TargetReachability(const PlanFile& file, const StoredPlan& plan,
   auto check_sample = [&](int s, const char* what) {
     TROCAR_THROW_UNLESS(s >= 0 && static_cast<std::size_t>(s) < ns,
                         file.path << ": plan " << plan.rank << " has a " << what << " at sample "
-                                  << s << ", expected 0.." << ns - 1);
+                                  << s << ", and the file has " << ns << " target samples");
   };
   std::vector<bool> endoscope(na);
   for (std::size_t a = 0; a < na; ++a) endoscope[a] = file.arms[a].role == "endoscope";

@@ -487,6 +487,29 @@ TEST_F(ViewCli, HostilePlanFilesAreRefusedNamingTheFieldByEveryReaderAndNothingI
     while (motions.size() <= most) motions.push_back(motions[0]);
   }
   ranges.push_back({"motions", doc.dump(), "more than one per arm"});
+  // A failed motion's pose where it fails: joint values in range, one per joint, never on a
+  // solved motion.
+  {
+    nlohmann::json motion;
+    for (const auto& m : good["plans"][0]["verification"]["motions"])
+      if (m["solved"].get<bool>() && motion.is_null()) motion = m;
+    ASSERT_FALSE(motion.is_null()) << "the suite's plan has no solved motion";
+    const std::size_t joints = motion["joints"].size();
+    auto with = [&](bool solved, const nlohmann::json& pose) {
+      nlohmann::json d = good, m = motion;
+      m["solved"] = solved;
+      m["failure_pose"] = pose;
+      for (auto& each : d["plans"][0]["verification"]["motions"])
+        if (each["arm"] == m["arm"] && each["sample"] == m["sample"]) each = m;
+      return d.dump();
+    };
+    ranges.push_back({"failure far", with(false, std::vector<double>(joints, 1e300)),
+                      "failure_pose[0]: expected a joint value within 1000"});
+    ranges.push_back({"failure short", with(false, std::vector<double>(1, 0.0)),
+                      "failure_pose: expected " + std::to_string(joints) + " joint values"});
+    ranges.push_back({"failure solved", with(true, std::vector<double>(joints, 0.0)),
+                      "expected no failure pose on a solved motion"});
+  }
   for (const Case& c : ranges) refused_by_reader(c);
   // Too many values for the stated limit: refused while parsing, naming the limit's variable.
   InputLimits small = Limits();
