@@ -220,7 +220,7 @@ StoredMotion ReadMotion(const Field& m) {
         w[k].Fail(std::to_string(motion.joints.size()) + " joint values");
       }
       Eigen::VectorXd q(motion.joints.size());
-      for (std::size_t d = 0; d < motion.joints.size(); ++d) q[d] = w[k][d].JointValue();
+      for (std::size_t d = 0; d < motion.joints.size(); ++d) q[d] = w[k][d].Number();
       motion.waypoints.push_back(q);
     }
   }
