@@ -48,6 +48,7 @@
 #include "collision/triangle_bvh.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "kinematics/appearance.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "plan/reachability.hpp"
 
@@ -253,6 +254,8 @@ struct Scene::Impl {
     const robot::Geometry* geometry = nullptr;  ///< in the robot model (shared, immutable)
   };
   std::vector<LinkActor> links;
+  /// The meshes the robot's links wear, and why some do not (LinkActor::geometry points here).
+  kinematics::Dressing dressing;
   /// The skin's hierarchy, built when the external camera first looks for a clear direction.
   mutable std::unique_ptr<collision::TriangleBvh> skin_bvh;
   std::vector<int> highlighted, near;
@@ -643,9 +646,14 @@ struct Scene::Impl {
 
   void BuildRobot() {
     const robot::RobotModel& r = *robot;
+    // A link wearing another description's meshes is drawn in them (robot_defaults.hpp,
+    // "appearance"), otherwise in its own visual shapes, else its collision shapes.
+    dressing = kinematics::DressRobot(r);
     for (int l = 0; l < r.num_links(); ++l) {
       const robot::Link& link = r.link(l);
-      const auto& shapes = link.visuals.empty() ? link.collisions : link.visuals;
+      const auto& shapes = !dressing.worn[l].empty() ? dressing.worn[l]
+                           : link.visuals.empty()    ? link.collisions
+                                                     : link.visuals;
       for (const robot::Geometry& g : shapes) {
         vtkSmartPointer<vtkPolyData> poly = ShapePolyData(g);
         if (!poly) continue;
@@ -706,6 +714,7 @@ Scene::~Scene() = default;
 
 const patient::PatientModel* Scene::patient() const { return impl_->patient.get(); }
 const robot::RobotModel* Scene::robot() const { return impl_->robot.get(); }
+const std::vector<std::string>& Scene::robot_notes() const { return impl_->dressing.notes; }
 const SceneStyle& Scene::style() const { return impl_->style; }
 
 std::vector<std::string> Scene::groups() const {
@@ -1020,6 +1029,48 @@ void Scene::Apply(const CameraPose& pose, vtkRenderer* renderer, const FrameCame
   }
 }
 
+void Scene::LeaveOutCarrier(vtkRenderer* renderer, const FrameCamera& scope,
+                            const CameraPose& pose) const {
+  const robot::RobotModel* r = impl_->robot.get();
+  std::vector<char> carrier(r ? r->num_links() : 0, 0);
+  if (r) {
+    int link = -1;
+    for (const robot::Frame& f : r->frames())
+      if (f.name == scope.frame) link = f.link;
+    if (link < 0) link = r->FindLink(scope.frame);
+    // The carrier and the links welded to it: up through fixed parent joints, then down through
+    // fixed child joints.
+    while (link >= 0 && r->link(link).parent_joint >= 0 &&
+           !r->joint(r->link(link).parent_joint).movable())
+      link = r->joint(r->link(link).parent_joint).parent_link;
+    std::vector<int> open;
+    if (link >= 0) open.push_back(link);
+    while (!open.empty()) {
+      const int l = open.back();
+      open.pop_back();
+      carrier[l] = 1;
+      for (int j : r->link(l).child_joints)
+        if (!r->joint(j).movable()) open.push_back(r->joint(j).child_link);
+    }
+  }
+  auto holds_camera = [&](vtkActor* actor) {
+    double b[6];
+    actor->GetBounds(b);
+    const double margin = 0.001;
+    for (int k = 0; k < 3; ++k)
+      if (pose.position[k] < b[2 * k] - margin || pose.position[k] > b[2 * k + 1] + margin)
+        return false;
+    return true;
+  };
+  for (const auto& la : impl_->links) {
+    if ((la.link >= 0 && la.link < static_cast<int>(carrier.size()) && carrier[la.link]) ||
+        holds_camera(la.actor))
+      renderer->RemoveActor(la.actor);
+    else
+      renderer->AddActor(la.actor);
+  }
+}
+
 bool Scene::ShowsOverlay(const std::string& name) const {
   const SceneStyle& style = impl_->style;
   if (!style.flat) return style.Visible(name);
@@ -1294,6 +1345,7 @@ Image Render(const Scene& scene, const Views& views, int width, int height) {
                        views[i].first.kind != ViewSpec::Kind::kTargets &&
                        views[i].first.kind != ViewSpec::Kind::kPorts;
     Scene::Apply(views[i].second, renderer, scope ? &views[i].first.camera : nullptr);
+    if (scope) scene.LeaveOutCarrier(renderer, views[i].first.camera, views[i].second);
     window->AddRenderer(renderer);
     if (scope) continue;
     if (scene.ShowsOverlay("legend")) scene.AddLegend(renderer);

@@ -3,7 +3,8 @@
 /// The workstation's 3D scene (VTK): a patient model (skin, bones, heart, other structures),
 /// its targets with their approach-normal cones, the candidate port curves, a plan's ports, the
 /// table and floor, and a robot drawn from its links' visual shapes (collision shapes where a
-/// link has none: the bundled da Vinci cart is described by primitives), posed by a RobotState.
+/// link has none), or in the meshes its description's `appearance` dresses it in (the bundled da
+/// Vinci wears the SurRoL PSM's and ECM's: kinematics/appearance.hpp), posed by a RobotState.
 ///
 /// Every actor belongs to a named *group* ("skin", "ribs", "heart", "target:LAD", "cones",
 /// "candidates", "ports", "table", "floor", "robot"), whose colour, opacity and visibility the
@@ -104,6 +105,9 @@ class Scene {
 
   const patient::PatientModel* patient() const;
   const robot::RobotModel* robot() const;
+  /// Why some of the robot's links are drawn in their own shapes rather than the meshes their
+  /// description's `appearance` names (its file missing), one line each.
+  const std::vector<std::string>& robot_notes() const;
   const SceneStyle& style() const;
 
   /// Every group in the scene, in drawing order.
@@ -155,6 +159,12 @@ class Scene {
   /// Places `renderer`'s camera; `scope` adds a light at the camera (the scope tip) and turns
   /// the renderer's automatic lights off.
   static void Apply(const CameraPose& pose, vtkRenderer* renderer, const FrameCamera* scope = nullptr);
+  /// Leaves out of `renderer` the robot shapes on the link that carries `scope`'s frame (and the
+  /// links welded to it) and those whose bounds hold the camera at `pose`, putting back any left
+  /// out for another pose before: a camera at a scope's tip does not see the scope it is in (a
+  /// worn endoscope mesh reaches past the tip).
+  void LeaveOutCarrier(vtkRenderer* renderer, const FrameCamera& scope,
+                       const CameraPose& pose) const;
 
   /// Overlays of an external view (issue #43 item 2): "orientation", a marker of the patient's
   /// head, left and front (arrows and letters in the groups' colours "marker:head",

@@ -153,7 +153,11 @@ TeleopViewStats RunTeleopView(Scene* scene, control::TripleBuffer<control::Sessi
       if (snap.q.size() == robot.num_positions() && kinematics::ForwardKinematics(robot, snap.q, &state).ok()) {
         scene->SetRobotState(state);
         if (options.on_frame) extra = options.on_frame(state);
-        if (options.endoscope) Scene::Apply(scene->OnFrame(*options.endoscope), scope, &*options.endoscope);
+        if (options.endoscope) {
+          const CameraPose pose = scene->OnFrame(*options.endoscope);
+          Scene::Apply(pose, scope, &*options.endoscope);
+          scene->LeaveOutCarrier(scope, *options.endoscope, pose);
+        }
       }
       if (options.pointer_channel >= 0 && options.pointer_channel < static_cast<int>(snap.channels.size()))
         scene->SetPointer(snap.channels[options.pointer_channel].X_WD);

@@ -773,6 +773,7 @@ class Workstation {
       const CameraPose pose = ViewCamera(*scene_, spec, 1.0, plan, &used);
       used.light_intensity = light_;
       Scene::Apply(pose, scope_, &used);
+      scene_->LeaveOutCarrier(scope_, used, pose);
       scope_available_ = true;
       Layout(layout_);
     } catch (const Error& e) {

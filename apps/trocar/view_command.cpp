@@ -119,6 +119,7 @@ int RunView(const ViewOptions& o) {
     std::cout << "motion " << inputs.motion << " fails: " << loaded.failure
               << "; shown at the pose where it fails\n";
   if (loaded.collisions) std::cout << "robot pose: " << viz::Describe(loaded.pose) << "\n";
+  for (const std::string& note : loaded.scene->robot_notes()) std::cout << "note: " << note << "\n";
   return 0;
 }
 

@@ -1,5 +1,7 @@
 #include "robot/load_robot.hpp"
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 
 #include "common/error.hpp"
@@ -116,9 +118,80 @@ JointType ReadJointType(const YamlReader& r, const YAML::Node& node, const std::
 }
 
 const std::initializer_list<const char*> kTopLevelKeys = {
-    "name",      "tool",       "rcm",  "frames", "active_joints", "held_joints", "joint_limits",
-    "closures",  "collision",  "controller", "urdf", "dh", "links", "joints", "include",
-    "home"};
+    "name",         "tool",     "rcm",       "frames",     "active_joints", "held_joints",
+    "joint_limits", "closures", "collision", "controller", "urdf",          "dh",
+    "links",        "joints",   "include",   "home",       "appearance"};
+
+// The sidecar's `appearance:` (robot_defaults.hpp, docs/robot-appearance.md): another
+// description's meshes for some links to wear where drawn. Its file may be missing (the robot is
+// then drawn with its own shapes, and the viewer says so); its names are checked against the
+// dressing description when it is drawn, and against this one here.
+Appearance ReadAppearance(const YamlReader& r, const YAML::Node& node) {
+  r.ExpectMap(node, "appearance", {"urdf", "links", "joints", "tolerance", "tolerances"});
+  Appearance out;
+  out.where = r.file() + ": appearance";
+  out.urdf = JoinPath(ParentDirectory(r.file()),
+                      r.String(r.Require(node, "urdf", "appearance"), "appearance.urdf"));
+  const YAML::Node links = r.Require(node, "links", "appearance");
+  TROCAR_THROW_UNLESS(links.IsMap() && links.size() > 0,
+                      r.Where(links, "appearance.links")
+                          << ": expected a mapping from this robot's links to the links whose "
+                             "meshes they wear");
+  for (const auto& entry : links) {
+    out.links.push_back(
+        {r.String(entry.first, "appearance.links"), r.String(entry.second, "appearance.links")});
+  }
+  const YAML::Node joints = r.Require(node, "joints", "appearance");
+  TROCAR_THROW_UNLESS(joints.IsMap() && joints.size() > 0,
+                      r.Where(joints, "appearance.joints")
+                          << ": expected a mapping from this robot's joints to the joints they "
+                             "drive (a name, or {drives, multiplier, offset})");
+  for (const auto& entry : joints) {
+    Appearance::Drive drive;
+    drive.joint = r.String(entry.first, "appearance.joints");
+    const std::string path = "appearance.joints." + drive.joint;
+    if (entry.second.IsMap()) {
+      r.ExpectMap(entry.second, path, {"drives", "multiplier", "offset"});
+      drive.drives = r.String(r.Require(entry.second, "drives", path), path + ".drives");
+      if (entry.second["multiplier"]) {
+        drive.multiplier = r.Number(entry.second["multiplier"], path + ".multiplier");
+        TROCAR_THROW_UNLESS(std::abs(drive.multiplier) >= 1e-3 && std::abs(drive.multiplier) <= 1e3,
+                            r.Where(entry.second["multiplier"], path + ".multiplier")
+                                << ": expected a magnitude between 0.001 and 1000");
+      }
+      if (entry.second["offset"]) {
+        drive.offset = r.Number(entry.second["offset"], path + ".offset");
+        TROCAR_THROW_UNLESS(std::abs(drive.offset) <= 100.0,
+                            r.Where(entry.second["offset"], path + ".offset")
+                                << ": expected at most 100 (rad or m) either way");
+      }
+    } else {
+      drive.drives = r.String(entry.second, path);
+    }
+    out.joints.push_back(drive);
+  }
+  auto read_tolerance = [&](const YAML::Node& value, const std::string& path) {
+    const double m = r.Number(value, path);
+    TROCAR_THROW_UNLESS(m >= 1e-4 && m <= 0.05, r.Where(value, path)
+                                                    << ": expected 0.0001 to 0.05 m");
+    return m;
+  };
+  if (node["tolerance"]) out.tolerance = read_tolerance(node["tolerance"], "appearance.tolerance");
+  if (node["tolerances"]) {
+    TROCAR_THROW_UNLESS(node["tolerances"].IsMap(),
+                        r.Where(node["tolerances"], "appearance.tolerances")
+                            << ": expected a mapping from links to metres");
+    for (const auto& entry : node["tolerances"]) {
+      const std::string link = r.String(entry.first, "appearance.tolerances");
+      const bool worn = std::any_of(out.links.begin(), out.links.end(),
+                                    [&](const Appearance::Wear& w) { return w.link == link; });
+      TROCAR_THROW_UNLESS(worn, r.Where(entry.first, "appearance.tolerances")
+                                    << ": '" << link << "' wears nothing (appearance.links)");
+      out.tolerances[link] = read_tolerance(entry.second, "appearance.tolerances." + link);
+    }
+  }
+  return out;
+}
 
 // Applies the sidecar fields of `root` to `builder`.
 void ApplySidecar(const YamlReader& r, const YAML::Node& root, RobotModelBuilder* builder,
@@ -216,6 +289,7 @@ void ApplySidecar(const YamlReader& r, const YAML::Node& root, RobotModelBuilder
     }
   }
   if (root["home"]) builder->SetHome(r.Numbers(root["home"], "home"));
+  if (root["appearance"]) builder->AddAppearance(ReadAppearance(r, root["appearance"]));
   if (root["controller"]) {
     const YAML::Node node = root["controller"];
     r.ExpectMap(node, "controller", {"task_gains", "gains"});

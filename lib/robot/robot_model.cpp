@@ -249,6 +249,14 @@ void RobotModelBuilder::Attach(const RobotModelBuilder& other, const std::string
   if (as_base && controller_.task_gains.size() == 0 && controller_.gains.empty()) {
     controller_ = other.controller_;
   }
+  for (Appearance appearance : other.appearances_) {  // worn by the same links, renamed
+    for (auto& wear : appearance.links) wear.link = prefix + wear.link;
+    for (auto& drive : appearance.joints) drive.joint = prefix + drive.joint;
+    std::map<std::string, double> tolerances;
+    for (const auto& [link, m] : appearance.tolerances) tolerances[prefix + link] = m;
+    appearance.tolerances = std::move(tolerances);
+    appearances_.push_back(std::move(appearance));
+  }
   if (!as_base) {
     JointSpec& mount = AddJoint(prefix + "mount");
     mount.type = JointType::kFixed;
@@ -256,6 +264,18 @@ void RobotModelBuilder::Attach(const RobotModelBuilder& other, const std::string
     mount.child = prefix + root;
     mount.X_PJ = X_PC;
   }
+}
+
+void RobotModelBuilder::AddAppearance(Appearance appearance) {
+  for (const auto& wear : appearance.links) {
+    TROCAR_THROW_UNLESS(FindLink(wear.link) != nullptr,
+                        appearance.where << ".links: no link named '" << wear.link << "'");
+  }
+  for (const auto& drive : appearance.joints) {
+    TROCAR_THROW_UNLESS(FindJoint(drive.joint) != nullptr,
+                        appearance.where << ".joints: no joint named '" << drive.joint << "'");
+  }
+  appearances_.push_back(std::move(appearance));
 }
 
 namespace {
@@ -836,6 +856,7 @@ void RobotModelBuilder::SetDefaults(RobotModel* out) const {
     }
   }
   model.defaults_.controller = controller_;
+  model.defaults_.appearances = appearances_;
   auto check_gains = [&](const Eigen::VectorXd& gains, const std::string& field) {
     TROCAR_THROW_UNLESS(gains.size() == 6, src << ": " << field
                                                << ": expected 6 values [wx wy wz vx vy vz], got "

@@ -293,6 +293,8 @@ class RobotModelBuilder {
   ControllerSettings& controller() { return controller_; }
   /// Active joint values (in q order) where sessions start; checked against the limits.
   void SetHome(std::vector<double> home) { home_ = std::move(home); }
+  /// Meshes of another description for some links to wear where drawn (names checked here).
+  void AddAppearance(Appearance appearance);
 
   /// Copies every element of `other` into this description with names prefixed by `prefix`:
   /// links, joints (mimic masters and held flags included), closures, frames; its tool and RCM
@@ -342,6 +344,7 @@ class RobotModelBuilder {
   std::vector<FrameSpec> frames_;
   ControllerSettings controller_;
   std::optional<std::vector<double>> home_;
+  std::vector<Appearance> appearances_;
 };
 
 }  // namespace trocar::robot

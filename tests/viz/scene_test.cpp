@@ -19,6 +19,7 @@
 #include "collision/collision_world.hpp"
 #include "common/error.hpp"
 #include "common/file_util.hpp"
+#include "kinematics/appearance.hpp"
 #include "kinematics/forward_kinematics.hpp"
 #include "patient/patient_model.hpp"
 #include "port_placement/port_rules.hpp"
@@ -310,8 +311,11 @@ TEST(Scene, TheExternalViewLooksAtTheChestPastTheArms) {
 
 TEST(Scene, TheRobotIsDrawnWhereItsForwardKinematicsPutsItOverSeededConfigurations) {
   auto psm = LoadShared("robots/davinci-classic/psm.yaml");
+  const kinematics::Dressing dressing = kinematics::DressRobot(*psm);
+  ASSERT_TRUE(dressing.any()) << "the premise: the PSM wears the SurRoL meshes";
   SceneStyle style = FlatStyle();
   Scene scene(Phantom(), psm, style);
+  EXPECT_TRUE(scene.robot_notes().empty());
   for (const std::string& g : scene.groups())
     if (g != "robot") scene.SetVisible(g, false);
   std::mt19937 rng(7);
@@ -329,14 +333,27 @@ TEST(Scene, TheRobotIsDrawnWhereItsForwardKinematicsPutsItOverSeededConfiguratio
     camera.view_angle_deg = 40;
     const Image image = Render(scene, {{ViewSpec{}, camera}}, w, h);
     const auto blue = Rgb8(style.Colour("robot"));
-    // Every shape's centre lands on a robot pixel; with the robot drawn at another configuration,
-    // most would not.
-    int hits = 0, points = 0;
+    // Every worn mesh's vertices (the SurRoL PSM's, kinematics/appearance.hpp), and every other
+    // shape's centre, land on robot pixels; with the robot drawn at another configuration, or in
+    // its capsules instead of the meshes it wears, many would not.
+    std::vector<std::pair<int, Eigen::Vector3d>> on_link;  // (link, point in the link's frame)
     for (int l = 0; l < psm->num_links(); ++l) {
+      for (const auto& g : dressing.worn[l]) {
+        if (!g.mesh) continue;
+        for (std::size_t v = 0; v < g.mesh->vertices.size(); v += 97)
+          on_link.emplace_back(l, g.X_LG * g.mesh->vertices[v].cwiseProduct(g.mesh_scale));
+      }
+      if (!dressing.worn[l].empty()) continue;
       for (const auto& g : psm->link(l).collisions) {
         if (g.size.x() < 0.01) continue;  // the shaft and jaws: a pixel or two wide
+        on_link.emplace_back(l, g.X_LG.translation());
+      }
+    }
+    int hits = 0, points = 0;
+    for (const auto& [l, p_L] : on_link) {
+      {
         Eigen::Vector2d px;
-        if (!Project(camera, w, h, state.X_WL[l] * g.X_LG.translation(), &px)) continue;
+        if (!Project(camera, w, h, state.X_WL[l] * p_L, &px)) continue;
         const int x = int(px.x()), y = int(px.y());
         if (x < 1 || y < 1 || x >= w - 1 || y >= h - 1) continue;
         ++points;
@@ -346,8 +363,9 @@ TEST(Scene, TheRobotIsDrawnWhereItsForwardKinematicsPutsItOverSeededConfiguratio
         hits += hit;
       }
     }
-    ASSERT_GE(points, 4) << "trial " << trial;
-    EXPECT_EQ(hits, points) << "trial " << trial << ": shape centres off the drawn robot";
+    ASSERT_GE(points, 40) << "trial " << trial;
+    // A vertex on a silhouette's edge may round to the pixel beside it: all but 2 %.
+    EXPECT_GE(hits, points - points / 50) << "trial " << trial << ": points off the drawn robot";
   }
 }
 
