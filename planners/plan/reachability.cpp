@@ -111,6 +111,7 @@ Reachability TargetReachability(const PlanFile& file, const StoredPlan& plan,
       st.samples.assign(along.begin() + i, along.begin() + j + 1);
       st.from_m = file.samples[along[i]].arc_length;
       st.to_m = file.samples[along[j]].arc_length;
+      st.length_m = file.samples[along.back()].arc_length;
       st.reach = r.per_sample[along[i]];
       st.served = st.reach == ReachClass::kServed;
       for (std::size_t a = 0; a < na; ++a) {
@@ -152,14 +153,29 @@ Reachability TargetReachability(const PlanFile& file, std::size_t index, const L
   return TargetReachability(file, file.plans[index], level);
 }
 
-std::string StretchText(const TargetStretch& stretch) {
+std::string AlongTarget(double from_m, double to_m, double length_m) {
   std::ostringstream s;
-  const long from = std::lround(stretch.from_m * 1e3), to = std::lround(stretch.to_m * 1e3);
+  const long from = std::lround(from_m * 1e3), to = std::lround(to_m * 1e3);
   if (from == to)
-    s << from << " mm from its origin";
+    s << from << " mm from its first point";
   else
-    s << from << "–" << to << " mm from its origin";
+    s << from << "–" << to << " mm from its first point";
+  if (length_m > 0.0) {
+    static const char* kThird[] = {"proximal", "middle", "distal"};
+    auto third = [&](double x) { return std::clamp(static_cast<int>(3.0 * x / length_m), 0, 2); };
+    const int a = third(from_m), b = third(to_m);
+    if (a == 0 && b == 2)
+      s << " (its whole length)";
+    else if (a == b)
+      s << " (its " << kThird[a] << " third)";
+    else
+      s << " (its " << kThird[a] << " and " << kThird[b] << " thirds)";
+  }
   return s.str();
+}
+
+std::string StretchText(const TargetStretch& stretch) {
+  return AlongTarget(stretch.from_m, stretch.to_m, stretch.length_m);
 }
 
 }  // namespace trocar::planners

@@ -42,6 +42,7 @@ struct TargetStretch {
   std::string target;
   std::vector<int> samples;              ///< indices into PlanFile::samples, along the target
   double from_m = 0.0, to_m = 0.0;       ///< the samples' arc lengths from the target's first point
+  double length_m = 0.0;                 ///< the target's last sample's arc length
   std::vector<ArmOnStretch> arms;        ///< in the plan file's arm order
   bool served = false;                   ///< every sample of the stretch served
   ReachClass reach = ReachClass::kNone;  ///< the same for every sample of the stretch
@@ -68,7 +69,12 @@ Reachability TargetReachability(const PlanFile& file, std::size_t index,
 Reachability TargetReachability(const PlanFile& file, const StoredPlan& plan,
                                 const LevelText& level = {});
 
-/// "12–48 mm from its origin" (one number for a one-sample stretch).
+/// Where a stretch lies along its target, whose points run from its proximal end (a vessel's
+/// origin; the LIMA from the first rib) and whose samples reach `length_m`: "12–48 mm from its
+/// first point (its proximal third)", one number for a one-sample stretch; the thirds (proximal,
+/// middle, distal) are the surgeon's words for a vessel's segments.
+std::string AlongTarget(double from_m, double to_m, double length_m);
+/// AlongTarget of the stretch.
 std::string StretchText(const TargetStretch& stretch);
 
 }  // namespace trocar::planners

@@ -18,6 +18,7 @@
 #include "collision/collision_world.hpp"
 #include "common/error.hpp"
 #include "patient/patient_model.hpp"
+#include "plan/reachability.hpp"
 #include "port_placement/fixed_ports.hpp"
 #include "port_placement/port_rules.hpp"
 #include "port_placement/remedies.hpp"
@@ -380,15 +381,13 @@ Verdict JudgePlans(const PortPlacementProblem& problem, const std::vector<Ranked
         std::size_t j = i;
         while (j + 1 < idx.size() && !best.served[idx[j + 1]] && reason_of(idx[j + 1]) == why) ++j;
         // Where along the target, and at the level of which intercostal spaces (when the ribs
-        // are numbered): "LIMA 22-67 mm from its origin, at the 2nd to 3rd intercostal spaces".
+        // are numbered): "LIMA 22–67 mm from its first point (its proximal third), at the 2nd to
+        // 3rd intercostal spaces".
         std::ostringstream line;
-        const long from = std::lround(samples[idx[i]].arc_length * 1e3),
-                   to = std::lround(samples[idx[j]].arc_length * 1e3);
-        line << targets[t].name << " ";
-        if (from == to)
-          line << from << " mm from its origin";
-        else
-          line << from << "–" << to << " mm from its origin";
+        double length = 0.0;
+        for (int k : idx) length = std::max(length, samples[k].arc_length);
+        line << targets[t].name << " "
+             << AlongTarget(samples[idx[i]].arc_length, samples[idx[j]].arc_length, length);
         std::vector<Eigen::Vector3d> stretch_W;
         for (std::size_t k = i; k <= j; ++k) stretch_W.push_back(samples[idx[k]].p_W);
         const std::string level = SpacesAtLevel(problem.patient(), stretch_W);

@@ -219,3 +219,41 @@ TEST(TargetReachability, AMotionOfAnotherArmOrSampleIsRefusedNamingIt) {
 
 }  // namespace
 }  // namespace trocar::planners
+
+namespace trocar {
+namespace {
+
+// Where a stretch lies along its target, in a surgeon's words: the distance from the first point
+// and the thirds it covers, each a third of the sampled length.
+TEST(TargetReachability, AStretchIsSaidByItsDistanceAndTheThirdsOfTheVesselItCovers) {
+  EXPECT_EQ(planners::AlongTarget(0.0, 0.057, 0.129),
+            "0–57 mm from its first point (its proximal and middle thirds)");
+  EXPECT_EQ(planners::AlongTarget(0.129, 0.129, 0.129),
+            "129 mm from its first point (its distal third)");
+  EXPECT_EQ(planners::AlongTarget(0.0, 0.129, 0.129),
+            "0–129 mm from its first point (its whole length)");
+  EXPECT_EQ(planners::AlongTarget(0.045, 0.080, 0.150),
+            "45–80 mm from its first point (its proximal and middle thirds)");
+  EXPECT_EQ(planners::AlongTarget(0.055, 0.095, 0.150),
+            "55–95 mm from its first point (its middle third)");
+  EXPECT_EQ(planners::AlongTarget(0.0, 0.0, 0.0), "0 mm from its first point");
+  std::mt19937 rng(5);
+  for (int i = 0; i < 500; ++i) {
+    const double length = std::uniform_real_distribution<double>(0.02, 0.3)(rng);
+    double a = std::uniform_real_distribution<double>(0.0, length)(rng);
+    double b = std::uniform_real_distribution<double>(0.0, length)(rng);
+    if (a > b) std::swap(a, b);
+    const std::string text = planners::AlongTarget(a, b, length);
+    const bool proximal = a < length / 3, distal = b >= 2 * length / 3;
+    EXPECT_EQ(text.find("proximal") != std::string::npos || text.find("whole") != std::string::npos,
+              proximal)
+        << text;
+    EXPECT_EQ(text.find("distal") != std::string::npos || text.find("whole") != std::string::npos,
+              distal)
+        << text;
+    if (!proximal && !distal) EXPECT_NE(text.find("middle third"), std::string::npos) << text;
+  }
+}
+
+}  // namespace
+}  // namespace trocar
