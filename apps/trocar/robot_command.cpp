@@ -7,10 +7,11 @@
 #include "apps/trocar/commands.hpp"
 #include "common/error.hpp"
 #include "common/geometry.hpp"
+#include "kinematics/appearance.hpp"
 #include "kinematics/dh_extraction.hpp"
 #include "kinematics/forward_kinematics.hpp"
-#include "kinematics/start_configuration.hpp"
 #include "kinematics/setup_joints.hpp"
+#include "kinematics/start_configuration.hpp"
 #include "robot/load_robot.hpp"
 
 namespace trocar::apps {
@@ -102,6 +103,28 @@ void PrintGeometrySummary(std::ostream& out, const RobotModel& model) {
   out << "\n";
 }
 
+// The meshes the links wear where drawn (kinematics/appearance.hpp): per appearance its file and,
+// per worn link, how far its mesh is drawn from where its own model puts it over the fitting
+// poses, beside the link's tolerance: what a user writing an `appearance:` sets tolerances from.
+void PrintAppearance(std::ostream& out, const RobotModel& model) {
+  const auto& appearances = model.defaults().appearances;
+  if (appearances.empty()) return;
+  const kinematics::Dressing dressing = kinematics::DressRobot(model);
+  for (const robot::Appearance& a : appearances) {
+    out << "appearance: " << a.links.size() << " links wear the meshes of " << a.urdf << "\n";
+    for (const auto& wear : a.links) {
+      const int l = model.GetLink(wear.link);
+      if (dressing.worn[l].empty()) continue;
+      out << "  " << std::left << std::setw(28) << wear.link << std::right << " wears " << std::left
+          << std::setw(28) << wear.wears << std::right << " drawn within " << std::fixed
+          << std::setprecision(1) << dressing.drift[l] * 1e3 << " mm of its place (at most "
+          << a.ToleranceOf(wear.link) * 1e3 << ")" << std::defaultfloat << std::setprecision(6)
+          << "\n";
+    }
+  }
+  for (const std::string& note : dressing.notes) out << "  note: " << note << "\n";
+}
+
 void PrintInfo(std::ostream& out, const RobotModel& model) {
   int counts[4] = {0, 0, 0, 0};
   for (int j : model.dof_joints()) ++counts[static_cast<int>(model.joint(j).drive)];
@@ -147,6 +170,7 @@ void PrintInfo(std::ostream& out, const RobotModel& model) {
         << FormatVector(RpyFromRotation(frame.X_LF.linear())) << "\n";
   }
   PrintGeometrySummary(out, model);
+  PrintAppearance(out, model);
 
   std::string why_not;
   const auto dh = kinematics::ExtractModifiedDh(model, &why_not);

@@ -53,6 +53,26 @@ TEST(TrocarRobotInfo, DescribesEveryBundledRobot) {
   }
 }
 
+// The meshes a bundled arm wears, per link with its drift and tolerance; a missing appearance
+// file is said, not an error.
+TEST(TrocarRobotInfo, SaysWhichMeshesTheLinksWearAndHowNearTheyFollow) {
+  TROCAR_REQUIRE_SHARED_FILE(test::SharedDataPath("robots/surrol-psm/psm.urdf"));
+  const CommandRun run =
+      Trocar("robot info " + test::SourcePath("robots/davinci-classic/psm.yaml"));
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("appearance: 13 links wear the meshes of "), std::string::npos)
+      << run.output;
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(
+      run.output, m,
+      std::regex("jaw_1_link +wears psm_tool_gripper1_link +drawn within ([0-9.]+) mm "
+                 "of its place \\(at most 2.0\\)")))
+      << run.output;
+  EXPECT_LT(std::stod(m[1].str()), 2.0);
+  EXPECT_NE(run.output.find("pitch_top_link"), std::string::npos);
+  EXPECT_NE(run.output.find("(at most 10.0)"), std::string::npos) << run.output;
+}
+
 TEST(TrocarRobotInfo, PrintsTheDhTableAndTheClosure) {
   const CommandRun pa10 = Trocar("robot info " + test::SourcePath("robots/pa10/pa10.urdf"));
   EXPECT_NE(pa10.output.find("equivalent DH table"), std::string::npos) << pa10.output;
