@@ -1424,18 +1424,22 @@ struct BoneSorting {
       } else if (top_in_view) {
         why << "the top of the rib cage is in the scan but the highest " << name
             << " rib does not meet the manubrium (rib 1 not confirmed): not numbered";
-      } else if (bottom_in_view) {
-        why << "only the bottom of the rib cage is in the scan: counting up from the lowest "
-            << name
-            << " piece is not trusted (transverse processes and the pelvis can pass for ribs, and "
-               "11 "
-               "pairs occur): "
-               "not numbered";
       } else {
-        why << "neither the top of the rib cage nor its bottom (with the lumbar spine) is in the "
-               "scan: "
-               "the "
-            << name << " ribs are not numbered";
+        // What was seen, not what it would mean: a rib piece near the top face is a cut cage's
+        // top, or a collarbone or shoulder blade sorted with the ribs; either way rib 1 cannot
+        // be told (issue #42: the import says why it names no space, truthfully).
+        why << "the highest " << name << " rib piece reaches within "
+            << std::lround(std::max(0.0, scan_top - rib_top) * 1e3)
+            << " mm of the scan's top face (under " << std::lround(o.top_margin * 1e3)
+            << " mm: the rib cage cut there, or a collarbone or shoulder blade taken for a rib), "
+               "so rib 1 cannot be told; ";
+        if (bottom_in_view)
+          why << "counting up from the lowest " << name
+              << " piece is not trusted (transverse processes and the pelvis can pass for ribs, "
+                 "and 11 pairs occur): not numbered";
+        else
+          why << "nor is the bottom of the cage with the lumbar spine below it in the scan: not "
+                 "numbered";
       }
       n.basis = why.str();
       n.numbered = first >= 1 && n.confidence >= 0.5 && first + count - 1 <= 12;
