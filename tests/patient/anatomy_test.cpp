@@ -9,6 +9,7 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <regex>
 #include <set>
 
 #include "common/error.hpp"
@@ -331,6 +332,40 @@ TEST(ShapeAnatomy, PhantomRibsAreFoundAndNotNumberedWithoutAWholeRibCage) {
                   c.centroid_P.x() * 1e3, c.centroid_P.y() * 1e3, c.centroid_P.z() * 1e3);
   std::printf("%s\n%s\n", seg.numbering_left.basis.c_str(), seg.numbering_right.basis.c_str());
 }
+
+// Issue #42: a scan whose ribs cannot be numbered says what was seen. The default phantom's top
+// rib lies 2.5 cm under the scan's top face: the top of the cage is in view (not numbered for
+// want of a manubrium). Cropped so that the top face cuts that rib, the reason names the top face
+// and how near the highest rib comes to it, and claims nothing about the bottom.
+TEST(ShapeAnatomy, ACageCutAtTheTopIsNotNumberedAndTheReasonSaysWhereTheRibsMeetTheTopFace) {
+  const auto ph = patient::GeneratePhantom(patient::PhantomParameters{});
+  const auto whole = patient::Segment(ph.ct);
+  EXPECT_FALSE(whole.numbering_left.numbered);
+  EXPECT_EQ(whole.numbering_left.basis.find("top face"), std::string::npos)
+      << whole.numbering_left.basis;
+  patient::Volume cut = ph.ct;
+  ASSERT_GT(cut.index_to_P(2, 2), 0.0) << "the premise: the phantom's slices run up the body";
+  double rib_top = -HUGE_VAL;
+  for (const auto& rib : ph.truth.ribs)
+    for (const auto& q : rib.centreline) rib_top = std::max(rib_top, q.z());
+  const double dz = cut.index_to_P(2, 2);
+  const double top = cut.origin_P.z() + (cut.size.z() - 1) * dz;
+  const int slices = static_cast<int>(std::ceil((top - (rib_top - 0.004)) / dz));
+  ASSERT_GT(slices, 0);
+  cut.size.z() -= slices;
+  cut.values.resize(static_cast<std::size_t>(cut.voxel_count()));
+  const auto seg = patient::Segment(cut);
+  for (const auto* n : {&seg.numbering_left, &seg.numbering_right}) {
+    EXPECT_FALSE(n->numbered) << n->basis;
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(
+        n->basis, m, std::regex("rib piece reaches within ([0-9]+) mm of the scan's top face")))
+        << n->basis;
+    EXPECT_LE(std::stoi(m[1].str()), 15) << n->basis;
+    EXPECT_EQ(n->basis.find("only the bottom"), std::string::npos) << n->basis;
+  }
+}
+
 }  // namespace
 }  // namespace trocar
 
