@@ -787,6 +787,73 @@ void JoinRibPieces(const Volume& ct, const Eigen::Vector2d& centre, const Anatom
   }
 }
 
+// The sternum is a flat bar of marrow in a thin cortex, and on a coarse slice its cortex reads
+// above the bone threshold only in pieces (lidc-idri-0001: its labelled sternum's median is
+// 146 HU), so its holes are not closed and the ribs' fill finds none. Its cross-section in a slice
+// is convex: a voxel that lies between the sternum's voxels along its row and along its column
+// of the slice (both ends the same piece), inside the body, above `floor` and not in `vessels` (a
+// contrast-filled vessel passing behind the manubrium between its joints), is its marrow.
+long FillSternumSections(const Volume& ct, const Mask& body, const Mask& vessels,
+                         const std::vector<std::uint8_t>& is_sternum, double floor,
+                         std::vector<int>* labels, Mask* bone) {
+  const int axis = AxialAxis(ct);
+  const int u = axis == 0 ? 1 : 0, w = axis == 2 ? 1 : 2;
+  const long stride[3] = {1, ct.size.x(), static_cast<long>(ct.size.x()) * ct.size.y()};
+  const int nu = ct.size[u], nw = ct.size[w];
+  auto sternum_at = [&](long v) {
+    const int l = (*labels)[v];
+    return l > 0 && l < static_cast<int>(is_sternum.size()) && is_sternum[l] ? l : 0;
+  };
+  // Per row (fixed b) and per column (fixed a) of a slice: the first and last sternum voxel and
+  // their label (0 when the two ends differ or there is none).
+  struct Span {
+    int lo = 0, hi = -1, label = 0;
+  };
+  std::vector<Span> rows(nw), cols(nu);
+  long filled = 0;
+  for (int s = 0; s < ct.size[axis]; ++s) {
+    const long base = s * stride[axis];
+    auto at = [&](int a, int b) { return base + a * stride[u] + b * stride[w]; };
+    bool any = false;
+    std::fill(rows.begin(), rows.end(), Span{});
+    std::fill(cols.begin(), cols.end(), Span{});
+    auto extend = [](Span* span, int i, int l) {
+      if (span->hi < span->lo) {
+        *span = {i, i, l};
+      } else {
+        span->hi = i;
+        if (span->label != l) span->label = 0;
+      }
+    };
+    for (int b = 0; b < nw; ++b) {
+      for (int a = 0; a < nu; ++a) {
+        const int l = sternum_at(at(a, b));
+        if (l == 0) continue;
+        any = true;
+        if (rows[b].hi < rows[b].lo || rows[b].label == l || rows[b].label == 0)
+          extend(&rows[b], a, l);
+        extend(&cols[a], b, l);
+      }
+    }
+    if (!any) continue;
+    for (int b = 0; b < nw; ++b) {
+      const Span& r = rows[b];
+      if (r.label == 0) continue;
+      for (int a = r.lo + 1; a < r.hi; ++a) {
+        const Span& c = cols[a];
+        if (c.label != r.label || b <= c.lo || b >= c.hi) continue;
+        const long v = at(a, b);
+        if ((*labels)[v] != 0 || !body.inside[v] || vessels.inside[v] || ct.values[v] <= floor)
+          continue;
+        (*labels)[v] = r.label;
+        bone->inside[v] = 1;
+        ++filled;
+      }
+    }
+  }
+  return filled;
+}
+
 // A rib is a cortical tube; its marrow lies below the bone threshold. In each slice, a hole a
 // rib's cross-section encloses (4-connected voxels inside the body and above `floor`, bounded by
 // that rib alone, at most `max_area` m²) is that rib's.
@@ -987,11 +1054,16 @@ struct BoneSorting {
     }
     pieces = ConnectedComponents(ct, bone, &parts.labels, &region);
     kind.assign(pieces.size() + 1, 0);
-    std::vector<long> column_voxels(pieces.size() + 1, 0), cortical_voxels(pieces.size() + 1, 0);
+    std::vector<long> column_voxels(pieces.size() + 1, 0), cortical_voxels(pieces.size() + 1, 0),
+        seed_voxels(pieces.size() + 1, 0);
     const double cortex_hu = ct.hounsfield ? o.cortical_hu : HUGE_VAL;
+    // Enhanced: the bone threshold lies within the blood's range; a bone piece holds a voxel above
+    // the seed level (AnatomyOptions::enhanced_seed_hu).
+    const bool seeded = ct.hounsfield && seg->contrast && o.enhanced_seed_hu > seg->bone_threshold;
     for (long v = 0; v < static_cast<long>(region.size()); ++v) {
       if (parts.labels[v] != 0 && region[v] == 2) ++column_voxels[parts.labels[v]];
       if (parts.labels[v] != 0 && ct.values[v] > cortex_hu) ++cortical_voxels[parts.labels[v]];
+      if (parts.labels[v] != 0 && ct.values[v] > o.enhanced_seed_hu) ++seed_voxels[parts.labels[v]];
     }
     Release(&thick_bone.inside);
     Release(&region);
@@ -1014,7 +1086,8 @@ struct BoneSorting {
         }
       }
     }
-    double calcified_volume = 0.0, mediastinal_volume = 0.0;
+    double calcified_volume = 0.0, mediastinal_volume = 0.0, axial_volume = 0.0,
+           unseeded_volume = 0.0;
     for (const Component& c : pieces) {
       if (c.volume < min_bone_volume) continue;
       // A fragment: the stubs the column leaves of a rib's neck or a process' tip.
@@ -1039,6 +1112,11 @@ struct BoneSorting {
         if (kind[c.label] == 0) calcified_volume += c.volume;
         continue;
       }
+      if (seeded && seed_voxels[c.label] == 0) {
+        // No voxel above the seed level: contrast in a thin vessel, not a bone's cortex.
+        unseeded_volume += c.volume;
+        continue;
+      }
       const double front = axis.known[s] ? axis.y[s] - o.spine_front : centre.y();
       const double mid_x = axis.known[s] ? axis.x[s] : centre.x();
       const bool midline = (c.min_P.x() < mid_x && c.max_P.x() > mid_x) ||
@@ -1054,8 +1132,24 @@ struct BoneSorting {
           mediastinal_volume += c.volume;
         }
       } else {
-        kind[c.label] = 1;
+        const Eigen::Vector3d extent = c.max_P - c.min_P;
+        const bool along_axis = extent.z() > o.max_rib_axial_ratio * extent.head<2>().maxCoeff();
+        kind[c.label] = along_axis ? 0 : 1;
+        if (along_axis) axial_volume += c.volume;
       }
+    }
+    if (unseeded_volume > 0.0) {
+      std::ostringstream why;
+      why << "bright pieces off the spine with no voxel above " << o.enhanced_seed_hu
+          << " HU, no bone's cortex (contrast in thin vessels: coronary or mammary arteries): "
+          << Ml(unseeded_volume) << ", not bone";
+      seg->anatomy.push_back(why.str());
+    }
+    if (axial_volume > 0.0) {
+      seg->anatomy.push_back(
+          "bright tubes off the midline running along the body's axis, not around it like a rib "
+          "(internal mammary vessels with contrast): " +
+          Ml(axial_volume) + ", not ribs");
     }
 
     if (mediastinal_volume > 0.0) {
@@ -1252,6 +1346,13 @@ struct BoneSorting {
       if (filled > 0)
         seg->anatomy.push_back("rib marrow enclosed by the cortex: " + Ml(filled * voxel_volume) +
                                ", taken into the ribs");
+      std::vector<std::uint8_t> is_sternum(pieces.size() + 1, 0);
+      for (const Component& c : pieces) is_sternum[c.label] = kind[c.label] == 2;
+      const long sternal = FillSternumSections(ct, seg->body, seg->vessels, is_sternum,
+                                               o.marrow_floor_hu, &parts.labels, &bone);
+      if (sternal > 0)
+        seg->anatomy.push_back("sternal marrow between its cortex's pieces in each slice: " +
+                               Ml(sternal * voxel_volume) + ", taken into the sternum");
     }
 
     // Component statistics after growth.
@@ -1480,7 +1581,31 @@ void ClassifyBonesOnce(const Volume& ct, Segmentation* seg, const AnatomyOptions
 void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
                    double min_bone_volume) {
   const double thin = o.raw_cortex_core_radius;
-  if (ct.hounsfield || thin <= 0.0 || thin >= o.raw_vessel_core_radius) {
+  if (ct.hounsfield) {
+    // The state before sorting, but for the bone: taken again at the enhanced level if needed.
+    Mask bone = std::move(seg->bone);
+    Segmentation as_read = *seg;
+    seg->bone = std::move(bone);
+    ClassifyBonesOnce(ct, seg, o, min_bone_volume);
+    const double above = seg->bone_threshold;
+    if (!seg->contrast || !seg->bones.sternum.empty() || seg->bones.ribs_left.empty() ||
+        seg->bones.ribs_right.empty() || o.enhanced_bone_hu <= 0.0 || o.enhanced_bone_hu >= above)
+      return;
+    // Ribs on both sides: the scan covers the front of the chest, where the sternum lies. Its
+    // thin cortex under the blood's brightest: sorted again from the enhanced level.
+    *seg = std::move(as_read);
+    seg->bone_threshold = o.enhanced_bone_hu;
+    seg->bone = Above(ct, seg->body, o.enhanced_bone_hu);
+    ClassifyBonesOnce(ct, seg, o, min_bone_volume);
+    std::ostringstream why;
+    why << "no sternum at the bone threshold (" << above << " HU, above the contrast-filled "
+        << "blood), though ribs of both sides are: bone taken from " << o.enhanced_bone_hu
+        << " HU (a coarse slice's thin cortex), thick blood sorted out by its thickness and "
+        << "pieces without a voxel above " << o.enhanced_seed_hu << " HU by their lack of cortex";
+    seg->anatomy.insert(seg->anatomy.begin(), why.str());
+    return;
+  }
+  if (thin <= 0.0 || thin >= o.raw_vessel_core_radius) {
     ClassifyBonesOnce(ct, seg, o, min_bone_volume);
     return;
   }

@@ -38,6 +38,17 @@ struct AnatomyOptions {
   /// `contrast_bone_ratio` of the bone's volume) takes its bone threshold from the first of these
   /// (HU) instead: thin ribs and coarse slices' partial-volume bone stay in.
   std::vector<double> plain_bone_hu = {250.0};
+  /// A scan with contrast whose bone, at the bone threshold (above the blood), holds ribs on both
+  /// sides but no sternum is sorted again with its bone taken from this level (HU), within the
+  /// blood's range: a coarse slice's thin ribs and sternum read under the blood's brightest
+  /// (lidc-idri-0001's labelled sternum: median 146 HU, 90th percentile 383; its ribs 2-4 under
+  /// 415 at the 90th). Thick blood is sorted out by its thickness as before (0: never).
+  double enhanced_bone_hu = 300.0;
+  /// Below `enhanced_seed_hu` (HU), a rib or sternum piece must hold a voxel above it: a bone's
+  /// cortex reads above it somewhere along its length, where contrast in a vessel too thin to be
+  /// found as a pool (a coronary artery on the heart, a mammary artery) stays at the blood's level
+  /// (docs/decisions.md, stop 68).
+  double enhanced_seed_hu = 450.0;
   double contrast_min_volume = 5e-6;
   double contrast_bone_ratio = 0.1;
   /// Contrast-filled blood is looked for above this (HU; 0 for raw volumes: above the bone
@@ -106,6 +117,12 @@ struct AnatomyOptions {
   double min_rib_volume = 1e-6;
   /// ... or shorter than this (bounding-box diagonal, m; a whole rib is 10-30 cm long).
   double min_rib_length = 0.04;
+  /// A rib runs around the chest, sloping: a piece off the midline whose head-foot extent is
+  /// more than this many times its extent across the axial plane (the larger of left-right and
+  /// front-back) is a vessel along the body's axis (an internal mammary artery or vein with
+  /// contrast, which reads as bright as a thin rib), not a rib. Ribs measured: head-foot 0.4-1.5
+  /// times their axial extent (lidc-idri-0001's labelled ribs and the phantoms').
+  double max_rib_axial_ratio = 3.0;
   /// Pieces of one rib are joined (JoinRibPieces) across a break of up to this angle about the
   /// body's axis (rad; the rib dipping below the threshold), or across any stretch where the rib
   /// would run outside the scan (a crop face), when their ends line up: heights within
