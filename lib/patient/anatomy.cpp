@@ -1148,7 +1148,7 @@ struct BoneSorting {
     if (axial_volume > 0.0) {
       seg->anatomy.push_back(
           "bright tubes off the midline running along the body's axis, not around it like a rib "
-          "(internal mammary vessels with contrast): " +
+          "(a mammary vessel with contrast, a calcified vessel wall): " +
           Ml(axial_volume) + ", not ribs");
     }
 
