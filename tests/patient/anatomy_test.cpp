@@ -1723,11 +1723,10 @@ namespace {
 // 415 at the 90th, so at a bone threshold above the blood (450 HU) the sternum was missing and
 // those ribs with it. Sorted again at the enhanced level (300 HU, thick blood sorted out by its
 // thickness, a bone piece holding a cortex voxel above 450), as the anatomy says, with the
-// sternum's marrow filled
-// between its cortex's pieces: the trocar sternum holds at least 80 % of the labelled sternum's
-// voxels, at least 85 % of its own voxels are the labelled sternum (the rest its rim), and none
-// is the heart, the aorta or another vessel. The ribs' numbers are not compared (not numbered:
-// the collarbones are taken for first ribs, issue #42 item 1).
+// sternum's marrow filled between its cortex's pieces: the trocar sternum holds at least 80 % of
+// the labelled sternum's voxels, at least 85 % of its own voxels are the labelled sternum (the
+// rest its rim), and none is the heart, the aorta or another vessel. The ribs' numbers are not
+// compared (not numbered: the collarbones are taken for first ribs, issue #42 item 1).
 TEST(ShapeAnatomy, TheSternumOfAWholeThoraxContrastCtIsFoundWithoutLabelsAndHoldsNoVessel) {
   // Two sortings of a 512x512x133 scan: Release only (scripts/test's asan_skips: WholeThorax);
   // the same code runs instrumented on the phantoms
