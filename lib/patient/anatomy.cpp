@@ -1582,10 +1582,13 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
                    double min_bone_volume) {
   const double thin = o.raw_cortex_core_radius;
   if (ct.hounsfield) {
-    // The state before sorting, but for the bone: taken again at the enhanced level if needed.
+    // The state before sorting, but for the bone (taken again at the enhanced level if needed)
+    // and the body (the sorting only reads it: not copied, a byte per voxel).
     Mask bone = std::move(seg->bone);
+    Mask body = std::move(seg->body);
     Segmentation as_read = *seg;
     seg->bone = std::move(bone);
+    seg->body = std::move(body);
     ClassifyBonesOnce(ct, seg, o, min_bone_volume);
     const double above = seg->bone_threshold;
     if (!seg->contrast || !seg->bones.sternum.empty() || seg->bones.ribs_left.empty() ||
@@ -1593,7 +1596,9 @@ void ClassifyBones(const Volume& ct, Segmentation* seg, const AnatomyOptions& o,
       return;
     // Ribs on both sides: the scan covers the front of the chest, where the sternum lies. Its
     // thin cortex under the blood's brightest: sorted again from the enhanced level.
+    body = std::move(seg->body);
     *seg = std::move(as_read);
+    seg->body = std::move(body);
     seg->bone_threshold = o.enhanced_bone_hu;
     seg->bone = Above(ct, seg->body, o.enhanced_bone_hu);
     ClassifyBonesOnce(ct, seg, o, min_bone_volume);
