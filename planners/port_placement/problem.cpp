@@ -978,9 +978,21 @@ std::vector<bool> PortPlacementProblem::AimArms(const Placement& placement,
   // An arm in contact is then aimed, in turn, at each target's own centroid, then toward the
   // way it enters (the space's inward normal: straight into the chest, as an instrument is
   // inserted under vision); the first aim free of contacts is kept, else the fewest contacts.
+  // Re-aiming an arm moves its own bodies alone (world_arm_, as InstrumentReaches relies on):
+  // the contacts it has no part in stay as they are. So an arm in none is not re-aimed (no aim
+  // could lower the count), and an aim is judged by the arm's own pairs (Check with the arm),
+  // the full report taken only for an aim kept: the same aims kept as checking everything.
+  const std::vector<collision::Body>& bodies = checker.world().bodies();
   for (std::size_t a = 0; a < arms_.size() && nominal->collision; ++a) {
     const PlanArm& arm = arms_[a];
     const Eigen::Vector3d port = placement.sites[a].p_rcm_W;
+    const int own = world_arm_[a];
+    std::size_t others = 0;  // contacts without a body of this arm
+    if (own >= 0) {
+      for (const collision::Contact& c : nominal->contacts)
+        others += bodies[c.a].arm != own && bodies[c.b].arm != own ? 1 : 0;
+      if (others == nominal->contacts.size()) continue;
+    }
     std::vector<Eigen::Vector3d> aims;  // points to aim at, in the order tried
     for (int t = 0; t < static_cast<int>(patient_->targets.size()); ++t) {
       std::vector<Eigen::Vector3d> points;
@@ -1012,13 +1024,15 @@ std::vector<bool> PortPlacementProblem::AimArms(const Placement& placement,
       if (!ik.converged) continue;
       kinematics::ForwardKinematics(robot, trial.q, &trial);
       checker.SetRobotState(trial);
-      const collision::CollisionReport turned = checker.Check();
-      if (turned.contacts.size() < nominal->contacts.size()) {
-        *nominal = turned;
+      const std::size_t turned =
+          own >= 0 ? others + checker.Check(collision::kAllMovingPairs, own).contacts.size()
+                   : checker.Check().contacts.size();
+      if (turned < nominal->contacts.size()) {
+        *nominal = checker.Check();
         kept = trial;
         kept_ok = true;
       }
-      if (!turned.collision) break;
+      if (turned == 0) break;
     }
     state = kept;
     nominal_ok[a] = kept_ok;
