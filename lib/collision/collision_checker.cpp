@@ -159,12 +159,14 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
     return d.done;
   }
   // An exempt zone: the skin around the instrument's port, the organ around its work site, or
-  // the ribs its cannula leans on at its port (its axis clear of them).
+  // the ribs its cannula leans on at its port (its axis clear of them). A distal link (wrist,
+  // jaws) against its port's ribs has two: it may lean there, as the cannula may, while it works
+  // elsewhere (the start pose of a motion, just inside the port), and touch them at its work site;
+  // either allows the contact.
   const int skin_port = PortPair(w, a, b);
   const int work = skin_port < 0 ? WorkPair(w, *d.work_radius, a, b) : -1;
-  const int seat = skin_port < 0 && work < 0 ? SeatPair(w, a, b) : -1;
-  const int port = skin_port >= 0 ? skin_port : seat;
-  const bool zone = port >= 0 || work >= 0;
+  const int seat = skin_port < 0 ? SeatPair(w, a, b) : -1;
+  const bool zone = skin_port >= 0 || work >= 0 || seat >= 0;
   fcl::CollisionRequestd request(zone ? kPortContacts : 1, zone || d.want_contacts);
   // FCL's own GJK: with libccd (the default) FCL missed shallow capsule–mesh contacts that its
   // distance query saw (tests/collision: ExactMeshQueriesAgreeWithFcl).
@@ -178,31 +180,41 @@ bool Narrowphase(fcl::CollisionObjectd* o1, fcl::CollisionObjectd* o2, void* raw
   contact.cls = cls;
   if (zone) {
     // Touching the skin only within the port's radius is passing through the port; touching the
-    // organ only within the work site's radius is working there.
-    const Eigen::Vector3d& p_W = port >= 0 ? (*d.port_W)[port] : (*d.work_W)[work];
-    const double r = port >= 0 ? (*d.port_radius)[port] : (*d.work_radius)[work];
-    bool outside = false;
-    for (std::size_t i = 0; i < result.numContacts() && !outside; ++i) {
-      const auto& c = result.getContact(i);
-      if ((c.pos - p_W).norm() > r) {
-        outside = true;
-        contact.p_W = c.pos;
-        contact.depth = c.penetration_depth;
+    // organ only within the work site's radius is working there; leaning on the ribs within the
+    // port's radius, the axis clear of the bone, is resting on the port's edge. Each zone in
+    // turn; the contact is allowed by the first that holds it (its point and depth otherwise from
+    // the last tried).
+    auto within = [&](const Eigen::Vector3d& p_W, double r, bool leaning) {
+      for (std::size_t i = 0; i < result.numContacts(); ++i) {
+        const auto& c = result.getContact(i);
+        if ((c.pos - p_W).norm() > r) {
+          contact.p_W = c.pos;
+          contact.depth = c.penetration_depth;
+          return false;
+        }
       }
-    }
-    if (!outside && seat >= 0) {
-      const int r = w.bodies[a].kind == Body::Kind::kRobot ? a : b;
-      const SweptSphereContact axis = AxisCrosses(w, r == a ? *o1 : *o2, r, r == a ? b : a);
-      if (axis.outside) {
-        outside = true;
-        contact.p_W = w.X_pose[r == a ? b : a] * axis.p_M;
-        contact.depth = axis.depth;
+      if (leaning) {
+        const int r_body = w.bodies[a].kind == Body::Kind::kRobot ? a : b;
+        const int f_body = r_body == a ? b : a;
+        const SweptSphereContact axis = AxisCrosses(w, r_body == a ? *o1 : *o2, r_body, f_body);
+        if (axis.outside) {
+          contact.p_W = w.X_pose[f_body] * axis.p_M;
+          contact.depth = axis.depth;
+          return false;
+        }
       }
+      return true;
+    };
+    if (skin_port >= 0 && within((*d.port_W)[skin_port], (*d.port_radius)[skin_port], false)) {
+      ++d.report.port_contacts_allowed;
+      return false;
     }
-    if (!outside) {
-      ++(seat >= 0   ? d.report.seat_contacts_allowed
-         : port >= 0 ? d.report.port_contacts_allowed
-                     : d.report.work_contacts_allowed);
+    if (work >= 0 && within((*d.work_W)[work], (*d.work_radius)[work], false)) {
+      ++d.report.work_contacts_allowed;
+      return false;
+    }
+    if (seat >= 0 && within((*d.port_W)[seat], (*d.port_radius)[seat], true)) {
+      ++d.report.seat_contacts_allowed;
       return false;
     }
   } else if (result.numContacts() > 0) {
@@ -393,26 +405,43 @@ void CollisionChecker::State::CollideRobotFixed(QueryData& d) {
         continue;
       }
       const ShapeInMesh shape = InMesh(w, *o_r, r, f);
+      // The exempt zones as in Narrowphase: the skin's port; else the work site, then the lean
+      // on the port's ribs (a distal link may have both: either allows the contact).
       const int skin_port = PortPair(w, a, b);
       const int work = skin_port < 0 ? WorkPair(w, work_radius, a, b) : -1;
-      const int seat = skin_port < 0 && work < 0 ? SeatPair(w, r, f) : -1;
-      const int port = skin_port >= 0 ? skin_port : seat;
-      const Eigen::Vector3d centre_M =
-          port >= 0   ? Eigen::Vector3d(w.X_pose[f].inverse() * port_W[port])
-          : work >= 0 ? Eigen::Vector3d(w.X_pose[f].inverse() * work_W[work])
-                      : Eigen::Vector3d::Zero();
-      const double exclude = port >= 0 ? port_radius[port] : work >= 0 ? work_radius[work] : -1.0;
-      const SweptSphereContact hit =
-          fast == Convex::Kind::kSweptSphere
-              ? w.mesh[f]->Touches(shape.a_M, shape.b_M, w.convex[r].radius, centre_M, exclude)
-              : w.mesh[f]->BoxTouches(shape.X_MG, w.convex[r].half, centre_M, exclude);
+      const int seat = skin_port < 0 ? SeatPair(w, r, f) : -1;
+      auto touches = [&](const Eigen::Vector3d& centre_W, double exclude) {
+        const Eigen::Vector3d centre_M = w.X_pose[f].inverse() * centre_W;
+        return fast == Convex::Kind::kSweptSphere
+                   ? w.mesh[f]->Touches(shape.a_M, shape.b_M, w.convex[r].radius, centre_M, exclude)
+                   : w.mesh[f]->BoxTouches(shape.X_MG, w.convex[r].half, centre_M, exclude);
+      };
+      // The first zone: its contact decides when no other zone applies.
+      const int first = skin_port >= 0 ? 0 : work >= 0 ? 1 : seat >= 0 ? 2 : -1;
+      SweptSphereContact hit = first == 0   ? touches(port_W[skin_port], port_radius[skin_port])
+                               : first == 1 ? touches(work_W[work], work_radius[work])
+                               : first == 2 ? touches(port_W[seat], port_radius[seat])
+                                            : touches(Eigen::Vector3d::Zero(), -1.0);
       SweptSphereContact axis;
-      if (!hit.outside && hit.excluded && seat >= 0) axis = AxisCrosses(w, *o_r, r, f);
-      if (!hit.outside && !axis.outside) {
-        if (hit.excluded)
-          ++(seat >= 0   ? d.report.seat_contacts_allowed
-             : port >= 0 ? d.report.port_contacts_allowed
-                         : d.report.work_contacts_allowed);
+      if (!hit.outside && hit.excluded && first == 2) axis = AxisCrosses(w, *o_r, r, f);
+      int allowed_by = !hit.outside && !axis.outside && hit.excluded ? first : -1;
+      if (!hit.outside && !axis.outside && !hit.excluded) continue;  // no contact at all
+      if (allowed_by < 0 && first == 1 && seat >= 0) {
+        // Outside the work site: leaning on its port's ribs instead?
+        const SweptSphereContact lean = touches(port_W[seat], port_radius[seat]);
+        SweptSphereContact lean_axis;
+        if (!lean.outside && lean.excluded) lean_axis = AxisCrosses(w, *o_r, r, f);
+        if (!lean.outside && !lean_axis.outside) {
+          allowed_by = 2;
+        } else {
+          hit = lean;
+          axis = lean_axis;
+        }
+      }
+      if (allowed_by >= 0) {
+        ++(allowed_by == 2   ? d.report.seat_contacts_allowed
+           : allowed_by == 0 ? d.report.port_contacts_allowed
+                             : d.report.work_contacts_allowed);
         continue;
       }
       const SweptSphereContact& at = hit.outside ? hit : axis;

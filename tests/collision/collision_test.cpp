@@ -430,6 +430,50 @@ TEST(CollisionWorld, ACannulaMayLeanOnTheRibsOfItsOwnPortButNotPassThroughThem) 
   }
 }
 
+// The two exemptions of an instrument's distal links are each what they say, together: the wrist
+// and jaws (here the shaft's own deepest link) may lean on their port's ribs, axis clear, while
+// they work on a target elsewhere (the motions' start pose: the instrument just inside its port,
+// its work site the sample the motion goes to), and may touch the organ at the target. A
+// checker that judged such a contact by the work site alone called the lean a collision at every
+// start pose whose wrist sits in its rib gap (the verification refused a start the plan's own
+// nominal check had passed).
+TEST(CollisionWorld, AWristLeaningOnItsPortsRibsWhileWorkingElsewhereIsALeanNotACollision) {
+  const auto model = TiltingShaft();
+  for (const bool exact : {true, false}) {
+    SCOPED_TRACE(exact ? "exact" : "fcl");
+    collision::WorldOptions options;
+    options.exact_mesh_queries = exact;
+    options.acm_samples = 0;
+    const auto world = CollisionWorld::Build(RibsAround("ribs"), model, options);
+    const int shaft = world->FindBody("shaft"), ribs = world->FindBody("ribs");
+    ASSERT_TRUE(world->bodies()[shaft].distal);
+    ASSERT_TRUE(world->bodies()[ribs].chest_wall);
+    CollisionChecker checker(world);
+    const Eigen::Vector3d far_target(0.0, 0.0, -0.12);  // 12 cm in, nowhere near the ribs
+    // Leaning on the rib's edge at its own port, its work site far away: allowed, as a lean.
+    checker.SetRobotState(TiltedShaft(*model, 0.0, 50 * M_PI / 180));
+    checker.SetWorkSite(0, far_target, 0.015);
+    auto report = checker.Check();
+    EXPECT_FALSE(report.collision);
+    EXPECT_EQ(report.seat_contacts_allowed, 1);
+    EXPECT_FALSE(checker.InCollision());
+    // Its port 5 cm away: neither exemption holds, a collision.
+    checker.SetPortPosition(0, Eigen::Vector3d(0.05, 0, 0));
+    report = checker.Check();
+    ASSERT_TRUE(report.collision);
+    EXPECT_EQ(report.contacts[0].a, shaft);
+    EXPECT_EQ(report.contacts[0].b, ribs);
+    // Back at its port, tilted until its axis enters the bone: a collision with the work site
+    // far away, as without one.
+    checker.SetRobotState(TiltedShaft(*model, 0.0, 75 * M_PI / 180));
+    checker.SetWorkSite(0, far_target, 0.015);
+    report = checker.Check();
+    ASSERT_TRUE(report.collision);
+    EXPECT_EQ(report.contacts[0].b, ribs);
+    EXPECT_TRUE(checker.InCollision());
+  }
+}
+
 // Over seeded random tilts and offsets in the gap: the checker's verdict is a collision exactly
 // when the shaft's axis enters a rib (sampled every 0.05 mm along it, a reference independent of
 // the hierarchy), and a contact it allows is one the shaft's surface really makes.
