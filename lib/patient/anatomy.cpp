@@ -970,6 +970,7 @@ struct BoneSorting {
     KeepToTheLayer();
     GrowAndMeasure();
     JoinRibs();
+    KeepCollarbonesOut();
     NumberRibs();
   }
 
@@ -1471,6 +1472,122 @@ struct BoneSorting {
     };
     std::sort(parts.ribs_left.begin(), parts.ribs_left.end(), by_height);
     std::sort(parts.ribs_right.begin(), parts.ribs_right.end(), by_height);
+  }
+
+  void KeepCollarbonesOut() {
+    // 5c. A rib articulates with its vertebra; a collarbone, from the manubrium to the shoulder,
+    //     comes nowhere near the spine. Lying over the first rib, it is taken for the highest rib
+    //     when the layer along the rays does not show it outside (arms raised turn it up beside
+    //     the rib): it then blocks the rib-1 anchor, and the "space" between it and rib 1 is
+    //     offered as a port. A piece above the second one that meets the spine (at the first
+    //     rib's height or above) whose nearest approach to the spine exceeds the median of the
+    //     side's pieces by more than `collarbone_spine_excess` is a collarbone, where the side's
+    //     ribs meet the spine at all (their median within `rib_spine_reach`).
+    // A collarbone meets the manubrium at its top: none is looked for without a sternum (a scan
+    // cut below the collarbones, an abdomen, shows ribs' front ends cut off from their heads).
+    if (parts.spine.empty() || parts.sternum.empty() || !(o.collarbone_spine_excess > 0.0)) return;
+    double sternum_top = -HUGE_VAL;
+    for (const Component& c : parts.sternum) sternum_top = std::max(sternum_top, c.max_P.z());
+    int max_label = 0;
+    for (const Component& c : parts.spine) max_label = std::max(max_label, c.label);
+    for (const auto* ribs : {&parts.ribs_left, &parts.ribs_right})
+      for (const Component& c : *ribs) max_label = std::max(max_label, c.label);
+    // role: -1 spine, r + 1 for the r-th rib piece of `all`.
+    std::vector<int> role(static_cast<std::size_t>(max_label) + 1, 0);
+    for (const Component& c : parts.spine) role[c.label] = -1;
+    std::vector<const Component*> all;
+    for (const auto* ribs : {&parts.ribs_left, &parts.ribs_right}) {
+      for (const Component& c : *ribs) {
+        all.push_back(&c);
+        role[c.label] = static_cast<int>(all.size());
+      }
+    }
+    auto role_at = [&](long v) {
+      const int l = parts.labels[v];
+      return l > 0 && l <= max_label ? role[l] : 0;
+    };
+    // The spine's centroid in each slice (slices with a few of its voxels only).
+    const int nz = ct.size.z();
+    std::vector<Eigen::Vector2d> spine_sum(nz, Eigen::Vector2d::Zero());
+    std::vector<long> spine_count(nz, 0);
+    for (int k = 0; k < nz; ++k) {
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          if (role_at(ct.Index(i, j, k)) != -1) continue;
+          spine_sum[k] += ct.PatientPoint(i, j, k).head<2>();
+          ++spine_count[k];
+        }
+      }
+    }
+    const long min_spine_voxels = std::max<long>(
+        1, std::lround(2e-7 / voxel_volume));  // 0.2 ml: a slice through a vertebra holds more
+    std::vector<double> approach(all.size(), HUGE_VAL);
+    for (int k = 0; k < nz; ++k) {
+      if (spine_count[k] < min_spine_voxels) continue;
+      const Eigen::Vector2d spine = spine_sum[k] / static_cast<double>(spine_count[k]);
+      for (int j = 0; j < ct.size.y(); ++j) {
+        for (int i = 0; i < ct.size.x(); ++i) {
+          const int r = role_at(ct.Index(i, j, k));
+          if (r <= 0) continue;
+          double& a = approach[static_cast<std::size_t>(r - 1)];
+          a = std::min(a, (ct.PatientPoint(i, j, k).head<2>() - spine).norm());
+        }
+      }
+    }
+    auto approach_of = [&](const Component& c) { return approach[role[c.label] - 1]; };
+    for (int side : {+1, -1}) {
+      auto& ribs = side > 0 ? parts.ribs_left : parts.ribs_right;
+      std::vector<double> finite;
+      for (const Component& c : ribs)
+        if (std::isfinite(approach_of(c))) finite.push_back(approach_of(c));
+      if (finite.size() < 3) continue;
+      const double median = Median(&finite);
+      if (median > o.rib_spine_reach) continue;  // these ribs do not reach the spine in the scan
+      // The pieces above the second one that meets the spine (highest first), at the first
+      // rib's height or above, that do not meet it: collarbones.
+      auto meets = [&](const Component& c) {
+        return std::isfinite(approach_of(c)) &&
+               approach_of(c) <= median + o.collarbone_spine_excess;
+      };
+      std::size_t second = 0;
+      for (int seen = 0; second < ribs.size(); ++second) {
+        if (meets(ribs[second]) && ++seen == 2) break;
+      }
+      std::vector<int> moved;
+      double moved_volume = 0.0, farthest = 0.0;
+      for (std::size_t r = 0; r < std::min(second, ribs.size()); ++r) {
+        // ... rising to the manubrium's top or above it, toward the shoulder.
+        if (meets(ribs[r]) || !std::isfinite(approach_of(ribs[r])) ||
+            ribs[r].max_P.z() < sternum_top - o.collarbone_sternum_margin)
+          continue;
+        moved.push_back(ribs[r].label);
+        moved_volume += ribs[r].volume;
+        farthest = std::max(farthest, approach_of(ribs[r]));
+        if (ribs[r].label < static_cast<int>(kind.size())) kind[ribs[r].label] = 4;
+      }
+      ribs.erase(std::remove_if(ribs.begin(), ribs.end(),
+                                [&](const Component& c) {
+                                  return std::find(moved.begin(), moved.end(), c.label) !=
+                                         moved.end();
+                                }),
+                 ribs.end());
+      const double first_approach = farthest, others_median = median;
+      if (moved.empty()) continue;
+      for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
+        const int l = parts.labels[v];
+        if (l != 0 && std::find(moved.begin(), moved.end(), l) != moved.end())
+          seg->shoulder.inside[v] = 1;
+      }
+      std::ostringstream s;
+      s << moved.size() << " " << (side > 0 ? "left" : "right") << " rib-like piece"
+        << (moved.size() == 1 ? "" : "s") << " at the first rib's height or above, up to "
+        << std::lround(first_approach * 1e3)
+        << " mm from the spine where the side's ribs come within "
+        << std::lround(others_median * 1e3)
+        << " mm (median; a rib meets its vertebra): collarbone, " << Ml(moved_volume)
+        << ", kept out of the ribs";
+      seg->anatomy.push_back(s.str());
+    }
   }
 
   void NumberRibs() {

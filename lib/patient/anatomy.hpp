@@ -140,6 +140,19 @@ struct AnatomyOptions {
   /// more than `rib_stack_gap` (m) above or below the stack of most pieces (then most volume) are
   /// other bone (a femur, the sacrum, lumbar processes in an abdominal scan), not ribs.
   double rib_stack_gap = 0.04;
+  /// A rib articulates with its vertebra; a collarbone runs from the manubrium to the shoulder,
+  /// far from the spine. The highest piece of a side whose nearest approach to the spine (the
+  /// spine's centroid in each of its slices) exceeds the median approach of the side's other
+  /// pieces by more than this (m) is a collarbone, not rib 1 (KeepCollarbonesOut; 0: off).
+  /// Judged only where the side's other pieces do meet the spine, their median approach within
+  /// `rib_spine_reach` (m: a rib's head lies against its vertebra's body, whose half-width is
+  /// 15-20 mm; a scan cropped to the heart or the abdomen shows ribs that do not reach it).
+  /// Measured on lidc-idri-0001: its 20 rib pieces come within 21-29 mm of the spine's centroid,
+  /// its left collarbone 62 mm; the phantoms' ribs 37-40 mm, all alike.
+  /// A collarbone also meets the manubrium at its top and rises toward the shoulder: it is
+  /// looked for only with a sternum found, and reaches at least this far below the sternum's top
+  /// (m; lidc-idri-0001's left collarbone rises 35 mm above it).
+  double collarbone_spine_excess = 0.02, rib_spine_reach = 0.035, collarbone_sternum_margin = 0.01;
   /// Numbering: the top of the rib cage is in view when the scan reaches this far above the
   /// highest rib; the bottom when the spine continues this far below the lowest rib (m).
   double top_margin = 0.015, bottom_spine = 0.03;
