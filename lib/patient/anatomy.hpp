@@ -141,10 +141,11 @@ struct AnatomyOptions {
   /// other bone (a femur, the sacrum, lumbar processes in an abdominal scan), not ribs.
   double rib_stack_gap = 0.04;
   /// A rib articulates with its vertebra; a collarbone runs from the manubrium to the shoulder,
-  /// far from the spine. The highest piece of a side whose nearest approach to the spine (the
-  /// spine's centroid in each of its slices) exceeds the median approach of the side's other
-  /// pieces by more than this (m) is a collarbone, not rib 1 (KeepCollarbonesOut; 0: off).
-  /// Judged only where the side's other pieces do meet the spine, their median approach within
+  /// far from the spine. A piece of a side at the first rib's height or above (above the second
+  /// piece that meets the spine) whose nearest approach to the spine (the spine's centroid in
+  /// each of its slices) exceeds the median approach of the side's pieces by more than this (m)
+  /// is a collarbone, not rib 1 (KeepCollarbonesOut; 0: off).
+  /// Judged only where the side's pieces do meet the spine, their median approach within
   /// `rib_spine_reach` (m: a rib's head lies against its vertebra's body, whose half-width is
   /// 15-20 mm; a scan cropped to the heart or the abdomen shows ribs that do not reach it).
   /// Measured on lidc-idri-0001: its 20 rib pieces come within 21-29 mm of the spine's centroid,
