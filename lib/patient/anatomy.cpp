@@ -1571,7 +1571,6 @@ struct BoneSorting {
                                          moved.end();
                                 }),
                  ribs.end());
-      const double first_approach = farthest, others_median = median;
       if (moved.empty()) continue;
       for (long v = 0; v < static_cast<long>(parts.labels.size()); ++v) {
         const int l = parts.labels[v];
@@ -1581,11 +1580,9 @@ struct BoneSorting {
       std::ostringstream s;
       s << moved.size() << " " << (side > 0 ? "left" : "right") << " rib-like piece"
         << (moved.size() == 1 ? "" : "s") << " at the first rib's height or above, up to "
-        << std::lround(first_approach * 1e3)
-        << " mm from the spine where the side's ribs come within "
-        << std::lround(others_median * 1e3)
-        << " mm (median; a rib meets its vertebra): collarbone, " << Ml(moved_volume)
-        << ", kept out of the ribs";
+        << std::lround(farthest * 1e3) << " mm from the spine where the side's ribs come within "
+        << std::lround(median * 1e3) << " mm (median; a rib meets its vertebra): collarbone, "
+        << Ml(moved_volume) << ", kept out of the ribs";
       seg->anatomy.push_back(s.str());
     }
   }

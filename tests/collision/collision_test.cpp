@@ -382,13 +382,15 @@ robot::RobotState TiltedShaft(const robot::RobotModel& model, double x, double t
   return state;
 }
 
-// The tilting shaft between the two ribs, on the exact path or FCL's.
+// The tilting shaft between the two boxes (named `name`: "ribs" is the chest wall), on the exact
+// path or FCL's.
 std::shared_ptr<const CollisionWorld> SeatWorld(
-    const std::shared_ptr<const robot::RobotModel>& model, bool exact) {
+    const std::shared_ptr<const robot::RobotModel>& model, bool exact,
+    const std::string& name = "ribs") {
   collision::WorldOptions options;
   options.exact_mesh_queries = exact;
   options.acm_samples = 0;
-  return CollisionWorld::Build(RibsAround("ribs"), model, options);
+  return CollisionWorld::Build(RibsAround(name), model, options);
 }
 
 // The same lean while the instrument works on a target elsewhere (`working`): the shaft is its
@@ -442,10 +444,7 @@ TEST(CollisionWorld, ACannulaMayLeanOnTheRibsOfItsOwnPortButNotPassThroughThem) 
     EXPECT_TRUE(checker.InCollision());
     // The same boxes as another organ (not the chest wall): the lean is a collision.
     if (working) continue;
-    collision::WorldOptions options;
-    options.exact_mesh_queries = exact;
-    options.acm_samples = 0;
-    const auto organ = CollisionWorld::Build(RibsAround("heart"), model, options);
+    const auto organ = SeatWorld(model, exact, "heart");
     EXPECT_FALSE(organ->bodies()[organ->FindBody("heart")].chest_wall);
     CollisionChecker on_organ(organ);
     on_organ.SetRobotState(TiltedShaft(*model, 0.0, 50 * M_PI / 180));
