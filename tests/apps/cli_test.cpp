@@ -623,6 +623,12 @@ TEST(TrocarPlan, WritesAPlanThatCheckConfirmsAndCatchesATamperedOne) {
     EXPECT_EQ(b.at("plan").at("ports").size(), 3u);
     EXPECT_TRUE(b.at("plan").contains("verification"));
     EXPECT_TRUE(b.at("verdict").contains("verified"));
+    // Its unserved stretches are said without what would reach them: the optimised plans beside
+    // it are that answer (docs/decisions.md, "The baseline's verdict without remedies").
+    for (const auto& r : b.at("verdict").at("reasons")) {
+      EXPECT_EQ(r.get<std::string>().find("(the plan would serve "), std::string::npos) << r;
+      EXPECT_EQ(r.get<std::string>().find("no port one space up or down"), std::string::npos) << r;
+    }
     EXPECT_NE(plan.output.find("plan 1 against the template"), std::string::npos) << plan.output;
     // The anatomical selection criteria beside the verdict, with their comparison.
     ASSERT_EQ(doc.at("selection_criteria").at("criteria").size(), 4u);
