@@ -224,8 +224,8 @@ class PlanCommand {
       b.why_not = baseline_why_not;
     } else {
       // Its verdict names its unserved stretches and why, without what would reach them: the
-      // optimised plans beside it are that answer (the remedies' search cost a fifth of the
-      // whole command on the bundled default's template, docs/decisions.md). Given ports
+      // optimised plans beside it are that answer (the template's remedies were a tenth of a
+      // one-thread run on the bundled default, docs/decisions.md). Given ports
       // planned as the answer (--ports) keep theirs.
       planners::PortPlacementOptions baseline_options = o_.optimizer;
       baseline_options.remedies = false;

@@ -27,11 +27,15 @@ std::string LabelScratch(const std::string& name) {
 }
 
 // A case of the CT `ct` with the label map `seg` (and `more` lines of patient.yaml), imported.
-patient::PatientModel ImportLabelledCase(const std::string& name, const std::string& ct,
-                                         const std::string& seg, const std::string& more) {
+patient::ImportedPatient ImportLabelled(const std::string& name, const std::string& ct,
+                                        const std::string& seg, const std::string& more) {
   const std::string dir = LabelScratch(name);
   WriteFileAtomically(dir + "/patient.yaml", "ct: " + ct + "\nlabels: " + seg + "\n" + more);
-  return patient::ImportPatient(dir, {false, false});
+  return patient::ImportCase(dir, {false, false});
+}
+patient::PatientModel ImportLabelledCase(const std::string& name, const std::string& ct,
+                                         const std::string& seg, const std::string& more) {
+  return *ImportLabelled(name, ct, seg, more).model;
 }
 
 std::string ErrorOf(const std::function<void()>& f) { return test::ErrorMessage(f, "(no error)"); }
@@ -261,10 +265,8 @@ TEST(LabelMap, AWholeThoraxsSpacesLieBetweenTheLabelledRibsOfTheirNumber) {
   const std::string ct = test::SharedDataPath("ct/lidc-idri-0001/ct.nii.gz");
   const std::string seg = test::SharedDataPath("ct/lidc-idri-0001/totalseg_labels.nii.gz");
   TROCAR_REQUIRE_SHARED_FILE(seg);
-  const std::string case_dir = LabelScratch("lidc_idri_0001");
-  WriteFileAtomically(case_dir + "/patient.yaml", "ct: " + ct + "\nlabels: " + seg +
-                                                      "\nintercostal: {left: true, right: true}\n");
-  const patient::ImportedPatient imported = patient::ImportCase(case_dir, {false, false});
+  const patient::ImportedPatient imported =
+      ImportLabelled("lidc_idri_0001", ct, seg, "intercostal: {left: true, right: true}\n");
   const patient::PatientModel& m = *imported.model;
   ASSERT_NE(m.Find("sternum"), nullptr);
   // The map lies on its own CT: its overlap is measured and said, and nothing is warned (the
